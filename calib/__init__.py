@@ -1,0 +1,1 @@
+"""Camera calibration to the ground plane."""

@@ -1,0 +1,3 @@
+"""follow: monocular person following for mobile robots."""
+
+__version__ = "0.1.0"

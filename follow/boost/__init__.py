@@ -1,0 +1,1 @@
+"""Online boosting and the target identification state machine."""

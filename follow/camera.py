@@ -1,0 +1,340 @@
+"""Pinhole camera with OpenCV distortion, mounted on the robot over a flat floor.
+
+Frames: `base` is x forward, y left, z up, origin on the floor under the robot; the
+camera frame is OpenCV's (x right, y down, z forward). The camera's pose in `base` is
+given by its height over the floor, its offsets, and yaw/pitch/roll, where positive
+pitch tilts the optical axis down towards the floor and positive roll turns the image
+clockwise as seen from behind the camera (rotation about the forward axis).
+
+The ground plane is z = 0 in `base`. A pixel on or above the horizon has no ground
+point: back-projection returns NaN for it (and `ground_point` returns None) rather
+than a point behind the camera.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+# Camera axes expressed in `base` for zero yaw/pitch/roll: x_cam = -y_base,
+# y_cam = -z_base, z_cam = +x_base (columns are the camera axes).
+_BASE_FROM_CAM_LEVEL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+_HORIZON_EPS = 1e-9
+
+
+class CameraFileError(ValueError):
+    """A camera file that cannot be read: the message names the file and the field."""
+
+
+def _rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Where the camera sits on the robot (in `base`)."""
+
+    height_m: float
+    pitch_rad: float = 0.0
+    roll_rad: float = 0.0
+    yaw_rad: float = 0.0
+    x_m: float = 0.0
+    y_m: float = 0.0
+
+    def rotation_base_from_cam(self) -> np.ndarray:
+        # Positive pitch = nose down = rotation about +y_base by +pitch.
+        body = _rot_z(self.yaw_rad) @ _rot_y(self.pitch_rad) @ _rot_x(self.roll_rad)
+        return body @ _BASE_FROM_CAM_LEVEL
+
+    def position_base(self) -> np.ndarray:
+        return np.array([self.x_m, self.y_m, self.height_m])
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics, distortion, image size and mounting pose of one camera."""
+
+    K: np.ndarray  # (3, 3)
+    dist: np.ndarray  # OpenCV coefficients: 0, 4, 5 or 8 of (k1, k2, p1, p2, k3, k4, k5, k6)
+    image_size: tuple[int, int]  # (width, height) in pixels
+    pose: CameraPose
+    _R: np.ndarray = field(init=False, repr=False, compare=False)
+    _t: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        K = np.asarray(self.K, dtype=np.float64)
+        if K.shape != (3, 3) or not np.isfinite(K).all():
+            raise ValueError(f"camera K must be a finite 3x3 matrix, got {K.tolist()}")
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise ValueError(f"camera focal lengths must be positive, got {K[0, 0]}, {K[1, 1]}")
+        dist = np.asarray(self.dist, dtype=np.float64).ravel()
+        if dist.size not in (0, 4, 5, 8) or not np.isfinite(dist).all():
+            raise ValueError(
+                f"camera distortion must hold 0, 4, 5 or 8 finite values, got {dist.tolist()}"
+            )
+        w, h = (int(v) for v in self.image_size)
+        if w <= 0 or h <= 0:
+            raise ValueError(f"camera image_size must be positive, got {self.image_size}")
+        if not (self.pose.height_m > 0 and math.isfinite(self.pose.height_m)):
+            raise ValueError(f"camera height_m must be positive, got {self.pose.height_m}")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", dist)
+        object.__setattr__(self, "image_size", (w, h))
+        object.__setattr__(self, "_R", self.pose.rotation_base_from_cam())
+        object.__setattr__(self, "_t", self.pose.position_base())
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_fov(
+        cls,
+        image_size: tuple[int, int],
+        horizontal_fov_deg: float,
+        pose: CameraPose,
+        dist: np.ndarray | None = None,
+    ) -> CameraModel:
+        """An ideal camera with square pixels and the principal point at the centre."""
+        w, h = image_size
+        f = (w / 2.0) / math.tan(math.radians(horizontal_fov_deg) / 2.0)
+        K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+        return cls(K, np.zeros(0) if dist is None else dist, (w, h), pose)
+
+    def scaled(self, width: int, height: int) -> CameraModel:
+        """The same camera for an image resized to `width` x `height`.
+
+        Pixel centres sit at integer coordinates (OpenCV), so u' = (u + 0.5) * s - 0.5.
+        """
+        sx, sy = width / self.image_size[0], height / self.image_size[1]
+        K = self.K.copy()
+        K[0, 0] *= sx
+        K[0, 1] *= sx
+        K[1, 1] *= sy
+        K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+        K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+        return CameraModel(K, self.dist.copy(), (int(width), int(height)), self.pose)
+
+    def with_pose(self, pose: CameraPose) -> CameraModel:
+        return CameraModel(self.K.copy(), self.dist.copy(), self.image_size, pose)
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def rotation_base_from_cam(self) -> np.ndarray:
+        return self._R
+
+    @property
+    def position_base(self) -> np.ndarray:
+        return self._t
+
+    def base_to_camera(self, points_base: np.ndarray) -> np.ndarray:
+        """Points (N, 3) in `base` to the camera frame."""
+        return (np.asarray(points_base, dtype=np.float64) - self._t) @ self._R
+
+    def project(self, points_base: np.ndarray) -> np.ndarray:
+        """Project points (N, 3) or (3,) in `base` to pixels (N, 2) or (2,).
+
+        Points at or behind the camera plane project to NaN.
+        """
+        pts = np.asarray(points_base, dtype=np.float64)
+        single = pts.ndim == 1
+        pc = self.base_to_camera(np.atleast_2d(pts))
+        z = pc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xn = np.where(z > _HORIZON_EPS, pc[:, 0] / z, np.nan)
+            yn = np.where(z > _HORIZON_EPS, pc[:, 1] / z, np.nan)
+        uv = self._distort_to_pixels(xn, yn)
+        return uv[0] if single else uv
+
+    def _distort_to_pixels(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        d = np.zeros(8)
+        d[: self.dist.size] = self.dist
+        k1, k2, p1, p2, k3, k4, k5, k6 = d
+        if self.dist.size:
+            r2 = x * x + y * y
+            radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+            xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+            yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        else:
+            xd, yd = x, y
+        K = self.K
+        return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=-1)
+
+    def pixel_rays_base(self, pixels: np.ndarray) -> np.ndarray:
+        """Unit viewing rays (N, 3) in `base` through undistorted pixels (N, 2)."""
+        px = np.atleast_2d(np.asarray(pixels, dtype=np.float64)).reshape(-1, 1, 2)
+        if self.dist.size:
+            norm = cv2.undistortPoints(
+                px, self.K, self.dist,
+                criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10),
+            ).reshape(-1, 2)  # fmt: skip
+        else:
+            Kinv = np.linalg.inv(self.K)
+            norm = px.reshape(-1, 2) @ Kinv[:2, :2].T + Kinv[:2, 2]
+        rays_cam = np.column_stack([norm, np.ones(len(norm))])
+        rays = rays_cam @ self._R.T
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+    def back_project_to_plane(self, pixels: np.ndarray, plane_height_m: float) -> np.ndarray:
+        """Intersect the rays through pixels (N, 2) or (2,) with the plane z = height.
+
+        Returns (N, 3) or (3,) points in `base`; NaN where the ray never reaches the
+        plane in front of the camera (e.g. a ground pixel on or above the horizon).
+        """
+        pix = np.asarray(pixels, dtype=np.float64)
+        single = pix.ndim == 1
+        rays = self.pixel_rays_base(pix)
+        dz = rays[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (plane_height_m - self._t[2]) / dz
+        ok = np.isfinite(t) & (t > 0) & (np.abs(dz) > _HORIZON_EPS)
+        pts = np.where(ok[:, None], self._t + t[:, None] * rays, np.nan)
+        return pts[0] if single else pts
+
+    def back_project_to_ground(self, pixels: np.ndarray) -> np.ndarray:
+        """Ground points (N, 2) or (2,) in `base` seen at pixels; NaN above the horizon."""
+        pts = self.back_project_to_plane(pixels, 0.0)
+        return pts[..., :2]
+
+    def ground_point(self, pixel: np.ndarray) -> np.ndarray | None:
+        """The ground point (2,) under one pixel, or None if it is on or above the horizon."""
+        p = self.back_project_to_ground(np.asarray(pixel, dtype=np.float64).reshape(2))
+        return None if np.isnan(p).any() else p
+
+    def is_below_horizon(self, pixels: np.ndarray) -> np.ndarray:
+        """True for pixels whose viewing ray meets the floor in front of the camera."""
+        return self.pixel_rays_base(pixels)[:, 2] < -_HORIZON_EPS
+
+    def horizon_line(self) -> np.ndarray | None:
+        """The horizon as a line (a, b, c) with a*u + b*v + c = 0 in undistorted pixels,
+        normalised so that a*u + b*v + c > 0 below the horizon; None if the camera looks
+        straight down (no horizon)."""
+        n_cam = self._R.T @ np.array([0.0, 0.0, 1.0])  # floor normal in the camera frame
+        line = np.linalg.inv(self.K).T @ n_cam
+        if np.hypot(line[0], line[1]) < 1e-12:
+            return None
+        # Rays pointing down have n_cam . ray < 0, so flip to make "below" positive.
+        return -line / np.hypot(line[0], line[1])
+
+    def in_image(self, pixels: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
+        """True for pixels (N, 2) inside the image, `margin_px` away from its border."""
+        p = np.atleast_2d(np.asarray(pixels, dtype=np.float64))
+        w, h = self.image_size
+        return (
+            np.isfinite(p).all(axis=1)
+            & (p[:, 0] >= -0.5 + margin_px)
+            & (p[:, 0] <= w - 0.5 - margin_px)
+            & (p[:, 1] >= -0.5 + margin_px)
+            & (p[:, 1] <= h - 0.5 - margin_px)
+        )
+
+    # ------------------------------------------------------------------ files
+    def to_dict(self) -> dict:
+        p = self.pose
+        return {
+            "image_width": self.image_size[0],
+            "image_height": self.image_size[1],
+            "camera_matrix": self.K.tolist(),
+            "distortion": self.dist.tolist(),
+            "pose": {
+                "height_m": p.height_m,
+                "pitch_rad": p.pitch_rad,
+                "roll_rad": p.roll_rad,
+                "yaw_rad": p.yaw_rad,
+                "x_m": p.x_m,
+                "y_m": p.y_m,
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "camera file") -> CameraModel:
+        if not isinstance(data, dict):
+            raise CameraFileError(f"{source}: expected a mapping at the top level")
+
+        def need(mapping: dict, key: str, where: str):
+            if key not in mapping:
+                raise CameraFileError(f"{source}: missing field '{where}{key}'")
+            return mapping[key]
+
+        def number(mapping: dict, key: str, where: str = "", default=None) -> float:
+            value = mapping.get(key, default) if default is not None else need(mapping, key, where)
+            try:
+                out = float(value)
+            except (TypeError, ValueError):
+                raise CameraFileError(
+                    f"{source}: field '{where}{key}' must be a number, got {value!r}"
+                ) from None
+            if not math.isfinite(out):
+                raise CameraFileError(f"{source}: field '{where}{key}' is not finite")
+            return out
+
+        width = number(data, "image_width")
+        height = number(data, "image_height")
+        try:
+            K = np.asarray(need(data, "camera_matrix", ""), dtype=np.float64)
+        except (TypeError, ValueError):
+            raise CameraFileError(f"{source}: field 'camera_matrix' is not numeric") from None
+        if K.shape != (3, 3):
+            raise CameraFileError(f"{source}: field 'camera_matrix' must be 3x3, got {K.shape}")
+        try:
+            dist = np.asarray(data.get("distortion", []), dtype=np.float64).ravel()
+        except (TypeError, ValueError):
+            raise CameraFileError(f"{source}: field 'distortion' is not numeric") from None
+        pose_data = need(data, "pose", "")
+        if not isinstance(pose_data, dict):
+            raise CameraFileError(f"{source}: field 'pose' must be a mapping")
+        pose = CameraPose(
+            height_m=number(pose_data, "height_m", "pose."),
+            pitch_rad=number(pose_data, "pitch_rad", "pose."),
+            roll_rad=number(pose_data, "roll_rad", "pose.", 0.0),
+            yaw_rad=number(pose_data, "yaw_rad", "pose.", 0.0),
+            x_m=number(pose_data, "x_m", "pose.", 0.0),
+            y_m=number(pose_data, "y_m", "pose.", 0.0),
+        )
+        try:
+            return cls(K, dist, (int(width), int(height)), pose)
+        except ValueError as exc:
+            raise CameraFileError(f"{source}: {exc}") from None
+
+    def save(self, path: str | Path) -> None:
+        """Write YAML (.yaml/.yml) or JSON (anything else)."""
+        path = Path(path)
+        data = self.to_dict()
+        if path.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            path.write_text(yaml.safe_dump(data, sort_keys=False))
+        else:
+            path.write_text(json.dumps(data, indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path) -> CameraModel:
+        path = Path(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise CameraFileError(f"camera file {path}: cannot read ({exc.strerror})") from None
+        try:
+            if path.suffix.lower() in (".yaml", ".yml"):
+                import yaml
+
+                data = yaml.safe_load(text)
+            else:
+                data = json.loads(text)
+        except Exception as exc:  # yaml and json raise different types
+            raise CameraFileError(f"camera file {path}: not valid YAML/JSON ({exc})") from None
+        return cls.from_dict(data, source=f"camera file {path}")

@@ -1,0 +1,1 @@
+"""Convolutional channel features for appearance."""

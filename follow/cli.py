@@ -1,0 +1,107 @@
+"""The `follow` command line.
+
+Each command lives in its own module, which provides `add_arguments(parser)` and
+`main(args) -> dict | None`. With `--json`, the dict the command returns is printed as
+one JSON object on the last line of output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import logging
+import sys
+
+# (command, subcommand or None) -> (module, one-line help)
+COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
+    ("run", None): ("follow.pipeline", "follow a person: camera or video in, base commands out"),
+    ("demo", None): ("follow.sim.demo", "the whole stack on a simulated robot (no downloads)"),
+    ("eval", "localization"): ("follow.eval.localization", "ground-plane error vs distance (simulation)"),
+    ("eval", "pose"): ("follow.eval.pose", "skeleton detector recall/precision on PETS 2009"),
+    ("eval", "crops"): ("follow.eval.crops", "target identification on real person crops"),
+    ("eval", "tracking"): ("follow.eval.tracking", "CLEAR MOT / IDF1 on PETS 2009 against other trackers"),
+    ("eval", "identification"): ("follow.eval.identification", "CT/CL/WT/WL on PETS 2009"),
+    ("bench", None): ("follow.eval.bench", "per-stage latency and end-to-end fps"),
+    ("bench", "pose"): ("follow.eval.bench_pose", "pose network runtimes side by side"),
+    ("bench", "identify"): ("follow.eval.bench_identify", "CCF features and classifier update speed"),
+    ("models", None): ("follow.models", "list, fetch or verify the model files"),
+}
+
+
+def _selected(argv: list[str]) -> tuple[str, str | None] | None:
+    """The (command, subcommand) named on the command line, before full parsing."""
+    words = [a for a in argv if not a.startswith("-")]
+    if not words:
+        return None
+    if len(words) > 1 and (words[0], words[1]) in COMMANDS:
+        return words[0], words[1]
+    return (words[0], None) if (words[0], None) in COMMANDS else None
+
+
+def build_parser(argv: list[str]) -> argparse.ArgumentParser:
+    """The parser; only the module of the command being run is imported."""
+    parser = argparse.ArgumentParser(prog="follow", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    top = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    groups: dict[str, argparse._SubParsersAction] = {}
+    chosen = _selected(argv)
+    for key, (module_name, help_text) in COMMANDS.items():
+        command, sub = key
+        if sub is None:
+            p = top.add_parser(command, help=help_text, description=help_text)
+        else:
+            if command not in groups:
+                parent = top.choices.get(command) or top.add_parser(
+                    command, help=f"{command} commands", description=f"{command} commands"
+                )
+                groups[command] = parent.add_subparsers(dest="subcommand", metavar="WHAT")
+            p = groups[command].add_parser(sub, help=help_text, description=help_text)
+        if key == chosen:
+            module = importlib.import_module(module_name)
+            p.add_argument(
+                "--json", action="store_true", help="print one JSON object as the last line"
+            )
+            module.add_arguments(p)
+            p.set_defaults(_module=module)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    module = getattr(args, "_module", None)
+    if module is None:
+        parser.parse_args([args.command, "--help"])
+        return 2  # pragma: no cover  (--help exits)
+    try:
+        result = module.main(args)
+    except KeyboardInterrupt:
+        return 130
+    except (ValueError, OSError, RuntimeError) as exc:
+        print(f"follow {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    if isinstance(result, int):
+        return result
+    if getattr(args, "json", False) and result is not None:
+        print(json.dumps(result, default=_json_default))
+    return 0
+
+
+def _json_default(value):
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

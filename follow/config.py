@@ -1,0 +1,146 @@
+"""The one configuration of `follow`: a dataclass per stage, loaded from TOML.
+
+Defaults follow Koide et al. (RAS 2020) where the paper gives a value. A TOML file
+holds the same sections and keys (`[tracker]`, `gate_chi2_quantile = 0.99`, ...); an
+unknown section or key, or a value of the wrong type, is an error naming it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+
+class ConfigError(ValueError):
+    """A configuration file or value that cannot be used; the message names it."""
+
+
+@dataclass(frozen=True)
+class PoseConfig:
+    model: str = "human-pose-estimation-0001"
+    input_height_px: int = 256
+    provider: str = "auto"  # auto | cpu | cuda | tensorrt | openvino
+    keypoint_min_confidence: float = 0.1
+    min_keypoints_per_person: int = 3
+    border_margin_px: float = 4.0
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    # Constant-velocity model: white acceleration noise, integrated over the real time step.
+    accel_noise_mps2: float = 1.0
+    height_noise_mps: float = 0.01
+    # Measurement noise at the detector's resolution (scaled with the image).
+    neck_noise_px: float = 3.0
+    ankle_noise_px: float = 5.0
+    detection_height_px: int = 360  # resolution the pixel noises above refer to
+    init_velocity_std_mps: float = 1.0
+    init_height_std_m: float = 0.1
+    default_neck_height_m: float = 1.45
+    gate_chi2_quantile: float = 0.99
+    min_updates_to_confirm: int = 3
+    max_position_std_m: float = 1.5
+    max_unseen_s: float = 2.0
+    tentative_max_unseen_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class IdentifyConfig:
+    identifier: str = "ccf10"  # ccf10 | ccf25 | channels | reid | ccf10+reid
+    num_selectors: int = 15
+    weak_classifiers_per_selector: int = 15
+    sample_bank_size: int = 32
+    initial_training_frames: int = 10
+    max_initial_distance_m: float = 5.0
+    id_switch_confidence: float = -0.1
+    reid_confidence: float = 0.2
+    reid_frames: int = 5
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    following_distance_m: float = 1.8
+    max_forward_speed_mps: float = 1.2
+    max_backward_speed_mps: float = 0.3
+    allow_backing_off: bool = False
+    max_yaw_rate_radps: float = 1.0
+    max_forward_accel_mps2: float = 1.0
+    max_yaw_accel_radps2: float = 3.0
+    turn_in_place_bearing_rad: float = 0.7
+    target_timeout_s: float = 0.5
+    search_duration_s: float = 0.0
+    control_rate_hz: float = 15.0
+
+
+@dataclass(frozen=True)
+class MavlinkConfig:
+    connection: str = ""  # pymavlink connection string; empty = no base
+    autopilot: str = "ardupilot"  # ardupilot | px4
+    arm: bool = False
+    heartbeat_timeout_s: float = 3.0
+    stream_rate_hz: float = 20.0
+
+
+@dataclass(frozen=True)
+class Config:
+    pose: PoseConfig = field(default_factory=PoseConfig)
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    identify: IdentifyConfig = field(default_factory=IdentifyConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "config") -> Config:
+        sections = {f.name: f.type for f in dataclasses.fields(cls)}
+        kwargs = {}
+        for name, values in data.items():
+            if name not in sections:
+                raise ConfigError(f"{source}: unknown section [{name}]; known: {sorted(sections)}")
+            if not isinstance(values, dict):
+                raise ConfigError(f"{source}: [{name}] must be a table")
+            section_cls = type(getattr(cls(), name))
+            kwargs[name] = _build_section(section_cls, values, f"{source} [{name}]")
+        return cls(**kwargs)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Config:
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except OSError as exc:
+            raise ConfigError(f"config {path}: cannot read ({exc.strerror})") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"config {path}: not valid TOML ({exc})") from None
+        return cls.from_dict(data, source=f"config {path}")
+
+    def replace(self, section: str, **changes) -> Config:
+        """A copy with some keys of one section changed."""
+        return dataclasses.replace(
+            self, **{section: dataclasses.replace(getattr(self, section), **changes)}
+        )
+
+
+def _build_section(section_cls, values: dict, where: str):
+    defaults = section_cls()
+    known = {f.name for f in dataclasses.fields(section_cls)}
+    out = {}
+    for key, value in values.items():
+        if key not in known:
+            raise ConfigError(f"{where}: unknown key '{key}'; known: {sorted(known)}")
+        expected = type(getattr(defaults, key))
+        if expected is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if not isinstance(value, expected) or (expected is not bool and isinstance(value, bool)):
+            raise ConfigError(
+                f"{where}: '{key}' must be {expected.__name__}, got {type(value).__name__}"
+            )
+        out[key] = value
+    return section_cls(**out)

@@ -1,0 +1,1 @@
+"""Following controller and robot base drivers."""

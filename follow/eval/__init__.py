@@ -1,0 +1,1 @@
+"""Metrics, dataset readers, evaluations and benchmarks."""

@@ -1,0 +1,36 @@
+"""Planar transforms between the fixed `odom` frame and the robot's `base` frame."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from follow.types import Odometry
+
+
+def odom_to_base(points_xy: np.ndarray, robot: Odometry) -> np.ndarray:
+    """Ground points (..., 2) given in `odom` expressed in the robot's `base` frame."""
+    c, s = np.cos(robot.yaw_rad), np.sin(robot.yaw_rad)
+    d = np.asarray(points_xy, dtype=np.float64) - (robot.x_m, robot.y_m)
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+
+
+def base_to_odom(points_xy: np.ndarray, robot: Odometry) -> np.ndarray:
+    """Ground points (..., 2) given in `base` expressed in `odom`."""
+    c, s = np.cos(robot.yaw_rad), np.sin(robot.yaw_rad)
+    p = np.asarray(points_xy, dtype=np.float64)
+    return np.stack(
+        [robot.x_m + c * p[..., 0] - s * p[..., 1], robot.y_m + s * p[..., 0] + c * p[..., 1]],
+        axis=-1,
+    )
+
+
+def vector_odom_to_base(vectors_xy: np.ndarray, robot: Odometry) -> np.ndarray:
+    """Free vectors (velocities) from `odom` to `base`: rotation only."""
+    c, s = np.cos(robot.yaw_rad), np.sin(robot.yaw_rad)
+    v = np.asarray(vectors_xy, dtype=np.float64)
+    return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1]], axis=-1)
+
+
+def wrap_angle(angle_rad: float | np.ndarray) -> float | np.ndarray:
+    """Angle wrapped to [-pi, pi)."""
+    return (np.asarray(angle_rad) + np.pi) % (2.0 * np.pi) - np.pi

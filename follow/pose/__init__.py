@@ -1,0 +1,1 @@
+"""Skeleton detection: OpenPose network (onnxruntime) and its decoding."""

@@ -1,0 +1,1 @@
+"""Simulated world, people, skeleton detector and MAVLink rover."""

@@ -1,0 +1,1 @@
+"""Ground-plane person tracking with an unscented Kalman filter."""

@@ -1,0 +1,133 @@
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from follow.camera import CameraFileError, CameraModel, CameraPose
+
+
+def make_camera(pitch_deg=10.0, roll_deg=0.0, yaw_deg=0.0, dist=None, height_m=0.6):
+    pose = CameraPose(
+        height_m=height_m,
+        pitch_rad=math.radians(pitch_deg),
+        roll_rad=math.radians(roll_deg),
+        yaw_rad=math.radians(yaw_deg),
+        x_m=0.1,
+        y_m=-0.05,
+    )
+    return CameraModel.from_fov((640, 360), 70.0, pose, dist=dist)
+
+
+def test_point_straight_ahead_projects_on_the_centre_column():
+    cam = make_camera(pitch_deg=0.0)
+    cam = CameraModel.from_fov((640, 360), 70.0, CameraPose(height_m=0.6))
+    u, v = cam.project(np.array([5.0, 0.0, 0.6]))
+    assert u == pytest.approx(cam.K[0, 2])
+    assert v == pytest.approx(cam.K[1, 2])
+    # a point to the left (y > 0) appears left in the image, a lower one appears lower
+    assert cam.project(np.array([5.0, 1.0, 0.6]))[0] < u
+    assert cam.project(np.array([5.0, 0.0, 0.0]))[1] > v
+
+
+@pytest.mark.parametrize("dist", [None, np.array([-0.2, 0.05, 0.001, -0.001, 0.0])])
+@pytest.mark.parametrize("pitch_deg,roll_deg,yaw_deg", [(0, 0, 0), (15, 3, -5), (25, -2, 10)])
+def test_ground_round_trip(dist, pitch_deg, roll_deg, yaw_deg):
+    cam = make_camera(pitch_deg, roll_deg, yaw_deg, dist)
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(2, 20, 200), rng.uniform(-3, 3, 200), np.zeros(200)])
+    px = cam.project(pts)
+    visible = cam.in_image(px)
+    assert visible.sum() > 50
+    back = cam.back_project_to_ground(px[visible])
+    np.testing.assert_allclose(back, pts[visible, :2], atol=1e-6 * 20)
+
+
+def test_plane_at_height_round_trip():
+    cam = make_camera(12, 1, 0, np.array([-0.1, 0.01, 0, 0, 0]))
+    p = np.array([[6.0, 0.5, 1.5], [3.0, -1.0, 1.2]])
+    for point in p:
+        back = cam.back_project_to_plane(cam.project(point), point[2])
+        np.testing.assert_allclose(back, point, atol=1e-6)
+
+
+def test_pixels_above_horizon_have_no_ground_point():
+    cam = make_camera(pitch_deg=5.0)
+    horizon = cam.horizon_line()
+    a, b, c = horizon
+    u = 320.0
+    v_h = -(a * u + c) / b
+    above, below = np.array([u, v_h - 5.0]), np.array([u, v_h + 5.0])
+    assert cam.ground_point(above) is None
+    assert np.isnan(cam.back_project_to_ground(above)).all()
+    g = cam.ground_point(below)
+    assert g is not None and g[0] > 5.0  # far away, just under the horizon
+    assert a * below[0] + b * below[1] + c > 0 > a * above[0] + b * above[1] + c
+    assert cam.is_below_horizon(np.array([below, above])).tolist() == [True, False]
+
+
+def test_points_behind_camera_project_to_nan():
+    cam = make_camera()
+    assert np.isnan(cam.project(np.array([-2.0, 0.0, 0.0]))).all()
+
+
+def test_scaled_camera_keeps_geometry():
+    cam = make_camera(dist=np.array([-0.2, 0.05, 0, 0, 0]))
+    small = cam.scaled(320, 180)
+    pts = np.array([[4.0, 0.3, 0.0], [8.0, -1.0, 1.4]])
+    big_px, small_px = cam.project(pts), small.project(pts)
+    np.testing.assert_allclose((small_px + 0.5) * 2.0 - 0.5, big_px, atol=1e-9)
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".json"])
+def test_save_load_round_trip(tmp_path, suffix):
+    cam = make_camera(12, 1, 2, np.array([-0.2, 0.05, 0.001, -0.001, 0.01]))
+    path = tmp_path / f"cam{suffix}"
+    cam.save(path)
+    loaded = CameraModel.load(path)
+    np.testing.assert_allclose(loaded.K, cam.K)
+    np.testing.assert_allclose(loaded.dist, cam.dist)
+    assert loaded.pose == cam.pose and loaded.image_size == cam.image_size
+
+
+def test_malformed_camera_file_names_the_field(tmp_path):
+    cam = make_camera()
+    data = cam.to_dict()
+    del data["pose"]["height_m"]
+    path = tmp_path / "cam.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(CameraFileError, match="pose.height_m"):
+        CameraModel.load(path)
+    data = cam.to_dict()
+    data["camera_matrix"] = [[1, 2], [3, 4]]
+    path.write_text(json.dumps(data))
+    with pytest.raises(CameraFileError, match="camera_matrix"):
+        CameraModel.load(path)
+    data = cam.to_dict()
+    data["pose"]["pitch_rad"] = "steep"
+    path.write_text(json.dumps(data))
+    with pytest.raises(CameraFileError, match="pose.pitch_rad"):
+        CameraModel.load(path)
+    path.write_text("{not json")
+    with pytest.raises(CameraFileError, match="not valid"):
+        CameraModel.load(path)
+    with pytest.raises(CameraFileError, match="cannot read"):
+        CameraModel.load(tmp_path / "missing.yaml")
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    u=st.floats(-100, 740, allow_nan=False),
+    v=st.floats(-100, 460, allow_nan=False),
+    pitch=st.floats(-10, 40),
+)
+def test_back_projection_is_in_front_or_nan(u, v, pitch):
+    cam = make_camera(pitch_deg=pitch)
+    g = cam.back_project_to_ground(np.array([u, v]))
+    if not np.isnan(g).any():
+        rel = g - cam.position_base[:2]
+        forward = np.array([math.cos(cam.pose.yaw_rad), math.sin(cam.pose.yaw_rad)])
+        assert rel @ forward > 0
+        np.testing.assert_allclose(cam.project(np.append(g, 0.0)), [u, v], atol=1e-4)
