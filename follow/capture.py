@@ -1,0 +1,135 @@
+"""Frame sources (video file, camera index, GStreamer pipeline, image folder) and a
+one-slot buffer that keeps only the newest frame, so a slow detector never builds a
+backlog of stale images."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from follow.types import Frame, InvalidInput
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+
+
+class SourceError(RuntimeError):
+    """A frame source that cannot be opened or read."""
+
+
+class FrameSource:
+    """Iterates frames from a video file, camera index, GStreamer pipeline or folder.
+
+    Frames that cannot be decoded are skipped with a warning. Timestamps are taken from
+    the file's frame rate for files and folders (so replay is reproducible) and from the
+    monotonic clock for live cameras.
+    """
+
+    def __init__(self, spec: str, folder_fps: float = 15.0):
+        self.spec = spec
+        self.live = False
+        self._folder: list[Path] | None = None
+        self._cap: cv2.VideoCapture | None = None
+        path = Path(spec)
+        if path.is_dir():
+            self._folder = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if not self._folder:
+                raise SourceError(f"source {spec}: folder holds no images ({IMAGE_SUFFIXES})")
+            self.fps = folder_fps
+            return
+        if spec.isdigit():
+            self._cap = cv2.VideoCapture(int(spec))
+            self.live = True
+        elif "!" in spec:  # a GStreamer pipeline, e.g. a Jetson CSI camera
+            self._cap = cv2.VideoCapture(spec, cv2.CAP_GSTREAMER)
+            self.live = True
+        else:
+            if not path.exists():
+                raise SourceError(f"source {spec}: no such file")
+            self._cap = cv2.VideoCapture(str(path))
+        if not self._cap.isOpened():
+            raise SourceError(f"source {spec}: cannot be opened by OpenCV")
+        fps = self._cap.get(cv2.CAP_PROP_FPS)
+        self.fps = fps if fps and np.isfinite(fps) and fps > 0 else 15.0
+
+    def __iter__(self) -> Iterator[Frame]:
+        if self._folder is not None:
+            for index, path in enumerate(self._folder):
+                image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+                if image is None:
+                    log.warning("skipping %s: not a readable image", path)
+                    continue
+                yield Frame(image, index / self.fps)
+            return
+        index = 0
+        start = time.monotonic()
+        failures = 0
+        while True:
+            ok, image = self._cap.read()
+            if not ok:
+                if self.live and failures < 10:
+                    failures += 1
+                    continue
+                return
+            failures = 0
+            stamp = time.monotonic() - start if self.live else index / self.fps
+            index += 1
+            try:
+                yield Frame(image, stamp)
+            except InvalidInput as exc:  # pragma: no cover - decoder gave something odd
+                log.warning("skipping frame %d: %s", index, exc)
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+
+
+class LatestSlot:
+    """A one-item mailbox: `put` replaces whatever is there, `get` waits for a new item.
+
+    Counts the items that were replaced before anyone read them (dropped frames).
+    """
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._item = None
+        self._fresh = False
+        self._closed = False
+        self.dropped = 0
+
+    def put(self, item) -> None:
+        with self._cond:
+            if self._fresh:
+                self.dropped += 1
+            self._item, self._fresh = item, True
+            self._cond.notify_all()
+
+    def get(self, timeout_s: float | None = None):
+        """The newest item not yet taken; None when closed (and empty) or on time-out."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._fresh or self._closed, timeout=timeout_s)
+            if not self._fresh:
+                return None
+            self._fresh = False
+            return self._item
+
+    def peek(self):
+        """The newest item, taken or not (None before the first)."""
+        with self._cond:
+            return self._item
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed

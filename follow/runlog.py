@@ -1,0 +1,170 @@
+"""JSON-lines run log: one header line, then one line per processed frame.
+
+The log holds what a person needs to see what the robot saw and did (skeletons, tracks,
+target, command, timings), and what `follow run --replay` needs to re-run tracking and
+identification on the same detections without the pose network.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from follow.types import (
+    Odometry,
+    Skeleton,
+    TargetEstimate,
+    TrackState,
+    VelocityCommand,
+)
+
+LOG_VERSION = 1
+
+
+def _num(x: float) -> float | None:
+    return None if not np.isfinite(x) else round(float(x), 4)
+
+
+def skeleton_to_json(s: Skeleton) -> dict:
+    return {
+        "keypoints_px": [[_num(u), _num(v)] for u, v in s.keypoints_px],
+        "confidences": [round(float(c), 4) for c in s.confidences],
+        "score": round(float(s.score), 4),
+    }
+
+
+def skeleton_from_json(d: dict) -> Skeleton:
+    kp = np.array([[np.nan if v is None else v for v in p] for p in d["keypoints_px"]], float)
+    return Skeleton(kp, np.asarray(d["confidences"], float), float(d.get("score", 0.0)))
+
+
+def track_to_json(t: TrackState) -> dict:
+    return {
+        "id": t.track_id,
+        "confirmed": t.confirmed,
+        "mean": [round(float(v), 4) for v in t.mean],
+        "cov_diag": [round(float(v), 5) for v in np.diag(t.cov)],
+        "observed": t.observation is not None,
+    }
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One frame of a run log, as read back."""
+
+    frame_index: int
+    stamp_s: float
+    robot: Odometry | None
+    skeletons: list[Skeleton]
+    tracks: list[dict]
+    target_status: str
+    target_id: int | None
+    confidences: dict[int, float]
+    command: VelocityCommand | None
+    timing_ms: dict[str, float]
+
+
+class RunLogWriter:
+    """Writes the log line by line and flushes every line, so a crash loses nothing."""
+
+    def __init__(self, path: str | Path, header: dict):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(self.path, "w")
+        self._write({"log_version": LOG_VERSION, **header})
+
+    def _write(self, obj: dict) -> None:
+        self._fh.write(json.dumps(obj, separators=(",", ":")) + "\n")
+        self._fh.flush()
+
+    def write_frame(
+        self,
+        frame_index: int,
+        stamp_s: float,
+        robot: Odometry | None,
+        skeletons: list[Skeleton],
+        tracks: list[TrackState],
+        target: TargetEstimate | None,
+        command: VelocityCommand | None,
+        timing_ms: dict[str, float] | None = None,
+    ) -> None:
+        self._write(
+            {
+                "frame": frame_index,
+                "stamp_s": round(float(stamp_s), 6),
+                "robot": None
+                if robot is None
+                else [_num(robot.x_m), _num(robot.y_m), _num(robot.yaw_rad)],
+                "skeletons": [skeleton_to_json(s) for s in skeletons],
+                "tracks": [track_to_json(t) for t in tracks],
+                "target": None
+                if target is None
+                else {
+                    "status": target.status.value,
+                    "id": target.target_id,
+                    "confidences": {str(k): round(float(v), 4) for k, v in target.confidences.items()},
+                },
+                "command": None
+                if command is None
+                else [round(command.forward_mps, 4), round(command.yaw_rate_radps, 4)],
+                "timing_ms": {k: round(float(v), 3) for k, v in (timing_ms or {}).items()},
+            }
+        )
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._fh.flush()
+            self._fh.close()
+
+    def __enter__(self) -> RunLogWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
+    """The header and an iterator over the frame records. A truncated last line (a run
+    that was killed mid-write) is ignored; any other malformed line is an error naming it."""
+    path = Path(path)
+    lines = path.read_text().splitlines()
+    if not lines:
+        raise ValueError(f"run log {path}: empty")
+    try:
+        header = json.loads(lines[0])
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"run log {path}: header line is not JSON ({exc})") from None
+    if header.get("log_version") != LOG_VERSION:
+        raise ValueError(f"run log {path}: unsupported log_version {header.get('log_version')}")
+
+    def records() -> Iterator[FrameRecord]:
+        for number, line in enumerate(lines[1:], start=2):
+            try:
+                d = json.loads(line)
+            except json.JSONDecodeError:
+                if number == len(lines):
+                    return
+                raise ValueError(f"run log {path}: line {number} is not JSON") from None
+            robot = d.get("robot")
+            target = d.get("target") or {}
+            command = d.get("command")
+            yield FrameRecord(
+                frame_index=int(d["frame"]),
+                stamp_s=float(d["stamp_s"]),
+                robot=None if robot is None else Odometry(*robot, float(d["stamp_s"])),
+                skeletons=[skeleton_from_json(s) for s in d.get("skeletons", [])],
+                tracks=d.get("tracks", []),
+                target_status=target.get("status", ""),
+                target_id=target.get("id"),
+                confidences={int(k): v for k, v in target.get("confidences", {}).items()},
+                command=None
+                if command is None
+                else VelocityCommand(command[0], command[1], float(d["stamp_s"])),
+                timing_ms=d.get("timing_ms", {}),
+            )
+
+    return header, records()

@@ -1,0 +1,61 @@
+import threading
+
+import cv2
+import numpy as np
+import pytest
+
+from follow.capture import FrameSource, LatestSlot, SourceError
+
+
+def test_latest_slot_keeps_only_the_newest_and_counts_drops():
+    slot = LatestSlot()
+    for i in range(5):
+        slot.put(i)
+    assert slot.get(timeout_s=0.1) == 4
+    assert slot.dropped == 4
+    assert slot.get(timeout_s=0.05) is None  # nothing new
+    assert slot.peek() == 4
+
+
+def test_latest_slot_wakes_a_waiting_reader_and_closes():
+    slot = LatestSlot()
+    got = []
+    reader = threading.Thread(target=lambda: got.append(slot.get(timeout_s=2.0)))
+    reader.start()
+    slot.put("frame")
+    reader.join(1.0)
+    assert got == ["frame"]
+    slot.close()
+    assert slot.get(timeout_s=1.0) is None and slot.closed
+
+
+def test_folder_source_skips_unreadable_images(tmp_path, caplog):
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), np.full((20, 30, 3), i * 40, np.uint8))
+    (tmp_path / "001b.png").write_bytes(b"not a png")
+    frames = list(FrameSource(str(tmp_path), folder_fps=10.0))
+    assert [int(f.image[0, 0, 0]) for f in frames] == [0, 40, 80]
+    assert [f.stamp_s for f in frames] == pytest.approx([0.0, 0.1, 0.3])
+    assert "001b.png" in caplog.text
+
+
+def test_video_source_reads_frames_with_file_timestamps(tmp_path):
+    path = tmp_path / "v.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 5.0, (32, 24))
+    for i in range(4):
+        writer.write(np.full((24, 32, 3), 60 * i, np.uint8))
+    writer.release()
+    frames = list(FrameSource(str(path)))
+    assert len(frames) == 4
+    assert frames[-1].stamp_s == pytest.approx(0.6)
+
+
+def test_bad_sources_are_named(tmp_path):
+    with pytest.raises(SourceError, match="no such file"):
+        FrameSource(str(tmp_path / "missing.avi"))
+    with pytest.raises(SourceError, match="holds no images"):
+        FrameSource(str(tmp_path))
+    bad = tmp_path / "bad.avi"
+    bad.write_bytes(b"garbage" * 100)
+    with pytest.raises(SourceError, match="cannot be opened"):
+        FrameSource(str(bad))

@@ -1,0 +1,77 @@
+import numpy as np
+import pytest
+
+from follow.render import annotate, top_down
+from follow.runlog import RunLogWriter, read_run_log
+from follow.types import (
+    Odometry,
+    Skeleton,
+    TargetEstimate,
+    TargetStatus,
+    TrackState,
+    VelocityCommand,
+)
+
+
+def _skeleton(u0: float) -> Skeleton:
+    kp = np.full((18, 2), np.nan)
+    conf = np.zeros(18)
+    kp[1], conf[1] = (u0, 50.0), 0.9
+    kp[10], conf[10] = (u0, 150.0), 0.7
+    return Skeleton(kp, conf, 1.5)
+
+
+def _track(track_id: int, neck_px) -> TrackState:
+    return TrackState(
+        track_id, np.array([3.0, 0.2 * track_id, 0.5, 0.0, 1.5]), np.eye(5) * 0.1, True, 1.0,
+        expected_neck_px=np.array(neck_px, float), expected_neck_cov=np.eye(2) * 16,
+    )  # fmt: skip
+
+
+def test_log_round_trip_and_truncated_last_line(tmp_path):
+    path = tmp_path / "run.jsonl"
+    with RunLogWriter(path, {"source": "video.avi"}) as log:
+        for i in range(3):
+            log.write_frame(
+                i, i / 7.0, Odometry(0.1 * i, 0.0, 0.05, i / 7.0), [_skeleton(100 + i)],
+                [_track(1, (100, 50)), _track(2, (200, 60))],
+                TargetEstimate(TargetStatus.TRACKING, 1, {1: 0.8, 2: -0.6}),
+                VelocityCommand(0.5, -0.1, i / 7.0), {"pose": 12.0},
+            )  # fmt: skip
+    with open(path, "a") as fh:
+        fh.write('{"frame": 3, "stamp')  # a run killed mid-line
+    header, records = read_run_log(path)
+    records = list(records)
+    assert header["source"] == "video.avi"
+    assert [r.frame_index for r in records] == [0, 1, 2]
+    r = records[2]
+    assert r.target_id == 1 and r.confidences == {1: 0.8, 2: -0.6}
+    assert r.command.forward_mps == pytest.approx(0.5)
+    assert r.robot.x_m == pytest.approx(0.2)
+    np.testing.assert_allclose(r.skeletons[0].keypoints_px[1], [102, 50])
+    assert np.isnan(r.skeletons[0].keypoints_px[0]).all()
+
+
+def test_malformed_log_line_is_named(tmp_path):
+    path = tmp_path / "run.jsonl"
+    with RunLogWriter(path, {}) as log:
+        log.write_frame(0, 0.0, None, [], [], None, None)
+    text = path.read_text()
+    path.write_text(text + "{broken\n" + text.splitlines()[1] + "\n")
+    _, records = read_run_log(path)
+    with pytest.raises(ValueError, match="line 3"):
+        list(records)
+
+
+def test_annotation_highlights_the_target():
+    image = np.zeros((240, 320, 3), np.uint8)
+    tracks = [_track(1, (100, 50)), _track(2, (200, 60))]
+    out = annotate(image, [_skeleton(100)], tracks,
+                   TargetEstimate(TargetStatus.TRACKING, 2, {1: -0.5, 2: 0.9}),
+                   VelocityCommand(0.3, 0.0, 0.0))  # fmt: skip
+    red = (out[..., 2] > 200) & (out[..., 0] < 50) & (out[..., 1] < 50)
+    ys, xs = np.nonzero(red)
+    assert red.sum() > 20 and abs(np.median(xs) - 200) < 25  # ellipse around track 2
+    assert image.sum() == 0  # the input frame is not drawn on
+    view = top_down(tracks, 2, Odometry.origin())
+    assert view.shape == (360, 360, 3) and (view != 255).any()
