@@ -1,0 +1,50 @@
+"""Identification outcomes per frame, as in Koide et al. (RAS 2020):
+
+- CT, correct tracking: the target is visible and the system names the target's track;
+- CL, correct loss: the target is not visible and the system names no track;
+- WT, wrong tracking: the system names a track that is not the target;
+- WL, wrong loss: the target is visible but the system names no track.
+
+Totals are durations in seconds and fractions of the time evaluated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+OUTCOMES = ("ct", "cl", "wt", "wl")
+
+
+def classify(target_visible: bool, named_track: int | None, named_is_target: bool) -> str:
+    """The outcome of one frame. `named_is_target` says whether the named track is the
+    target person (ignored when no track is named)."""
+    if named_track is None:
+        return "wl" if target_visible else "cl"
+    return "ct" if (named_is_target and target_visible) else "wt"
+
+
+@dataclass
+class OutcomeTally:
+    """Seconds spent in each outcome."""
+
+    seconds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(OUTCOMES, 0.0))
+    timeline: list[str] = field(default_factory=list)
+
+    def add(self, outcome: str, duration_s: float) -> None:
+        if outcome not in OUTCOMES:
+            raise ValueError(f"unknown outcome {outcome!r}; expected one of {OUTCOMES}")
+        self.seconds[outcome] += duration_s
+        self.timeline.append(outcome)
+
+    def merge(self, other: OutcomeTally) -> None:
+        for k in OUTCOMES:
+            self.seconds[k] += other.seconds[k]
+        self.timeline.extend(other.timeline)
+
+    @property
+    def total_s(self) -> float:
+        return sum(self.seconds.values())
+
+    def fractions(self) -> dict[str, float]:
+        total = self.total_s
+        return {k: (self.seconds[k] / total if total > 0 else 0.0) for k in OUTCOMES}
