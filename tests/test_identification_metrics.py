@@ -10,7 +10,7 @@ from follow.eval.identification_metrics import OutcomeTally, classify
         (False, None, False, "cl"),
         (True, 4, False, "wt"),
         (False, 4, False, "wt"),
-        (False, 3, True, "wt"),  # naming the target's track while it is hidden is wrong
+        (False, 3, True, "ct"),  # the target's own track, carried through an occlusion
         (True, None, False, "wl"),
     ],
 )

@@ -1,8 +1,9 @@
 """Identification outcomes per frame, as in Koide et al. (RAS 2020):
 
-- CT, correct tracking: the target is visible and the system names the target's track;
+- CT, correct tracking: the system names the target's track (also while the target is
+  briefly hidden and its track is carried by prediction);
 - CL, correct loss: the target is not visible and the system names no track;
-- WT, wrong tracking: the system names a track that is not the target;
+- WT, wrong tracking: the system names a track that is not the target's;
 - WL, wrong loss: the target is visible but the system names no track.
 
 Totals are durations in seconds and fractions of the time evaluated.
@@ -20,7 +21,7 @@ def classify(target_visible: bool, named_track: int | None, named_is_target: boo
     target person (ignored when no track is named)."""
     if named_track is None:
         return "wl" if target_visible else "cl"
-    return "ct" if (named_is_target and target_visible) else "wt"
+    return "ct" if named_is_target else "wt"
 
 
 @dataclass
