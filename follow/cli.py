@@ -15,7 +15,7 @@ import sys
 
 # (command, subcommand or None) -> (module, one-line help)
 COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
-    ("run", None): ("follow.pipeline", "follow a person: camera or video in, base commands out"),
+    ("run", None): ("follow.run", "follow a person: camera or video in, base commands out"),
     ("demo", None): ("follow.sim.demo", "the whole stack on a simulated robot (no downloads)"),
     ("eval", "localization"): ("follow.eval.localization", "ground-plane error vs distance (simulation)"),
     ("eval", "pose"): ("follow.eval.pose", "skeleton detector recall/precision on PETS 2009"),
