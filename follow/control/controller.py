@@ -59,7 +59,7 @@ def slew(previous: float, wanted: float, rise_per_s: float, fall_per_s: float, d
 class FollowingController:
     """Target motion in, velocity command out; call `update` once per control period."""
 
-    def __init__(self, config: ControlConfig = ControlConfig()):
+    def __init__(self, config: ControlConfig = ControlConfig()):  # noqa: B008 (frozen)
         check_control_config(config)
         self.config = config
         self._last: VelocityCommand | None = None
