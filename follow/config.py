@@ -67,16 +67,26 @@ class IdentifyConfig:
 
 @dataclass(frozen=True)
 class ControlConfig:
+    # Following distance: the 1.5-3 m band a walking person accepts behind them.
     following_distance_m: float = 1.8
     max_forward_speed_mps: float = 1.2
     max_backward_speed_mps: float = 0.3
     allow_backing_off: bool = False
     max_yaw_rate_radps: float = 1.0
     max_forward_accel_mps2: float = 1.0
+    # Braking may be harder than speeding up; a stop on loss/stale ignores both limits.
+    max_forward_decel_mps2: float = 2.0
     max_yaw_accel_radps2: float = 3.0
+    # Proportional gains: forward speed per metre of distance error, yaw rate per radian.
+    distance_gain_per_s: float = 1.0
+    bearing_gain_per_s: float = 1.5
+    # Fraction of the target's own motion fed forward (radial speed, bearing rate).
+    velocity_feedforward_gain: float = 1.0
     turn_in_place_bearing_rad: float = 0.7
     target_timeout_s: float = 0.5
+    # After a loss, turn toward the last bearing for this long (0 = stop at once).
     search_duration_s: float = 0.0
+    search_yaw_rate_radps: float = 0.4
     control_rate_hz: float = 15.0
 
 
@@ -86,7 +96,16 @@ class MavlinkConfig:
     autopilot: str = "ardupilot"  # ardupilot | px4
     arm: bool = False
     heartbeat_timeout_s: float = 3.0
-    stream_rate_hz: float = 20.0
+    stream_rate_hz: float = 20.0  # velocity setpoints per second (>= 10)
+    telemetry_rate_hz: float = 30.0  # requested LOCAL_POSITION_NED / ATTITUDE rate
+    connect_timeout_s: float = 10.0  # first heartbeat, mode change acknowledgement
+    command_timeout_s: float = 0.5  # a velocity command older than this is replaced by zero
+    odometry_timeout_s: float = 0.5  # odometry older than this is not returned
+    source_system: int = 1
+    source_component: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    # PX4 rovers ignore yaw rate: the turn becomes the direction of the body velocity,
+    # pointing where the commanded turn would take the heading within this horizon.
+    px4_turn_horizon_s: float = 0.5
 
 
 @dataclass(frozen=True)

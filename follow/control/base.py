@@ -1,0 +1,59 @@
+"""The `Base` protocol every robot base driver provides, and `NullBase` for no robot."""
+
+from __future__ import annotations
+
+import threading
+from typing import Protocol, runtime_checkable
+
+from follow.types import Odometry, VelocityCommand
+
+
+@runtime_checkable
+class Base(Protocol):
+    """A mobile base: takes body-frame velocity commands, reports odometry in `odom`."""
+
+    def send(self, cmd: VelocityCommand) -> None:
+        """Command a body-frame velocity; the newest command replaces the previous one."""
+
+    def odometry(self) -> Odometry | None:
+        """The newest pose in `odom`, or None when there is none or it is stale."""
+
+    def healthy(self) -> bool:
+        """Whether commands currently reach the base and it obeys them."""
+
+    def close(self) -> None:
+        """Send a zero velocity, then release the connection."""
+
+
+class NullBase:
+    """No robot: records every command and reports a fixed pose (the origin by default)."""
+
+    def __init__(self, pose: Odometry | None = None):
+        self._lock = threading.Lock()
+        self.commands: list[VelocityCommand] = []
+        self.pose = pose
+        self.closed = False
+
+    def send(self, cmd: VelocityCommand) -> None:
+        with self._lock:
+            if self.closed:
+                raise RuntimeError("NullBase: send() after close()")
+            self.commands.append(cmd)
+
+    def odometry(self) -> Odometry | None:
+        return self.pose
+
+    def healthy(self) -> bool:
+        return not self.closed
+
+    def close(self) -> None:
+        with self._lock:
+            if not self.closed:
+                stamp = self.commands[-1].stamp_s if self.commands else 0.0
+                self.commands.append(VelocityCommand.stop(stamp))
+                self.closed = True
+
+    @property
+    def last_command(self) -> VelocityCommand | None:
+        with self._lock:
+            return self.commands[-1] if self.commands else None

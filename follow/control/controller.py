@@ -1,0 +1,154 @@
+"""Following controller: keep a set distance to the target and face it.
+
+A proportional law on distance and bearing with feed-forward of the target's own motion
+(so a steadily walking person is followed without a standing distance error), turning in
+place when the target is far to the side, and speed / yaw-rate / acceleration limits.
+Losing the target, or an estimate older than `target_timeout_s`, gives a zero command at
+once: the acceleration limits apply to driving, never to stopping.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from follow.config import ConfigError, ControlConfig
+from follow.control.target import TargetMotion
+from follow.types import InvalidInput, VelocityCommand
+
+log = logging.getLogger(__name__)
+
+
+def check_control_config(config: ControlConfig) -> None:
+    """Raise ConfigError naming the first value a controller cannot use."""
+    positive = (
+        "following_distance_m", "max_forward_speed_mps", "max_yaw_rate_radps",
+        "max_forward_accel_mps2", "max_forward_decel_mps2", "max_yaw_accel_radps2",
+        "target_timeout_s", "control_rate_hz", "turn_in_place_bearing_rad",
+    )  # fmt: skip
+    non_negative = (
+        "max_backward_speed_mps", "distance_gain_per_s", "bearing_gain_per_s",
+        "velocity_feedforward_gain", "search_duration_s", "search_yaw_rate_radps",
+    )  # fmt: skip
+    for name in positive:
+        value = getattr(config, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"[control] {name} must be > 0, got {value}")
+    for name in non_negative:
+        value = getattr(config, name)
+        if not (math.isfinite(value) and value >= 0):
+            raise ConfigError(f"[control] {name} must be >= 0, got {value}")
+    if config.search_yaw_rate_radps > config.max_yaw_rate_radps:
+        raise ConfigError(
+            f"[control] search_yaw_rate_radps ({config.search_yaw_rate_radps}) exceeds "
+            f"max_yaw_rate_radps ({config.max_yaw_rate_radps})"
+        )
+
+
+def slew(previous: float, wanted: float, rise_per_s: float, fall_per_s: float, dt_s: float):
+    """`wanted`, moved from `previous` by at most rise (away from zero) or fall (toward
+    zero) times dt."""
+    delta = wanted - previous
+    away_from_zero = abs(wanted) > abs(previous) and wanted * previous >= 0
+    step = (rise_per_s if away_from_zero else fall_per_s) * dt_s
+    return previous + float(np.clip(delta, -step, step))
+
+
+class FollowingController:
+    """Target motion in, velocity command out; call `update` once per control period."""
+
+    def __init__(self, config: ControlConfig = ControlConfig()):  # noqa: B008 (frozen)
+        check_control_config(config)
+        self.config = config
+        self._last: VelocityCommand | None = None
+        self._last_bearing_rad: float | None = None
+        self._lost_since_s: float | None = None
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.config.control_rate_hz
+
+    def reset(self) -> None:
+        """Forget the previous command and the last seen bearing."""
+        self._last = None
+        self._last_bearing_rad = None
+        self._lost_since_s = None
+
+    def update(self, target: TargetMotion | None, stamp_s: float) -> VelocityCommand:
+        """The command for time `stamp_s` given the newest target estimate (None = lost)."""
+        if not math.isfinite(stamp_s):
+            raise InvalidInput(f"controller stamp_s is not finite: {stamp_s}")
+        dt_s = self._step_s(stamp_s)
+        fresh = target is not None and stamp_s - target.stamp_s <= self.config.target_timeout_s
+        if not fresh:
+            if target is not None:
+                log.debug("target estimate %.3f s old: stopping", stamp_s - target.stamp_s)
+            command = self._lost(stamp_s, dt_s)
+        else:
+            self._lost_since_s = None
+            command = self._follow(target, stamp_s, dt_s)
+        self._last = command
+        return command
+
+    # -- internals ---------------------------------------------------------------------
+
+    def _step_s(self, stamp_s: float) -> float:
+        if self._last is None:
+            return self.period_s
+        dt_s = stamp_s - self._last.stamp_s
+        if dt_s < 0:
+            log.warning("controller time went backwards by %.3f s", -dt_s)
+            return 0.0
+        return dt_s
+
+    def _lost(self, stamp_s: float, dt_s: float) -> VelocityCommand:
+        cfg = self.config
+        if self._lost_since_s is None:
+            self._lost_since_s = stamp_s
+        searching = (
+            cfg.search_duration_s > 0
+            and self._last_bearing_rad is not None
+            and stamp_s - self._lost_since_s < cfg.search_duration_s
+        )
+        if not searching:
+            return VelocityCommand.stop(stamp_s)
+        previous_yaw = self._last.yaw_rate_radps if self._last is not None else 0.0
+        wanted = math.copysign(cfg.search_yaw_rate_radps, self._last_bearing_rad)
+        yaw = slew(previous_yaw, wanted, cfg.max_yaw_accel_radps2, cfg.max_yaw_accel_radps2, dt_s)
+        return VelocityCommand(0.0, yaw, stamp_s)
+
+    def _follow(self, target: TargetMotion, stamp_s: float, dt_s: float) -> VelocityCommand:
+        cfg = self.config
+        distance = target.distance_m
+        bearing = target.bearing_rad
+        self._last_bearing_rad = bearing
+        (x, y), (vx, vy) = target.position_m, target.velocity_mps
+        ff = cfg.velocity_feedforward_gain
+
+        # Heading: bearing error plus the bearing rate the target's own motion causes.
+        bearing_rate = (x * vy - y * vx) / max(distance, 1e-3) ** 2
+        yaw = cfg.bearing_gain_per_s * bearing + ff * bearing_rate
+
+        # Distance: error plus the target's speed along the line of sight.
+        radial_speed = (x * vx + y * vy) / max(distance, 1e-3)
+        forward = cfg.distance_gain_per_s * (distance - cfg.following_distance_m)
+        forward += ff * radial_speed
+        if abs(bearing) > cfg.turn_in_place_bearing_rad:
+            forward = 0.0
+        elif forward > 0:
+            forward *= math.cos(bearing)  # do not drive away sideways from the target
+        min_forward = -cfg.max_backward_speed_mps if cfg.allow_backing_off else 0.0
+        forward = float(np.clip(forward, min_forward, cfg.max_forward_speed_mps))
+        yaw = float(np.clip(yaw, -cfg.max_yaw_rate_radps, cfg.max_yaw_rate_radps))
+
+        previous = self._last or VelocityCommand.stop(stamp_s)
+        forward = slew(
+            previous.forward_mps, forward, cfg.max_forward_accel_mps2,
+            cfg.max_forward_decel_mps2, dt_s,
+        )  # fmt: skip
+        yaw = slew(
+            previous.yaw_rate_radps, yaw, cfg.max_yaw_accel_radps2, cfg.max_yaw_accel_radps2, dt_s
+        )
+        return VelocityCommand(forward, yaw, stamp_s)
