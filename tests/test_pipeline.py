@@ -1,0 +1,96 @@
+import threading
+import time
+
+import numpy as np
+
+from follow.capture import LatestSlot
+from follow.config import ControlConfig
+from follow.control.base import NullBase
+from follow.control.controller import FollowingController
+from follow.pipeline import ControlLoop, FrameResult, Perception, ThreadedRunner, target_motion
+from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
+
+
+def _result(stamp_s: float, target_xy=(5.0, 0.0), status=TargetStatus.TRACKING) -> FrameResult:
+    track = TrackState(7, np.array([*target_xy, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, stamp_s)
+    return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], [track],
+                       TargetEstimate(status, 7, {7: 0.9}, stamp_s))  # fmt: skip
+
+
+def test_target_motion_uses_the_robot_pose_now():
+    result = _result(1.0, target_xy=(0.0, 3.0))
+    turned = Odometry(0.0, 0.0, np.pi / 2, 1.1)  # robot now faces +y of odom
+    motion = target_motion(result, turned)
+    np.testing.assert_allclose(motion.position_m, [3.0, 0.0], atol=1e-9)
+    assert motion.stamp_s == 1.0
+    assert target_motion(_result(1.0, status=TargetStatus.REIDENTIFICATION), turned) is None
+    assert target_motion(None, turned) is None
+
+
+def test_watchdog_stops_the_base_when_perception_stalls():
+    now = [10.0]
+    slot = LatestSlot()
+    base = NullBase()
+    loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=15.0,
+                       perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
+    assert loop.tick().is_stop  # nothing perceived yet
+    slot.put(_result(10.0))
+    moving = None
+    for _ in range(5):
+        now[0] += 1 / 15
+        moving = loop.tick()
+    assert moving.forward_mps > 0  # target 5 m ahead: drive towards it
+    now[0] += 1.0  # perception froze: newest result is over 0.5 s old
+    assert loop.tick().is_stop
+    assert loop.watchdog_trips == 1
+    slot.put(_result(now[0]))
+    now[0] += 1 / 15
+    assert loop.tick().forward_mps >= 0  # fresh data again: allowed to move
+
+
+class _FrozenPerception(Perception):
+    """Processes two frames, then hangs as a stuck detector would."""
+
+    def __init__(self, release: threading.Event):
+        self.release, self.calls = release, 0
+
+    def process(self, frame, robot, frame_index):
+        self.calls += 1
+        if self.calls > 2:
+            self.release.wait(5.0)
+        return _result(frame.stamp_s)
+
+
+def test_threaded_runner_stops_the_base_while_perception_is_frozen():
+    release = threading.Event()
+    base = NullBase()
+    slot = LatestSlot()
+    control = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=20.0,
+                          perception_timeout_s=0.3)  # fmt: skip
+    runner = ThreadedRunner(_FrozenPerception(release), control, base)
+    frames = (Frame(np.zeros((16, 16, 3), np.uint8), 0.0) for _ in range(50))
+    worker = threading.Thread(target=runner.run, args=(frames,), kwargs={"pace_hz": 20.0})
+    worker.start()
+    time.sleep(1.2)  # perception has been frozen for about a second
+    recent = [c for c in base.commands if c.stamp_s > time.monotonic() - 0.5]
+    release.set()
+    worker.join(5.0)
+    assert any(not c.is_stop for c in base.commands)  # it did move while perceiving
+    assert recent and all(c.is_stop for c in recent)
+    assert control.watchdog_trips >= 1
+    assert base.commands[-1].is_stop  # and it ends stopped
+
+
+def test_control_loop_failure_stops_the_base():
+    class Broken:
+        def update(self, target, stamp_s):
+            raise ZeroDivisionError("boom")
+
+    base = NullBase()
+    loop = ControlLoop(Broken(), base, LatestSlot(), rate_hz=50.0, perception_timeout_s=0.3)
+    loop.start()
+    time.sleep(0.2)
+    assert isinstance(loop.error, ZeroDivisionError)
+    assert base.commands and base.commands[-1].is_stop
+    loop.stop()
+    assert base.commands[-1].is_stop
