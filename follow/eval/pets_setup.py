@@ -1,0 +1,113 @@
+"""What the PETS 2009 evaluations share: the sequence, its camera, the ground truth on
+the floor, and the skeleton detections of every frame, computed once and cached."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from follow.camera import CameraModel
+from follow.config import PoseConfig
+from follow.types import Skeleton
+
+log = logging.getLogger(__name__)
+
+PETS_DIR = "pets2009_s2l1"
+PETS_FPS = 7.0
+
+
+def data_dir() -> Path:
+    env = os.environ.get("FOLLOW_DATA_DIR")
+    if not env:
+        raise ValueError("$FOLLOW_DATA_DIR is not set: point it at the folder holding pets2009_s2l1/")
+    path = Path(env) / PETS_DIR
+    if not path.is_dir():
+        raise ValueError(f"PETS 2009 data not found: {path} is not a folder")
+    return path
+
+
+@dataclass
+class PetsSetup:
+    """The sequence, the camera at video resolution, and exact ground-plane truth."""
+
+    sequence: object  # follow.eval.pets.PetsSequence
+    camera: CameraModel  # at the video's resolution
+    tsai: object  # calib.tsai.TsaiCamera, for exact ground truth
+    discrepancy_px: float
+
+    @classmethod
+    def load(cls, root: Path | None = None) -> PetsSetup:
+        from calib.tsai import TsaiCamera
+
+        from follow.eval.pets import VIDEO_IMAGE_SIZE, PetsSequence
+
+        root = root or data_dir()
+        tsai = TsaiCamera.from_xml(root / "View_001.xml")
+        camera, discrepancy = tsai.to_camera_model()
+        return cls(PetsSequence(root), camera.scaled(*VIDEO_IMAGE_SIZE), tsai, discrepancy)
+
+    def ground_truth(self, index: int, max_hidden_fraction: float = 1.0):
+        """(ids, positions (N, 2) in metres, boxes) of frame `index`: box bottom centres
+        back-projected through the Tsai model, people hidden more than the limit left out."""
+        boxes = [b for b in self.sequence.boxes_gt_px(index)
+                 if b.hidden_fraction <= max_hidden_fraction]  # fmt: skip
+        if not boxes:
+            return [], np.empty((0, 2)), []
+        feet = np.array([[b.xc, b.bottom] for b in boxes])
+        ground = self.tsai.back_project_to_ground(feet)
+        ok = np.isfinite(ground).all(axis=1)
+        boxes = [b for b, good in zip(boxes, ok, strict=True) if good]
+        return [b.person_id for b in boxes], ground[ok], boxes
+
+    @property
+    def frame_count(self) -> int:
+        return self.sequence.frame_count
+
+
+def _cache_path(pose_config: PoseConfig, frames: list[int]) -> Path:
+    from follow.models import cache_dir
+
+    key = json.dumps({"pose": pose_config.__dict__, "frames": frames}, sort_keys=True)
+    digest = hashlib.sha256(key.encode()).hexdigest()[:16]
+    return cache_dir().parent / "eval" / f"pets_skeletons_{digest}.npz"
+
+
+def pets_skeletons(
+    setup: PetsSetup, frames: list[int], pose_config: PoseConfig, use_cache: bool = True
+) -> dict[int, list[Skeleton]]:
+    """Skeletons of the given frames, from the pose network; cached on disk so that every
+    method of an evaluation, and every later run, sees the same detections."""
+    path = _cache_path(pose_config, frames)
+    if use_cache and path.exists():
+        data = np.load(path)
+        out: dict[int, list[Skeleton]] = {i: [] for i in frames}
+        for f, kp, conf, score in zip(data["frame"], data["kp"], data["conf"], data["score"],
+                                      strict=True):  # fmt: skip
+            out[int(f)].append(Skeleton(kp, conf, float(score)))
+        log.info("PETS skeletons from cache %s", path)
+        return out
+    from tqdm import tqdm
+
+    from follow.pose.detector import PoseDetector
+
+    detector = PoseDetector(pose_config)
+    out = {}
+    for index, image in tqdm(setup.sequence.frames(frames), total=len(frames),
+                             desc="pose network on PETS", unit="frame"):  # fmt: skip
+        out[index] = detector.detect(image)
+    rows = [(i, s) for i in frames for s in out[i]]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path,
+        frame=np.array([i for i, _ in rows], int),
+        kp=np.array([s.keypoints_px for _, s in rows]).reshape(-1, 18, 2),
+        conf=np.array([s.confidences for _, s in rows]).reshape(-1, 18),
+        score=np.array([s.score for _, s in rows], float),
+    )
+    return out

@@ -1,0 +1,130 @@
+"""`follow eval tracking`: our tracker against the ground truth of PETS 2009 S2.L1 on
+the floor (CLEAR MOT, IDF1, 1 m match threshold), side by side, on the same skeleton
+detections, with the no-filter baseline, norfair on keypoints and ByteTrack on boxes."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from follow.config import Config
+from follow.eval.mot import GroundPlaneMot
+from follow.eval.pets_setup import PETS_FPS, PetsSetup, pets_skeletons
+
+METHODS = ("ours", "direct", "norfair", "bytetrack")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--frames", type=int, help="only the first N frames (default: all)")
+    p.add_argument("--config", help="TOML configuration for our tracker and the pose network")
+    p.add_argument("--match-threshold-m", type=float, default=1.0)
+    p.add_argument("--plot", help="write a PNG of MOTA and IDF1 per method here")
+    p.add_argument("--no-cache", action="store_true", help="run the pose network again")
+
+
+class HungarianIds:
+    """Frame-to-frame identities for unfiltered positions: Hungarian matching of this
+    frame's points to the last frame's, within a gate; the unmatched get new ids."""
+
+    def __init__(self, gate_m: float = 1.0):
+        self.gate_m = gate_m
+        self._ids: list[int] = []
+        self._points = np.empty((0, 2))
+        self._next = 1
+
+    def update(self, points: np.ndarray) -> list[int]:
+        points = np.asarray(points, float).reshape(-1, 2)
+        ids = [0] * len(points)
+        if len(points) and len(self._points):
+            cost = np.linalg.norm(points[:, None] - self._points[None], axis=2)
+            rows, cols = linear_sum_assignment(np.where(cost > self.gate_m, 1e6, cost))
+            for r, c in zip(rows, cols, strict=True):
+                if cost[r, c] <= self.gate_m:
+                    ids[r] = self._ids[c]
+        for i in range(len(ids)):
+            if ids[i] == 0:
+                ids[i], self._next = self._next, self._next + 1
+        self._ids, self._points = ids, points
+        return ids
+
+
+def run_methods(setup: PetsSetup, frames: list[int], skeletons, config: Config):
+    """Per method, per frame: (hypothesis ids, positions in metres)."""
+    from follow.eval.peers import ByteTrackBoxTracker, NorfairKeypointTracker
+    from follow.pose.observations import skeletons_to_observations
+    from follow.ukf.tracker import PeopleTracker
+
+    camera = setup.camera
+    ours = PeopleTracker(camera, config.tracker)
+    norfair = NorfairKeypointTracker(camera, config.pose.keypoint_min_confidence)
+    bytetrack = ByteTrackBoxTracker(camera, PETS_FPS, config.pose.keypoint_min_confidence)
+    direct_ids = HungarianIds(gate_m=1.0)
+    out: dict[str, list] = {m: [] for m in METHODS}
+    for index in frames:
+        stamp = index / PETS_FPS
+        observations = skeletons_to_observations(skeletons[index], camera.image_size, config.pose)
+        tracks = [t for t in ours.update(observations, stamp) if t.confirmed]
+        out["ours"].append(([t.track_id for t in tracks],
+                            np.array([t.position_m for t in tracks]).reshape(-1, 2)))  # fmt: skip
+        feet = [o.ankle_px for o in observations if o.ankle_px is not None]
+        ground = camera.back_project_to_ground(np.array(feet)) if feet else np.empty((0, 2))
+        ground = ground[np.isfinite(ground).all(axis=1)]
+        out["direct"].append((direct_ids.update(ground), ground))
+        for name, tracker in (("norfair", norfair), ("bytetrack", bytetrack)):
+            ids, pts = tracker.update(skeletons[index])
+            ok = np.isfinite(pts).all(axis=1) if len(pts) else np.zeros(0, bool)
+            out[name].append(([i for i, good in zip(ids, ok, strict=True) if good], pts[ok]))
+    return out
+
+
+def score(setup: PetsSetup, frames: list[int], hypotheses, threshold_m: float) -> dict:
+    results = {}
+    for method, per_frame in hypotheses.items():
+        mot = GroundPlaneMot(threshold_m)
+        for index, (hyp_ids, hyp_xy) in zip(frames, per_frame, strict=True):
+            gt_ids, gt_xy, _ = setup.ground_truth(index)
+            mot.add_frame(gt_ids, gt_xy, hyp_ids, hyp_xy)
+        results[method] = mot.summary()
+    return results
+
+
+def plot(results: dict, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = list(results)
+    x = np.arange(len(methods))
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for offset, key, label in ((-0.2, "mota", "MOTA"), (0.2, "idf1", "IDF1")):
+        values = [results[m][key] for m in methods]
+        bars = ax.bar(x + offset, values, 0.4, label=label)
+        ax.bar_label(bars, fmt="%.2f", fontsize=8)
+    ax.set_xticks(x, methods)
+    ax.set_ylim(min(0.0, *(results[m]["mota"] for m in methods)), 1.05)
+    ax.set_title("PETS 2009 S2.L1, ground plane, 1 m threshold")
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(args) -> dict:
+    config = Config.load(args.config) if args.config else Config()
+    setup = PetsSetup.load()
+    n = setup.frame_count if args.frames is None else min(args.frames, setup.frame_count)
+    frames = list(range(n))
+    skeletons = pets_skeletons(setup, frames, config.pose, use_cache=not args.no_cache)
+    results = score(setup, frames, run_methods(setup, frames, skeletons, config),
+                    args.match_threshold_m)  # fmt: skip
+    if args.plot:
+        plot(results, args.plot)
+    if not args.json:
+        print(f"PETS 2009 S2.L1, {n} frames, match threshold {args.match_threshold_m} m")
+        print(f"{'method':10s} {'MOTA':>6s} {'MOTP m':>7s} {'IDF1':>6s} {'IDsw':>5s} "
+              f"{'miss':>5s} {'FP':>5s}")  # fmt: skip
+        for m, r in results.items():
+            print(f"{m:10s} {r['mota']:6.3f} {r['motp_m']:7.3f} {r['idf1']:6.3f} "
+                  f"{r['id_switches']:5d} {r['misses']:5d} {r['false_positives']:5d}")  # fmt: skip
+    return {**results, "frames": n, "match_threshold_m": args.match_threshold_m}
