@@ -1,0 +1,185 @@
+"""`follow eval identification`: who is the target, on PETS 2009 S2.L1.
+
+Each ground-truth person visible for at least `--min-visible-s` becomes the target in
+turn: on the first frame where they are visible and a confirmed track lies within the
+match distance, that track is selected and the identifier learns from there on. Every
+later frame is then CT, CL, WT or WL (see `identification_metrics`). A person is
+visible when annotated and not more than half hidden behind someone nearer the camera;
+a named track is the target when its position lies within the match distance of the
+target's annotated position.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from follow.config import Config
+from follow.eval.identification_metrics import OUTCOMES, OutcomeTally, classify
+from follow.eval.pets_setup import PETS_FPS, PetsSetup, pets_skeletons
+from follow.types import TargetStatus
+
+IDENTIFIERS = ("ccf10", "ccf10+reid", "reid")
+NAMING_STATES = (TargetStatus.INITIAL_TRAINING, TargetStatus.TRACKING)
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--identifiers", default=",".join(IDENTIFIERS),
+                   help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
+    p.add_argument("--frames", type=int, help="only the first N frames (default: all)")
+    p.add_argument("--min-visible-s", type=float, default=20.0,
+                   help="people visible at least this long become targets")  # fmt: skip
+    p.add_argument("--max-targets", type=int, help="evaluate at most this many targets")
+    p.add_argument("--match-distance-m", type=float, default=1.0)
+    p.add_argument("--max-hidden-fraction", type=float, default=0.5)
+    p.add_argument("--config", help="TOML configuration")
+    p.add_argument("--plot", help="write a PNG timeline of outcomes per target here")
+    p.add_argument("--no-cache", action="store_true", help="run the pose network again")
+
+
+class _CachedDescribe:
+    """Memoises an appearance model's `describe` per (frame, ROI): the cues of a person
+    in a frame do not depend on which target is being learnt."""
+
+    def __init__(self, describe):
+        self.describe = describe
+        self.frame_index = -1
+        self.cache: dict = {}
+
+    def __call__(self, image_bgr, rois):
+        missing = [r for r in rois if (self.frame_index, tuple(r)) not in self.cache]
+        if missing:
+            for roi, cue in zip(missing, self.describe(image_bgr, missing), strict=True):
+                self.cache[(self.frame_index, tuple(roi))] = cue
+        return [self.cache[(self.frame_index, tuple(r))] for r in rois]
+
+
+def _track_near(tracks, position_m, max_distance_m: float, confirmed_only: bool):
+    best, best_d = None, max_distance_m
+    for t in tracks:
+        if confirmed_only and not t.confirmed:
+            continue
+        d = float(np.linalg.norm(t.position_m - position_m))
+        if d <= best_d:
+            best, best_d = t, d
+    return best
+
+
+def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame, target_ids,
+             identifier_name: str, config: Config, match_m: float, max_hidden: float):  # fmt: skip
+    """Per target: the OutcomeTally over the frames after it was selected."""
+    from follow.boost.factory import build_identifier
+
+    section = dataclasses.replace(config.identify, identifier=identifier_name)
+    cache = None
+    out = {}
+    for target in target_ids:
+        identifier = build_identifier(section)
+        if cache is None:
+            cache = _CachedDescribe(identifier.model.describe)
+        identifier.model.describe = cache
+        tally = OutcomeTally()
+        selected = False
+        for position, (index, image) in enumerate(setup.sequence.frames(frames)):
+            tracks = tracks_per_frame[position]
+            people = gt_per_frame[position]
+            target_box = people.get(target)
+            visible = target_box is not None and target_box[1] <= max_hidden
+            if not selected:
+                if not visible:
+                    continue
+                track = _track_near(tracks, target_box[0], match_m, confirmed_only=True)
+                if track is None:
+                    continue
+                identifier.select_target(track.track_id)
+                selected = True
+            cache.frame_index = index
+            estimate = identifier.update(image, tracks, index / PETS_FPS)
+            named = estimate.target_id if estimate.status in NAMING_STATES else None
+            named_is_target = False
+            if named is not None and target_box is not None:
+                track = next((t for t in tracks if t.track_id == named), None)
+                named_is_target = track is not None and bool(
+                    np.linalg.norm(track.position_m - target_box[0]) <= match_m
+                )
+            tally.add(classify(visible, named, named_is_target), 1.0 / PETS_FPS)
+        out[target] = tally
+    return out
+
+
+def plot(per_identifier: dict, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    colours = {"ct": "#2ca02c", "cl": "#98df8a", "wt": "#d62728", "wl": "#ff9896"}
+    rows = [(name, t, tally) for name, per_target in per_identifier.items()
+            for t, tally in per_target.items()]  # fmt: skip
+    fig, ax = plt.subplots(figsize=(9, 0.3 * len(rows) + 1.2))
+    for y, (name, target, tally) in enumerate(rows):
+        for x, outcome in enumerate(tally.timeline):
+            ax.barh(y, 1.0 / PETS_FPS, left=x / PETS_FPS, color=colours[outcome], height=0.8)
+    ax.set_yticks(range(len(rows)), [f"{n} #{t}" for n, t, _ in rows], fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlabel("seconds after the target was selected")
+    ax.legend(handles=[Patch(color=c, label=k.upper()) for k, c in colours.items()],
+              ncol=4, loc="upper right", fontsize=7)  # fmt: skip
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(args) -> dict:
+    from follow.pose.observations import skeletons_to_observations
+    from follow.ukf.tracker import PeopleTracker
+
+    config = Config.load(args.config) if args.config else Config()
+    setup = PetsSetup.load()
+    n = setup.frame_count if args.frames is None else min(args.frames, setup.frame_count)
+    frames = list(range(n))
+    skeletons = pets_skeletons(setup, frames, config.pose, use_cache=not args.no_cache)
+    tracker = PeopleTracker(setup.camera, config.tracker)
+    tracks_per_frame, gt_per_frame = [], []
+    visible_frames: dict[int, int] = {}
+    for index in frames:
+        observations = skeletons_to_observations(skeletons[index], setup.camera.image_size,
+                                                 config.pose)  # fmt: skip
+        tracks_per_frame.append(tracker.update(observations, index / PETS_FPS))
+        ids, positions, boxes = setup.ground_truth(index)
+        gt_per_frame.append({i: (p, b.hidden_fraction)
+                             for i, p, b in zip(ids, positions, boxes, strict=True)})  # fmt: skip
+        for i, b in zip(ids, boxes, strict=True):
+            if b.hidden_fraction <= args.max_hidden_fraction:
+                visible_frames[i] = visible_frames.get(i, 0) + 1
+    min_frames = args.min_visible_s * PETS_FPS
+    targets = sorted(i for i, c in visible_frames.items() if c >= min_frames)
+    if args.max_targets:
+        targets = targets[: args.max_targets]
+    if not targets:
+        raise ValueError(f"no person is visible for {args.min_visible_s} s in {n} frames")
+    names = [s.strip() for s in args.identifiers.split(",") if s.strip()]
+    per_identifier, result = {}, {}
+    for name in names:
+        per_target = evaluate(setup, frames, tracks_per_frame, gt_per_frame, targets, name,
+                              config, args.match_distance_m, args.max_hidden_fraction)  # fmt: skip
+        per_identifier[name] = per_target
+        total = OutcomeTally()
+        for tally in per_target.values():
+            total.merge(tally)
+        result[name] = {
+            **{k: round(v, 4) for k, v in total.fractions().items()},
+            "seconds": {k: round(v, 1) for k, v in total.seconds.items()},
+            "per_target": {str(t): {k: round(v, 4) for k, v in tally.fractions().items()}
+                           for t, tally in per_target.items()},  # fmt: skip
+        }
+    if args.plot:
+        plot(per_identifier, args.plot)
+    if not args.json:
+        print(f"PETS 2009 S2.L1, {n} frames, {len(targets)} targets: {targets}")
+        print(f"{'identifier':12s} " + " ".join(f"{k.upper():>6s}" for k in OUTCOMES))
+        for name, r in result.items():
+            print(f"{name:12s} " + " ".join(f"{r[k]:6.3f}" for k in OUTCOMES))
+    return {**result, "targets": targets, "frames": n}
