@@ -119,9 +119,14 @@ def plot(per_identifier: dict, path: str) -> None:
     rows = [(name, t, tally) for name, per_target in per_identifier.items()
             for t, tally in per_target.items()]  # fmt: skip
     fig, ax = plt.subplots(figsize=(9, 0.3 * len(rows) + 1.2))
-    for y, (name, target, tally) in enumerate(rows):
-        for x, outcome in enumerate(tally.timeline):
-            ax.barh(y, 1.0 / PETS_FPS, left=x / PETS_FPS, color=colours[outcome], height=0.8)
+    for y, (_, _, tally) in enumerate(rows):
+        start = 0
+        timeline = tally.timeline
+        for x in range(1, len(timeline) + 1):  # one bar per run of equal outcomes
+            if x == len(timeline) or timeline[x] != timeline[start]:
+                ax.barh(y, (x - start) / PETS_FPS, left=start / PETS_FPS,
+                        color=colours[timeline[start]], height=0.8)  # fmt: skip
+                start = x
     ax.set_yticks(range(len(rows)), [f"{n} #{t}" for n, t, _ in rows], fontsize=7)
     ax.invert_yaxis()
     ax.set_xlabel("seconds after the target was selected")
