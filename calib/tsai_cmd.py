@@ -6,6 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
+from calib.camera_file import write_camera_file
 from calib.gt_boxes import motion_figures, read_boxes
 from calib.tsai import TsaiCamera
 
@@ -33,7 +34,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> dict:
     tsai = TsaiCamera.from_xml(args.tsai_xml)
     model, discrepancy_px = tsai.to_camera_model(step_px=args.grid_step_px)
-    model.save(args.output)
+    notes = {
+        "intrinsics": f"follow-calib import-tsai {args.tsai_xml.name}",
+        "pose": f"follow-calib import-tsai {args.tsai_xml.name}",
+        "tsai_max_discrepancy_px": round(discrepancy_px, 5),
+        "frame": "base is the calibration's world frame (m, z up, ground z = 0)",
+    }
+    write_camera_file(args.output, model, notes)
     p = model.pose
     result = {
         "camera_file": str(args.output),
