@@ -161,3 +161,65 @@ def rotation_from_euler_deg(rx_deg: float, ry_deg: float, rz_deg: float) -> np.n
     rvec_y = cv2.Rodrigues(np.array([0.0, math.radians(ry_deg), 0.0]))[0]
     rvec_z = cv2.Rodrigues(np.array([0.0, 0.0, math.radians(rz_deg)]))[0]
     return rvec_z @ rvec_y @ rvec_x
+
+
+def board_fully_visible(
+    camera: CameraModel, board: BoardSpec, R: np.ndarray, t: np.ndarray, margin_px: float = 3.0
+) -> bool:
+    """True when the whole board, white margin included, is inside the image."""
+    cols, rows = board.pattern_size
+    s = board.square_size_m
+    edge = np.linspace(0.0, 1.0, 9)
+    x0, x1, y0, y1 = -2 * s, (cols + 1) * s, -2 * s, (rows + 1) * s
+    outline = np.concatenate(
+        [
+            np.column_stack([x0 + (x1 - x0) * edge, np.full(9, y0)]),
+            np.column_stack([x0 + (x1 - x0) * edge, np.full(9, y1)]),
+            np.column_stack([np.full(9, x0), y0 + (y1 - y0) * edge]),
+            np.column_stack([np.full(9, x1), y0 + (y1 - y0) * edge]),
+        ]
+    )
+    pts_cam = np.column_stack([outline, np.zeros(len(outline))]) @ R.T + t
+    if (pts_cam[:, 2] <= 0.05).any():
+        return False
+    pts_base = pts_cam @ camera.rotation_base_from_cam.T + camera.position_base
+    return bool(camera.in_image(camera.project(pts_base), margin_px).all())
+
+
+def calibration_views(
+    camera: CameraModel,
+    board: BoardSpec,
+    count: int,
+    *,
+    distance_m: tuple[float, float] = (0.35, 0.6),
+    max_tilt_deg: float = 40.0,
+    seed: int = 0,
+    **render_kwargs,
+) -> list[tuple[str, np.ndarray]]:
+    """`count` hand-held-like views of `board`: tilted, at several distances, spread over
+    the image (the board's centre is aimed at a 3x3 grid of image points, then at random
+    ones), each fully inside the image."""
+    rng = np.random.default_rng(seed)
+    w, h = camera.image_size
+    aims = [(u, v) for v in (0.22, 0.5, 0.78) for u in (0.2, 0.5, 0.8)]
+    Kinv = np.linalg.inv(camera.K)
+    views = []
+    for index in range(count):
+        u, v = aims[index] if index < len(aims) else rng.uniform(0.25, 0.75, 2)
+        for _ in range(50):
+            R = rotation_from_euler_deg(
+                rng.uniform(-max_tilt_deg, max_tilt_deg),
+                rng.uniform(-max_tilt_deg, max_tilt_deg),
+                rng.uniform(-25.0, 25.0),
+            )
+            depth = rng.uniform(*distance_m)
+            centre = Kinv @ np.array([u * w, v * h, 1.0]) * depth
+            t = centre - R @ np.array([*board.centre_m, 0.0])
+            if board_fully_visible(camera, board, R, t):
+                break
+            u, v = 0.5 + (u - 0.5) * 0.92, 0.5 + (v - 0.5) * 0.92  # aim nearer the centre
+        else:
+            raise RuntimeError("could not place the board inside the image; use a smaller one")
+        image = render_board(camera, board, R, t, seed=seed * 1000 + index, **render_kwargs)
+        views.append((f"synthetic {index:02d}", image))
+    return views
