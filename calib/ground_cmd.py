@@ -94,7 +94,7 @@ def main(args: argparse.Namespace) -> dict:
         f"height {pose.height_m:.3f} m  pitch {math.degrees(pose.pitch_rad):.2f} deg  "
         f"roll {math.degrees(pose.roll_rad):.2f} deg",
         f"board at x {centre_base[0]:.2f} y {centre_base[1]:.2f} m  "
-        f"rms {result.reprojection_rms_px:.2f} px  grid 1 m, red: base axes",
+        f"rms {result.reprojection_rms_px:.2f} px  grid 1 m, red: base axes, blue: horizon",
     ]
     overlay = calibration_overlay(
         image, calibrated.scaled(w, h), result.corners_px, args.pattern, lines=lines

@@ -21,6 +21,8 @@ TEXT_COLOUR = (255, 255, 255)
 SAMPLES_PER_M = 20  # points per metre along a grid line (curves through the distortion)
 HORIZON_SAMPLES = 721
 HORIZON_DISTANCE_M = 1.0e5
+VALID_RADIUS_MARGIN = 1.05
+MIN_DEPTH_M = 0.05
 
 
 def _camera_for(image: np.ndarray, camera: CameraModel) -> CameraModel:
@@ -35,14 +37,36 @@ def _draw_segments(image, segments, colour, thickness) -> None:
         cv2.polylines(image, [poly], False, colour, thickness, cv2.LINE_AA, shift=4)
 
 
-def _polyline_segments(camera: CameraModel, points_base: np.ndarray) -> list[np.ndarray]:
-    """Projected runs of consecutive points that are in front of the camera and on screen."""
-    pixels = camera.project(points_base)
+def _max_valid_radius(camera: CameraModel) -> float:
+    """Largest undistorted normalised radius seen in the image (a little more).
+
+    Beyond it a fitted distortion polynomial may fold back, drawing points that are far
+    outside the view inside the image; such points are not drawn.
+    """
     w, h = camera.image_size
-    margin = max(w, h)  # keep lines that leave the image, but not distortion fold-overs
-    ok = camera.in_image(pixels, margin_px=-margin)
-    in_front = camera.base_to_camera(points_base)[:, 2] > 0.05
-    ok &= in_front
+    t = np.linspace(0.0, 1.0, 33)
+    border = np.concatenate(
+        [
+            np.column_stack([t * (w - 1), np.zeros_like(t)]),
+            np.column_stack([t * (w - 1), np.full_like(t, h - 1)]),
+            np.column_stack([np.zeros_like(t), t * (h - 1)]),
+            np.column_stack([np.full_like(t, w - 1), t * (h - 1)]),
+        ]
+    )
+    rays = camera.pixel_rays_base(border) @ camera.rotation_base_from_cam  # camera frame
+    radius = np.hypot(rays[:, 0], rays[:, 1]) / rays[:, 2]
+    return float(radius.max() * VALID_RADIUS_MARGIN)
+
+
+def _polyline_segments(camera: CameraModel, points_base: np.ndarray) -> list[np.ndarray]:
+    """Projected runs of consecutive points that are in front of the camera and in view."""
+    pixels = camera.project(points_base)
+    pc = camera.base_to_camera(points_base)
+    ok = pc[:, 2] > MIN_DEPTH_M
+    with np.errstate(divide="ignore", invalid="ignore"):
+        radius = np.hypot(pc[:, 0], pc[:, 1]) / pc[:, 2]
+    ok &= radius <= _max_valid_radius(camera)
+    ok &= np.isfinite(pixels).all(axis=1)
     segments, current = [], []
     for p, good in zip(pixels, ok, strict=True):
         if good:

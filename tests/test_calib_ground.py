@@ -193,3 +193,48 @@ def test_ground_command_names_a_broken_image(board_scene, capsys):
         from calib.chessboard import read_image
 
         read_image(folder / "absent.png")
+
+
+def test_check_command_draws_the_grid_on_a_pets_frame(data_path, tmp_path, capsys):
+    video = data_path("pets2009_s2l1/View_001.avi")
+    cam_file = tmp_path / "pets.yaml"
+    assert cli.main(["import-tsai", str(data_path("pets2009_s2l1/View_001.xml")),
+                     "-o", str(cam_file)]) == 0  # fmt: skip
+    out_png = tmp_path / "check.png"
+    rc = cli.main(
+        [
+            "check",
+            str(video),
+            "--camera",
+            str(cam_file),
+            "--frame",
+            "3",
+            "-o",
+            str(out_png),
+            "--max-range-m",
+            "45",
+            "--json",
+        ]  # fmt: skip
+    )
+    assert rc == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["frame_size"] == [480, 360] and result["camera_scaled_from"] == [768, 576]
+    overlay = cv2.imread(str(out_png))
+    green = (overlay[:, :, 1] > 200) & (overlay[:, :, 0] < 60) & (overlay[:, :, 2] < 60)
+    # Grid lines cover the floor (lower half) but not the sky-free top band of text.
+    assert green[180:].mean() > 0.03
+    # The camera looks down 16 deg with a 13.6 deg half field of view: no horizon in view.
+    assert result["horizon_row_at_centre_px"] < 0
+    # A grid point drawn where the model puts it: world origin (red axes cross).
+    origin_px = CameraModel.load(cam_file).scaled(480, 360).project(np.zeros(3))
+    u, v = np.round(origin_px).astype(int)
+    patch = overlay[v - 2 : v + 3, u - 2 : u + 3].astype(int)
+    assert ((patch[:, :, 2] > 200) & (patch[:, :, 1] < 80)).any()
+
+
+def test_check_command_names_a_missing_frame(data_path, tmp_path, capsys):
+    cam = camera(0.8, 15.0)
+    cam.save(tmp_path / "cam.yaml")
+    rc = cli.main(["check", str(tmp_path / "nothing.png"), "--camera", str(tmp_path / "cam.yaml")])
+    assert rc == 2
+    assert "nothing.png: no such file" in capsys.readouterr().err
