@@ -1,0 +1,96 @@
+"""`follow-calib check`: draw a camera file's ground grid over a frame, to eyeball it.
+
+The floor grid (1 m by default, the `base` axes in red) and the horizon are drawn through
+the camera model, lens distortion included. Floor tiles, walls' feet and people's feet
+should sit on the grid as a person expects; if they do not, the calibration is off.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import cv2
+
+from calib.chessboard import ImageInputError, is_video, iter_video_frames, read_image
+from calib.overlay import calibration_overlay, visible_ground_extent
+from follow.camera import CameraModel
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "source", help="image file, video file or camera index (e.g. 0) to take a frame from"
+    )
+    parser.add_argument("--camera", type=Path, required=True, help="camera file to check")
+    parser.add_argument(
+        "--frame", type=int, default=0, help="video/camera: index of the frame to use (default 0)"
+    )
+    parser.add_argument(
+        "-o", "--output", type=Path, default=Path("check.png"),
+        help="overlay PNG to write (default check.png)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--grid-step-m", type=float, default=1.0, help="grid spacing, metres (default 1)"
+    )
+    parser.add_argument(
+        "--max-range-m", type=float, default=20.0,
+        help="draw the grid up to this distance from the camera (default 20 m)",
+    )  # fmt: skip
+
+
+def _frame(source: str, index: int):
+    if index < 0:
+        raise ValueError(f"--frame must be >= 0, got {index}")
+    if source.isdigit() or is_video(Path(source)):
+        for _, frame in iter_video_frames(source, every=1, limit=None):
+            if index == 0:
+                return frame
+            index -= 1
+        raise ImageInputError(f"video {source}: has no frame {index}")
+    return read_image(source)
+
+
+def main(args: argparse.Namespace) -> dict:
+    camera = CameraModel.load(args.camera)
+    frame = _frame(args.source, args.frame)
+    h, w = frame.shape[:2]
+    cw, ch = camera.image_size
+    if abs(w / h - cw / ch) > 0.01:
+        raise ImageInputError(
+            f"frame is {w}x{h} but the camera file {args.camera} is for {cw}x{ch} "
+            "(another aspect ratio)"
+        )
+    seen = camera if (w, h) == camera.image_size else camera.scaled(w, h)
+    p = camera.pose
+    lines = [
+        f"{args.camera.name}: height {p.height_m:.2f} m  pitch {math.degrees(p.pitch_rad):.1f} "
+        f"deg  roll {math.degrees(p.roll_rad):.1f} deg  yaw {math.degrees(p.yaw_rad):.1f} deg",
+        f"ground grid {args.grid_step_m:g} m, red: base axes, blue: horizon",
+    ]
+    overlay = calibration_overlay(
+        frame, seen, grid_step_m=args.grid_step_m, max_range_m=args.max_range_m, lines=lines
+    )
+    if not cv2.imwrite(str(args.output), overlay):
+        raise OSError(f"cannot write the overlay image {args.output}")
+    extent = visible_ground_extent(seen, args.max_range_m)
+    horizon = seen.horizon_line()
+    horizon_v = None
+    if horizon is not None and abs(horizon[1]) > 1e-9:
+        horizon_v = float(-(horizon[0] * (w - 1) / 2.0 + horizon[2]) / horizon[1])
+    out = {
+        "overlay": str(args.output),
+        "frame_size": [w, h],
+        "camera_scaled_from": [cw, ch] if (w, h) != (cw, ch) else None,
+        "visible_ground_m": None if extent is None else [float(v) for v in extent],
+        "horizon_row_at_centre_px": horizon_v,
+    }
+    if not args.json:
+        print(f"wrote {args.output} ({w}x{h})")
+        if extent is None:
+            print("  no floor in view: the camera looks above the horizon")
+        else:
+            x0, x1, y0, y1 = extent
+            print(f"  floor in view (within {args.max_range_m:g} m): x {x0:.1f}..{x1:.1f} m, "
+                  f"y {y0:.1f}..{y1:.1f} m")  # fmt: skip
+    return out

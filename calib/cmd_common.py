@@ -1,0 +1,63 @@
+"""Argument types and input handling shared by the `follow-calib` commands."""
+
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+
+import numpy as np
+
+from calib.chessboard import ImageInputError, is_video, iter_video_frames, read_image, to_gray
+
+
+def pattern_size(text: str) -> tuple[int, int]:
+    """'9x6' -> (9, 6): inner corners per row and per column."""
+    match = re.fullmatch(r"\s*(\d+)\s*[xX,]\s*(\d+)\s*", text)
+    if not match:
+        raise argparse.ArgumentTypeError(
+            f"pattern size must look like 9x6 (inner corners), got {text!r}"
+        )
+    cols, rows = int(match.group(1)), int(match.group(2))
+    if cols < 2 or rows < 2:
+        raise argparse.ArgumentTypeError(f"pattern size must be at least 2x2, got {text!r}")
+    return cols, rows
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0 or not np.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
+def add_board_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--pattern", type=pattern_size, required=True, metavar="COLSxROWS",
+        help="inner corners of the chessboard, e.g. 9x6 for a board of 10x7 squares",
+    )  # fmt: skip
+    parser.add_argument(
+        "--square-size-m", type=positive_float, required=True,
+        help="side of one square in metres (measure the printed board)",
+    )  # fmt: skip
+
+
+def read_grey_frames(
+    sources: list[Path], every: int = 1, limit: int | None = None
+) -> list[tuple[str, np.ndarray]]:
+    """(name, grey frame) from image files, or from one video file or camera index."""
+    if len(sources) == 1 and (is_video(sources[0]) or str(sources[0]).isdigit()):
+        source = str(sources[0])
+        frames = [(name, to_gray(f, name)) for name, f in iter_video_frames(source, every, limit)]
+        if not frames:
+            raise ImageInputError(f"video {source}: no frames")
+        return frames
+    out = []
+    for path in sources:
+        if is_video(path):
+            raise ImageInputError(f"{path}: give a video on its own, not among images")
+        out.append((path.name, to_gray(read_image(path), str(path))))
+    return out[:limit] if limit else out

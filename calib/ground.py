@@ -1,0 +1,187 @@
+"""The camera's pose over the floor from one view of a chessboard lying on it.
+
+The board's plane is the floor: its normal, seen from the camera, gives pitch and roll,
+and the camera's distance to the plane is its height. Yaw and the offsets cannot be seen
+from a board alone; they are kept from the existing camera file, or derived when the user
+says where the board lies in `base`.
+
+Pose convention (follow.camera): R_base_from_cam = Rz(yaw) Ry(pitch) Rx(roll) R0, so the
+floor normal (base +z) expressed in the camera frame is
+n = (-cos(pitch) sin(roll), -cos(pitch) cos(roll), -sin(pitch)).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from calib.chessboard import BoardNotFoundError, Detection, check_pattern_size, detect_chessboard
+from follow.camera import CameraModel, CameraPose
+
+OUTLIER_ROUNDS = 3
+OUTLIER_FACTOR = 4.0
+OUTLIER_MIN_PX = 1.0
+MIN_INLIER_FRACTION = 0.7
+
+
+@dataclass(frozen=True)
+class GroundPoseResult:
+    """Camera pose over the floor and where the board lies, from one board view."""
+
+    height_m: float
+    pitch_rad: float
+    roll_rad: float
+    # The board in the camera's level frame: origin on the floor under the camera, x along
+    # the optical axis' floor projection, y left, z up (i.e. `base` with yaw = x = y = 0).
+    board_origin_level_m: np.ndarray  # (2,) first detected inner corner
+    board_centre_level_m: np.ndarray  # (2,) centre of the inner corners
+    board_yaw_level_rad: float  # direction of the board's first row (detected order)
+    reprojection_rms_px: float  # over the corners used
+    outlier_corners: int  # corners left out: the detector misplaced them
+    corners_px: np.ndarray  # (N, 2) detected corners
+    sharpness_px: float
+
+    @property
+    def board_distance_m(self) -> float:
+        return float(np.linalg.norm(self.board_centre_level_m))
+
+    def pose(self, yaw_rad: float = 0.0, x_m: float = 0.0, y_m: float = 0.0) -> CameraPose:
+        return CameraPose(self.height_m, self.pitch_rad, self.roll_rad, yaw_rad, x_m, y_m)
+
+    def pose_from_board_in_base(
+        self, board_centre_base_m: tuple[float, float], board_yaw_base_rad: float
+    ) -> CameraPose:
+        """The full pose when the board's centre and row direction in `base` are known."""
+        dyaw = board_yaw_base_rad - self.board_yaw_level_rad
+        c, s = math.cos(dyaw), math.sin(dyaw)
+        rotated = np.array([[c, -s], [s, c]]) @ self.board_centre_level_m
+        offset = np.asarray(board_centre_base_m, dtype=np.float64) - rotated
+        yaw = math.atan2(math.sin(dyaw), math.cos(dyaw))
+        return self.pose(yaw, float(offset[0]), float(offset[1]))
+
+
+def _board_pose(
+    object_pts: np.ndarray, corners: np.ndarray, K: np.ndarray, dist: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Board pose (rvec, tvec) and the mask of corners used.
+
+    IPPE gives the planar solution directly and Levenberg-Marquardt polishes it. On
+    steeply foreshortened boards the detector sometimes misplaces a corner by several
+    pixels; such corners (residual above OUTLIER_FACTOR x the median, and above
+    OUTLIER_MIN_PX) are dropped and the pose solved again.
+    """
+    inliers = np.ones(len(corners), dtype=bool)
+    for _ in range(OUTLIER_ROUNDS):
+        ok, rvec, tvec = cv2.solvePnP(
+            object_pts[inliers], corners[inliers], K, dist, flags=cv2.SOLVEPNP_IPPE
+        )
+        if not ok:
+            raise BoardNotFoundError("the board's corners do not give a pose (degenerate view)")
+        rvec, tvec = cv2.solvePnPRefineLM(
+            object_pts[inliers], corners[inliers], K, dist, rvec, tvec
+        )
+        projected = cv2.projectPoints(object_pts, rvec, tvec, K, dist)[0].reshape(-1, 2)
+        residuals = np.linalg.norm(projected - corners, axis=1)
+        limit = max(OUTLIER_MIN_PX, OUTLIER_FACTOR * float(np.median(residuals[inliers])))
+        keep = residuals <= limit
+        if keep.sum() < MIN_INLIER_FRACTION * len(corners) or np.array_equal(keep, inliers):
+            break
+        inliers = keep
+    return rvec, tvec, inliers
+
+
+def pitch_roll_from_up(up_cam: np.ndarray) -> tuple[float, float]:
+    """Pitch and roll (rad) of a camera whose floor normal in its own frame is `up_cam`."""
+    n = np.asarray(up_cam, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    pitch = math.asin(float(np.clip(-n[2], -1.0, 1.0)))
+    roll = math.atan2(-n[0], -n[1])
+    return pitch, roll
+
+
+def estimate_ground_pose(
+    image_or_gray: np.ndarray,
+    K: np.ndarray,
+    dist: np.ndarray,
+    pattern_size: tuple[int, int],
+    square_size_m: float,
+    detection: Detection | None = None,
+) -> GroundPoseResult:
+    """Height, pitch and roll of the camera over the floor the board lies on.
+
+    Works whatever the board's orientation and corner order in the image: the floor
+    normal is taken on the camera's side of the board. Raises BoardNotFoundError when no
+    board of `pattern_size` inner corners is seen.
+    """
+    cols, rows = check_pattern_size(pattern_size)
+    if not (math.isfinite(square_size_m) and square_size_m > 0):
+        raise ValueError(f"square size must be positive metres, got {square_size_m}")
+    K = np.asarray(K, dtype=np.float64)
+    dist = np.asarray(dist, dtype=np.float64).ravel()
+    if detection is None:
+        detection = detect_chessboard(image_or_gray, (cols, rows))
+    if detection is None:
+        raise BoardNotFoundError(
+            f"no {cols}x{rows} chessboard (inner corners) found in the image; check the "
+            "pattern size, that the whole board with its white margin is in view, and focus"
+        )
+    corners = detection.corners_px
+    jj, ii = np.mgrid[0:rows, 0:cols]
+    object_pts = np.column_stack([ii.ravel(), jj.ravel(), np.zeros(ii.size)]) * square_size_m
+    rvec, tvec, inliers = _board_pose(object_pts, corners, K, dist)
+    projected = cv2.projectPoints(object_pts, rvec, tvec, K, dist)[0].reshape(-1, 2)
+    residuals = np.linalg.norm(projected - corners, axis=1)
+    rms = float(np.sqrt(np.mean(residuals[inliers] ** 2)))
+    R_cam_from_board = cv2.Rodrigues(rvec)[0]
+    t = tvec.ravel()
+    up = R_cam_from_board[:, 2]
+    height = -float(up @ t)  # camera's signed distance above the board plane
+    if height < 0:  # the detected corner order made the board's z point into the floor
+        up, height = -up, -height
+    pitch, roll = pitch_roll_from_up(up)
+    level = CameraPose(height, pitch, roll).rotation_base_from_cam()
+    camera_level = np.array([0.0, 0.0, height])
+
+    def to_level(point_board: np.ndarray) -> np.ndarray:
+        return level @ (R_cam_from_board @ point_board + t) + camera_level
+
+    origin = to_level(np.zeros(3))
+    centre = to_level(np.array([(cols - 1) / 2.0, (rows - 1) / 2.0, 0.0]) * square_size_m)
+    row_dir = level @ R_cam_from_board[:, 0]
+    return GroundPoseResult(
+        height_m=height,
+        pitch_rad=pitch,
+        roll_rad=roll,
+        board_origin_level_m=origin[:2],
+        board_centre_level_m=centre[:2],
+        board_yaw_level_rad=math.atan2(row_dir[1], row_dir[0]),
+        reprojection_rms_px=rms,
+        outlier_corners=int((~inliers).sum()),
+        corners_px=corners,
+        sharpness_px=detection.sharpness_px,
+    )
+
+
+def camera_for_result(
+    model: CameraModel, result: GroundPoseResult, yaw_rad: float, x_m: float, y_m: float
+) -> CameraModel:
+    return model.with_pose(result.pose(yaw_rad, x_m, y_m))
+
+
+def average_frames(frames: list[np.ndarray]) -> np.ndarray:
+    """The mean of several grey frames of a still scene (less noise for the corners)."""
+    if not frames:
+        raise ValueError("no frames to average")
+    shape = frames[0].shape
+    total = np.zeros(shape, dtype=np.float64)
+    for index, frame in enumerate(frames):
+        if frame.shape != shape:
+            raise ValueError(
+                f"frame {index} is {frame.shape[1]}x{frame.shape[0]}, the first is "
+                f"{shape[1]}x{shape[0]}: frames to average must have one size"
+            )
+        total += frame
+    return np.clip(np.round(total / len(frames)), 0, 255).astype(np.uint8)

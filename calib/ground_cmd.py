@@ -1,0 +1,141 @@
+"""`follow-calib ground`: the camera's height, pitch and roll from a board on the floor."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calib.camera_file import write_camera_file
+from calib.chessboard import ImageInputError
+from calib.cmd_common import add_board_arguments, read_grey_frames
+from calib.ground import average_frames, estimate_ground_pose
+from calib.overlay import calibration_overlay
+from follow.camera import CameraModel
+
+log = logging.getLogger(__name__)
+
+# Corners reprojecting worse than this (px RMS) suggest a wrong pattern, intrinsics or a
+# board that is not flat: the result is still written, with a warning.
+RMS_WARNING_PX = 0.5
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "inputs", type=Path, nargs="+",
+        help="image(s) of the board lying flat on the floor (several are averaged), or "
+        "one video file or camera index (its first --frames frames are averaged)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--camera", type=Path, required=True,
+        help="camera file with the intrinsics (from `follow-calib intrinsics`)",
+    )  # fmt: skip
+    add_board_arguments(parser)
+    parser.add_argument(
+        "-o", "--output", type=Path,
+        help="camera file to write (default: update --camera in place)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--overlay", type=Path,
+        help="overlay PNG to write (default: <output stem>_ground.png next to the output)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--frames", type=int, default=10, help="video frames to average (default 10)"
+    )
+    parser.add_argument(
+        "--board-in-base", type=float, nargs=3, metavar=("X_M", "Y_M", "YAW_DEG"),
+        help="where the board lies in `base` (its inner-corner centre and the direction of "
+        "its first detected row): also sets the camera's yaw and x/y offsets",
+    )  # fmt: skip
+
+
+def main(args: argparse.Namespace) -> dict:
+    camera = CameraModel.load(args.camera)
+    if args.frames < 1:
+        raise ValueError(f"--frames must be >= 1, got {args.frames}")
+    frames = read_grey_frames(args.inputs, limit=args.frames)
+    image = average_frames([f for _, f in frames])
+    h, w = image.shape
+    if (w, h) != camera.image_size:
+        cw, ch = camera.image_size
+        if abs(w / h - cw / ch) > 0.01:
+            raise ImageInputError(
+                f"image is {w}x{h} but the camera file {args.camera} is for {cw}x{ch} "
+                "(another aspect ratio): calibrate the intrinsics at this resolution"
+            )
+    seen = camera if (w, h) == camera.image_size else camera.scaled(w, h)
+    result = estimate_ground_pose(image, seen.K, seen.dist, args.pattern, args.square_size_m)
+    if args.board_in_base is not None:
+        bx, by, byaw_deg = args.board_in_base
+        pose = result.pose_from_board_in_base((bx, by), math.radians(byaw_deg))
+    else:
+        old = camera.pose
+        pose = result.pose(old.yaw_rad, old.x_m, old.y_m)
+    calibrated = camera.with_pose(pose)
+    output = args.output or args.camera
+    notes = {
+        "pose": "follow-calib ground",
+        "pose_board_rms_px": round(result.reprojection_rms_px, 4),
+        "pose_frames_averaged": len(frames),
+    }
+    write_camera_file(output, calibrated, notes)
+
+    # The board's centre in `base`, through the final pose.
+    c, s = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
+    centre_base = np.array([[c, -s], [s, c]]) @ result.board_centre_level_m + [pose.x_m, pose.y_m]
+    board_yaw_base = math.degrees(result.board_yaw_level_rad + pose.yaw_rad)
+    board_yaw_base = (board_yaw_base + 180.0) % 360.0 - 180.0
+    overlay_path = args.overlay or output.with_name(output.stem + "_ground.png")
+    lines = [
+        f"height {pose.height_m:.3f} m  pitch {math.degrees(pose.pitch_rad):.2f} deg  "
+        f"roll {math.degrees(pose.roll_rad):.2f} deg",
+        f"board at x {centre_base[0]:.2f} y {centre_base[1]:.2f} m  "
+        f"rms {result.reprojection_rms_px:.2f} px  grid 1 m, red: base axes, blue: horizon",
+    ]
+    overlay = calibration_overlay(
+        image, calibrated.scaled(w, h), result.corners_px, args.pattern, lines=lines
+    )
+    if not cv2.imwrite(str(overlay_path), overlay):
+        raise OSError(f"cannot write the overlay image {overlay_path}")
+    warnings = []
+    if result.reprojection_rms_px > RMS_WARNING_PX:
+        warnings.append(
+            f"board corners reproject with {result.reprojection_rms_px:.2f} px RMS (> "
+            f"{RMS_WARNING_PX}): check the intrinsics, the pattern size and that the board is flat"
+        )
+    for warning in warnings:
+        log.warning(warning)
+    out = {
+        "camera_file": str(output),
+        "overlay": str(overlay_path),
+        "frames_averaged": len(frames),
+        "height_m": pose.height_m,
+        "pitch_deg": math.degrees(pose.pitch_rad),
+        "roll_deg": math.degrees(pose.roll_rad),
+        "yaw_deg": math.degrees(pose.yaw_rad),
+        "x_m": pose.x_m,
+        "y_m": pose.y_m,
+        "board_centre_base_m": centre_base.tolist(),
+        "board_yaw_base_deg": board_yaw_base,
+        "board_distance_m": result.board_distance_m,
+        "reprojection_rms_px": result.reprojection_rms_px,
+        "sharpness_px": result.sharpness_px,
+        "warnings": warnings,
+    }
+    if not args.json:
+        print(f"wrote {output} and {overlay_path}")
+        print(f"  height   {out['height_m']:.3f} m")
+        print(f"  pitch    {out['pitch_deg']:.2f} deg (positive: looking down)")
+        print(f"  roll     {out['roll_deg']:.2f} deg")
+        print(f"  yaw      {out['yaw_deg']:.2f} deg, offsets x {pose.x_m:.3f} y {pose.y_m:.3f} m")
+        print(
+            f"  board    centre at x {centre_base[0]:.3f} y {centre_base[1]:.3f} m "
+            f"({out['board_distance_m']:.2f} m away), rows at {board_yaw_base:.1f} deg"
+        )
+        print(f"  corners  {result.reprojection_rms_px:.3f} px RMS, edge width "
+              f"{result.sharpness_px:.2f} px, {len(frames)} frame(s) averaged")  # fmt: skip
+    return out

@@ -1,0 +1,140 @@
+"""`follow-calib intrinsics`: camera matrix and distortion from chessboard views."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from calib import intrinsics as intr
+from calib.camera_file import write_camera_file
+from calib.chessboard import ImageInputError, is_video, iter_video_frames, list_inputs, read_image
+from calib.cmd_common import add_board_arguments
+from follow.camera import CameraFileError, CameraModel, CameraPose
+
+log = logging.getLogger(__name__)
+
+# A new camera file needs some pose; this one is a placeholder until `ground` measures it.
+PLACEHOLDER_HEIGHT_M = 1.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "inputs", type=Path, nargs="+",
+        help="folder(s) or files of chessboard images, or one video file (or camera index)",
+    )  # fmt: skip
+    add_board_arguments(parser)
+    parser.add_argument(
+        "-o", "--output", type=Path, default=Path("camera.yaml"),
+        help="camera file to write; an existing one keeps its pose (default camera.yaml)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--every", type=int, default=5, help="video: use every N-th frame (default 5)"
+    )
+    parser.add_argument(
+        "--max-views", type=int, default=60,
+        help="at most this many screened views go into the calibration (default 60)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--max-edge-width-px", type=float, default=intr.MAX_EDGE_WIDTH_PX,
+        help="reject views whose board edges are wider (blurred) than this "
+        f"(default {intr.MAX_EDGE_WIDTH_PX})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--duplicate-fraction", type=float, default=intr.DUPLICATE_FRACTION,
+        help="reject a view whose corners moved less than this fraction of the image diagonal "
+        f"from a kept view (default {intr.DUPLICATE_FRACTION})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--distortion-model", choices=sorted(intr.DISTORTION_FLAGS), default="standard",
+        help="radial: k1 k2 k3; standard: k1 k2 p1 p2 k3 (default); rational: 8 coefficients",
+    )  # fmt: skip
+
+
+def _frames(args: argparse.Namespace, unreadable: list[tuple[str, str]]):
+    """(name, image) of the inputs; unreadable image files are noted and skipped."""
+    if len(args.inputs) == 1 and (is_video(args.inputs[0]) or str(args.inputs[0]).isdigit()):
+        yield from iter_video_frames(str(args.inputs[0]), every=args.every)
+        return
+    for path in list_inputs(args.inputs):
+        try:
+            yield path.name, read_image(path)
+        except ImageInputError as exc:
+            log.warning("%s (skipped)", exc)
+            unreadable.append((path.name, str(exc)))
+
+
+def main(args: argparse.Namespace) -> dict:
+    if args.every < 1 or args.max_views < intr.MIN_VIEWS:
+        raise ValueError(
+            f"--every must be >= 1 and --max-views >= {intr.MIN_VIEWS}, "
+            f"got {args.every} and {args.max_views}"
+        )
+    unreadable: list[tuple[str, str]] = []
+    result = intr.calibrate_intrinsics(
+        _frames(args, unreadable),
+        args.pattern,
+        args.square_size_m,
+        distortion_model=args.distortion_model,
+        max_edge_width_px=args.max_edge_width_px,
+        duplicate_fraction=args.duplicate_fraction,
+        max_views=args.max_views,
+        progress=not args.json,
+    )
+    notes = {
+        "intrinsics": "follow-calib intrinsics",
+        "intrinsics_rms_px": round(result.rms_px, 4),
+        "intrinsics_views": result.views_used,
+        "intrinsics_coverage": round(result.coverage_fraction, 3),
+    }
+    pose = CameraPose(PLACEHOLDER_HEIGHT_M)
+    pose_kept = False
+    if args.output.exists():
+        try:
+            pose = CameraModel.load(args.output).pose
+            pose_kept = True
+        except CameraFileError as exc:
+            log.warning("%s; writing a new camera file", exc)
+    if not pose_kept:
+        notes["pose"] = "placeholder: measure it with `follow-calib ground`"
+    model = CameraModel(result.K, result.dist, result.image_size, pose)
+    write_camera_file(args.output, model, notes)
+    out = {
+        "camera_file": str(args.output),
+        "image_size": list(result.image_size),
+        "fx_px": result.K[0, 0],
+        "fy_px": result.K[1, 1],
+        "cx_px": result.K[0, 2],
+        "cy_px": result.K[1, 2],
+        "distortion": result.dist.tolist(),
+        "rms_px": result.rms_px,
+        "views_used": result.views_used,
+        "per_view_rms_px": result.per_view_rms_px,
+        "rejected": [{"view": n, "reason": r} for n, r in unreadable + result.rejected],
+        "coverage_fraction": result.coverage_fraction,
+        "uncovered_regions": result.uncovered_regions,
+        "pose_kept": pose_kept,
+        "warnings": result.warnings,
+    }
+    if not args.json:
+        print(f"wrote {args.output}" + ("" if pose_kept else " (pose is a placeholder)"))
+        print(f"  image       {result.image_size[0]} x {result.image_size[1]} px")
+        print(f"  focal       fx {result.K[0, 0]:.2f}  fy {result.K[1, 1]:.2f} px")
+        print(f"  principal   {result.K[0, 2]:.2f}, {result.K[1, 2]:.2f} px")
+        print("  distortion  " + " ".join(f"{v:+.5f}" for v in result.dist))
+        print(f"  RMS         {result.rms_px:.3f} px over {result.views_used} views, "
+              f"coverage {100 * result.coverage_fraction:.0f}%")  # fmt: skip
+        print("  per view RMS (px):")
+        worst = float(np.max(list(result.per_view_rms_px.values())))
+        for name, rms in result.per_view_rms_px.items():
+            flag = "  <- worst" if rms == worst else ""
+            print(f"    {name:<32} {rms:.3f}{flag}")
+        if unreadable or result.rejected:
+            print("  rejected:")
+            for name, reason in unreadable + result.rejected:
+                print(f"    {name:<32} {reason}")
+        for warning in result.warnings:
+            print(f"  warning: {warning}")
+    return out

@@ -1,0 +1,86 @@
+"""`follow-calib import-tsai`: a Tsai calibration (PETS 2009 XML) to a camera file."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from calib.camera_file import write_camera_file
+from calib.gt_boxes import motion_figures, read_boxes
+from calib.tsai import TsaiCamera
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("tsai_xml", type=Path, help="Tsai calibration XML (world units mm)")
+    parser.add_argument(
+        "-o", "--output", type=Path, default=Path("camera.yaml"),
+        help="camera file to write (.yaml/.yml or .json; default camera.yaml)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--grid-step-px", type=float, default=8.0,
+        help="pixel spacing of the grid the distortion is fitted on (default 8)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--boxes", type=Path,
+        help="optional person-box annotation XML (PETS style): report the median walking "
+        "speed and stature it implies through the converted camera, as a sanity check",
+    )  # fmt: skip
+    parser.add_argument(
+        "--fps", type=float, default=7.0, help="frame rate of the annotation (default 7)"
+    )
+
+
+def main(args: argparse.Namespace) -> dict:
+    tsai = TsaiCamera.from_xml(args.tsai_xml)
+    model, discrepancy_px = tsai.to_camera_model(step_px=args.grid_step_px)
+    notes = {
+        "intrinsics": f"follow-calib import-tsai {args.tsai_xml.name}",
+        "pose": f"follow-calib import-tsai {args.tsai_xml.name}",
+        "tsai_max_discrepancy_px": round(discrepancy_px, 5),
+        "frame": "base is the calibration's world frame (m, z up, ground z = 0)",
+    }
+    write_camera_file(args.output, model, notes)
+    p = model.pose
+    result = {
+        "camera_file": str(args.output),
+        "image_size": list(model.image_size),
+        "fx_px": model.K[0, 0],
+        "fy_px": model.K[1, 1],
+        "cx_px": model.K[0, 2],
+        "cy_px": model.K[1, 2],
+        "distortion": model.dist.tolist(),
+        "height_m": p.height_m,
+        "pitch_deg": math.degrees(p.pitch_rad),
+        "roll_deg": math.degrees(p.roll_rad),
+        "yaw_deg": math.degrees(p.yaw_rad),
+        "x_m": p.x_m,
+        "y_m": p.y_m,
+        "max_discrepancy_px": discrepancy_px,
+    }
+    if args.boxes is not None:
+        boxes = read_boxes(args.boxes)
+        result["tsai"] = motion_figures(tsai, boxes, args.fps)
+        result["converted"] = motion_figures(model, boxes, args.fps)
+    if not args.json:
+        print(f"wrote {args.output}")
+        print(f"  image            {model.image_size[0]} x {model.image_size[1]} px")
+        print(f"  focal            fx {model.K[0, 0]:.2f}  fy {model.K[1, 1]:.2f} px")
+        print(f"  principal point  {model.K[0, 2]:.2f}, {model.K[1, 2]:.2f} px")
+        print("  distortion       " + " ".join(f"{v:+.5f}" for v in model.dist))
+        print(
+            f"  pose             height {p.height_m:.3f} m  pitch {result['pitch_deg']:.2f} deg"
+            f"  roll {result['roll_deg']:.2f} deg  yaw {result['yaw_deg']:.2f} deg"
+            f"  at x {p.x_m:.3f} y {p.y_m:.3f} m"
+        )
+        print(f"  largest discrepancy between the two models over the image: "
+              f"{discrepancy_px:.4f} px")  # fmt: skip
+        if args.boxes is not None:
+            for name in ("tsai", "converted"):
+                f = result[name]
+                print(
+                    f"  {name:<9} model: {f['boxes']} boxes, median walking speed "
+                    f"{f['median_walking_speed_mps']:.3f} m/s, median stature "
+                    f"{f['median_stature_m']:.3f} m"
+                )
+    return result

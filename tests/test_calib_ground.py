@@ -1,0 +1,240 @@
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from calib import cli
+from calib.chessboard import BoardNotFoundError, ImageInputError, detect_chessboard
+from calib.ground import average_frames, estimate_ground_pose, pitch_roll_from_up
+from calib.synthetic import BoardSpec, render_floor_board
+from follow.camera import CameraModel, CameraPose
+
+# A 75 deg wide camera with noticeable barrel distortion, as on small robots.
+DIST = np.array([-0.18, 0.04, 0.001, -0.0005, 0.0])
+SIZE = (640, 480)
+
+
+def camera(height_m, pitch_deg, roll_deg=0.0):
+    pose = CameraPose(height_m, math.radians(pitch_deg), math.radians(roll_deg))
+    return CameraModel.from_fov(SIZE, 75.0, pose, dist=DIST)
+
+
+def place_board(cam, board, yaw_rad, extra_m):
+    """Board origin so that its centre lies just beyond the nearest floor in view."""
+    half_vfov = math.atan((SIZE[1] / 2) / cam.K[1, 1])
+    near = cam.pose.height_m / math.tan(cam.pose.pitch_rad + 0.85 * half_vfov)
+    centre = np.array([near + extra_m, 0.1])
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    origin = centre - np.array([[c, -s], [s, c]]) @ board.centre_m
+    return origin, centre
+
+
+# (height m, pitch deg, roll deg, board yaw deg, inner corners, square m): boards from A2
+# size for a low camera to a floor mat for a 1.5 m camera that looks straight ahead, laid
+# in every orientation (a diagonal one only where the view is steep enough to see it).
+CASES = [
+    (0.4, 0.0, 1.0, 0.0, (7, 5), 0.08),
+    (0.4, 30.0, -2.0, 135.0, (7, 5), 0.08),
+    (0.8, 15.0, 0.0, 90.0, (7, 5), 0.1),
+    (1.0, 20.0, -1.0, 40.0, (7, 5), 0.1),
+    (1.5, 0.0, 2.0, 180.0, (9, 7), 0.2),
+    (1.5, 30.0, 1.0, 270.0, (7, 5), 0.1),
+]
+
+
+@pytest.mark.parametrize("height_m, pitch_deg, roll_deg, yaw_deg, pattern, square_m", CASES)
+def test_recovers_height_pitch_roll_and_board(
+    height_m, pitch_deg, roll_deg, yaw_deg, pattern, square_m
+):
+    cam = camera(height_m, pitch_deg, roll_deg)
+    board = BoardSpec(pattern, square_m)
+    yaw = math.radians(yaw_deg)
+    origin, centre = place_board(cam, board, yaw, extra_m=0.4 + max(pattern) * square_m / 2)
+    image = render_floor_board(cam, board, origin[0], origin[1], yaw, seed=int(yaw_deg))
+    result = estimate_ground_pose(image, cam.K, cam.dist, pattern, square_m)
+    assert result.height_m == pytest.approx(height_m, abs=0.01)
+    assert math.degrees(result.pitch_rad) == pytest.approx(pitch_deg, abs=0.2)
+    assert math.degrees(result.roll_rad) == pytest.approx(roll_deg, abs=0.2)
+    assert result.board_centre_level_m == pytest.approx(centre, abs=0.03)
+    assert result.reprojection_rms_px < 0.5
+
+
+def test_pitch_roll_from_up_inverts_the_camera_convention():
+    for pitch, roll in [(0.0, 0.0), (0.3, -0.1), (-0.2, 0.25), (1.2, 0.0)]:
+        R = CameraPose(1.0, pitch, roll).rotation_base_from_cam()
+        up_cam = R.T @ np.array([0.0, 0.0, 1.0])
+        assert pitch_roll_from_up(up_cam) == pytest.approx((pitch, roll), abs=1e-12)
+
+
+def test_board_in_base_gives_yaw_and_offsets():
+    cam = camera(0.8, 15.0).with_pose(
+        CameraPose(0.8, math.radians(15.0), 0.0, math.radians(10.0), 0.2, -0.1)
+    )
+    board = BoardSpec((7, 5), 0.1)
+    image = render_floor_board(cam, board, 1.6, 0.2, math.radians(30.0))
+    result = estimate_ground_pose(image, cam.K, cam.dist, (7, 5), 0.1)
+    c, s = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+    centre_base = np.array([1.6, 0.2]) + np.array([[c, -s], [s, c]]) @ board.centre_m
+    # The detected corner order may start at either end: give the detected row direction.
+    row_yaw = math.radians(30.0) + (
+        0.0 if abs(result.board_yaw_level_rad - math.radians(20.0)) < 1 else math.pi
+    )
+    pose = result.pose_from_board_in_base(tuple(centre_base), row_yaw)
+    assert math.degrees(pose.yaw_rad) == pytest.approx(10.0, abs=0.3)
+    assert (pose.x_m, pose.y_m) == pytest.approx((0.2, -0.1), abs=0.02)
+
+
+def test_no_board_is_a_clear_error():
+    cam = camera(0.8, 15.0)
+    empty = np.full((120, 160), 120, np.uint8)
+    assert detect_chessboard(empty, (7, 5)) is None
+    with pytest.raises(BoardNotFoundError, match="no 7x5 chessboard"):
+        estimate_ground_pose(empty, cam.K, cam.dist, (7, 5), 0.1)
+
+
+def test_average_frames_checks_sizes():
+    a = np.full((4, 6), 10, np.uint8)
+    assert average_frames([a, a + 10]).tolist() == np.full((4, 6), 15).tolist()
+    with pytest.raises(ValueError, match="frame 1 is 5x4"):
+        average_frames([a, np.zeros((4, 5), np.uint8)])
+
+
+@pytest.fixture
+def board_scene(tmp_path):
+    cam = camera(0.8, 15.0, 1.0)
+    board = BoardSpec((7, 5), 0.1)
+    for i in range(2):
+        image = render_floor_board(cam, board, 1.2, 0.5, -1.0, seed=i, noise_sigma=4.0)
+        cv2.imwrite(str(tmp_path / f"board{i}.png"), image)
+    cam.with_pose(CameraPose(1.0, 0.0, 0.0, 0.1, 0.3, 0.0)).save(tmp_path / "cam.yaml")
+    return cam, tmp_path
+
+
+def test_ground_command_updates_the_camera_file_and_draws_an_overlay(board_scene, capsys):
+    cam, folder = board_scene
+    rc = cli.main(
+        [
+            "ground",
+            str(folder / "board0.png"),
+            str(folder / "board1.png"),
+            "--camera",
+            str(folder / "cam.yaml"),
+            "--pattern",
+            "7x5",
+            "--square-size-m",
+            "0.1",
+            "--json",
+        ]  # fmt: skip
+    )
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["frames_averaged"] == 2
+    saved = CameraModel.load(folder / "cam.yaml")
+    assert saved.pose.height_m == pytest.approx(0.8, abs=0.01)
+    assert math.degrees(saved.pose.pitch_rad) == pytest.approx(15.0, abs=0.2)
+    assert saved.pose.yaw_rad == pytest.approx(0.1)  # kept from the file
+    assert saved.pose.x_m == pytest.approx(0.3)
+    assert np.allclose(saved.K, cam.K)
+    overlay = cv2.imread(out["overlay"])
+    assert overlay.shape == (480, 640, 3)
+    # The overlay differs from the input: grid, horizon and corners are drawn on it.
+    plain = cv2.cvtColor(cv2.imread(str(folder / "board0.png")), cv2.COLOR_BGR2GRAY)
+    drawn = np.any(overlay != cv2.cvtColor(plain, cv2.COLOR_GRAY2BGR), axis=2)
+    assert drawn.mean() > 0.02
+    # The horizon (blue-ish, B high, R low) is drawn above the floor, where the sky is.
+    horizon_v = cam.project(np.array([1e5, 0.0, 0.0]))[1]
+    column = overlay[:, 320].astype(int)
+    bluish = np.nonzero((column[:, 0] > 200) & (column[:, 2] < 80))[0]
+    assert np.min(np.abs(bluish - horizon_v)) < 3
+
+
+def test_ground_command_without_board_fails_cleanly(board_scene, capsys):
+    _, folder = board_scene
+    blank = folder / "blank.png"
+    cv2.imwrite(str(blank), np.full((120, 160), 100, np.uint8))
+    rc = cli.main(
+        [
+            "ground",
+            str(blank),
+            "--camera",
+            str(folder / "cam.yaml"),
+            "--pattern",
+            "7x5",
+            "--square-size-m",
+            "0.1",
+        ]  # fmt: skip
+    )
+    assert rc == 2
+    assert "no 7x5 chessboard" in capsys.readouterr().err
+
+
+def test_ground_command_names_a_broken_image(board_scene, capsys):
+    _, folder = board_scene
+    broken = folder / "broken.png"
+    broken.write_bytes(b"\x89PNG not really")
+    rc = cli.main(
+        [
+            "ground",
+            str(broken),
+            "--camera",
+            str(folder / "cam.yaml"),
+            "--pattern",
+            "7x5",
+            "--square-size-m",
+            "0.1",
+        ]  # fmt: skip
+    )
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "broken.png" in err and "not a readable image" in err
+    with pytest.raises(ImageInputError, match="no such file"):
+        from calib.chessboard import read_image
+
+        read_image(folder / "absent.png")
+
+
+def test_check_command_draws_the_grid_on_a_pets_frame(data_path, tmp_path, capsys):
+    video = data_path("pets2009_s2l1/View_001.avi")
+    cam_file = tmp_path / "pets.yaml"
+    assert cli.main(["import-tsai", str(data_path("pets2009_s2l1/View_001.xml")),
+                     "-o", str(cam_file)]) == 0  # fmt: skip
+    out_png = tmp_path / "check.png"
+    rc = cli.main(
+        [
+            "check",
+            str(video),
+            "--camera",
+            str(cam_file),
+            "--frame",
+            "3",
+            "-o",
+            str(out_png),
+            "--max-range-m",
+            "45",
+            "--json",
+        ]  # fmt: skip
+    )
+    assert rc == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["frame_size"] == [480, 360] and result["camera_scaled_from"] == [768, 576]
+    overlay = cv2.imread(str(out_png))
+    green = (overlay[:, :, 1] > 200) & (overlay[:, :, 0] < 60) & (overlay[:, :, 2] < 60)
+    # Grid lines cover the floor (lower half) but not the sky-free top band of text.
+    assert green[180:].mean() > 0.03
+    # The camera looks down 16 deg with a 13.6 deg half field of view: no horizon in view.
+    assert result["horizon_row_at_centre_px"] < 0
+    # A grid point drawn where the model puts it: world origin (red axes cross).
+    origin_px = CameraModel.load(cam_file).scaled(480, 360).project(np.zeros(3))
+    u, v = np.round(origin_px).astype(int)
+    patch = overlay[v - 2 : v + 3, u - 2 : u + 3].astype(int)
+    assert ((patch[:, :, 2] > 200) & (patch[:, :, 1] < 80)).any()
+
+
+def test_check_command_names_a_missing_frame(data_path, tmp_path, capsys):
+    cam = camera(0.8, 15.0)
+    cam.save(tmp_path / "cam.yaml")
+    rc = cli.main(["check", str(tmp_path / "nothing.png"), "--camera", str(tmp_path / "cam.yaml")])
+    assert rc == 2
+    assert "nothing.png: no such file" in capsys.readouterr().err

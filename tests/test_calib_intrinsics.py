@@ -1,0 +1,109 @@
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from calib import cli
+from calib.intrinsics import CalibrationError, calibrate_intrinsics, coverage
+from calib.synthetic import BoardSpec, calibration_views
+from follow.camera import CameraModel, CameraPose
+
+BOARD = BoardSpec((9, 6), 0.03)
+TRUE_CAMERA = CameraModel.from_fov(
+    (640, 480), 70.0, CameraPose(1.0), dist=np.array([-0.2, 0.06, 0.0005, -0.0008, 0.0])
+)
+
+
+@pytest.fixture(scope="module")
+def views():
+    return calibration_views(TRUE_CAMERA, BOARD, 12, seed=1)
+
+
+def test_focal_length_within_half_a_percent_from_twelve_views(views):
+    result = calibrate_intrinsics(views, BOARD.pattern_size, BOARD.square_size_m, progress=False)
+    assert result.K[0, 0] == pytest.approx(TRUE_CAMERA.K[0, 0], rel=0.005)
+    assert result.K[1, 1] == pytest.approx(TRUE_CAMERA.K[1, 1], rel=0.005)
+    assert result.K[:2, 2] == pytest.approx(TRUE_CAMERA.K[:2, 2], abs=3.0)
+    assert result.dist[0] == pytest.approx(-0.2, abs=0.03)
+    assert result.views_used == 12 and not result.rejected
+    assert set(result.per_view_rms_px) == {name for name, _ in views}
+    assert result.rms_px < 0.3
+    # The recovered model maps image points like the true one over the image.
+    grid = np.array([[u, v] for u in (10, 320, 630) for v in (10, 240, 470)], float)
+    rays_true = TRUE_CAMERA.pixel_rays_base(grid)
+    rays_est = TRUE_CAMERA.__class__(result.K, result.dist, (640, 480), CameraPose(1.0))
+    angle = np.degrees(
+        np.arccos(np.clip((rays_true * rays_est.pixel_rays_base(grid)).sum(1), -1, 1))
+    )
+    assert angle.max() < 0.3
+
+
+def test_rejects_blurred_duplicate_and_boardless_views(views):
+    blurred = cv2.GaussianBlur(views[3][1], (0, 0), 3.0)
+    duplicate = np.clip(views[5][1].astype(int) + 2, 0, 255).astype(np.uint8)
+    blank = np.full((480, 640), 128, np.uint8)
+    extra = [("blurred", blurred), ("again", duplicate), ("blank", blank)]
+    result = calibrate_intrinsics(
+        views[:6] + extra, BOARD.pattern_size, BOARD.square_size_m, progress=False
+    )
+    reasons = dict(result.rejected)
+    assert reasons["blurred"].startswith("blurred")
+    assert reasons["again"] == f"near-duplicate of {views[5][0]}"
+    assert reasons["blank"] == "no 9x6 board found"
+    assert result.views_used == 6
+    assert any("10 or more" in w for w in result.warnings)
+
+
+def test_too_few_views_is_a_clear_error(views):
+    with pytest.raises(CalibrationError, match="only 2 usable view"):
+        calibrate_intrinsics(views[:2], BOARD.pattern_size, BOARD.square_size_m, progress=False)
+
+
+def test_coverage_names_the_uncovered_parts():
+    cols, rows = 9, 6
+    jj, ii = np.mgrid[0:rows, 0:cols]
+    small = np.column_stack([20 + 12 * ii.ravel(), 20 + 12 * jj.ravel()]).astype(float)
+    fraction, uncovered = coverage([small], (640, 480), (cols, rows))
+    assert fraction < 0.1
+    assert "bottom-right" in uncovered and "top-left" not in uncovered
+    full = np.column_stack([10 + 77 * ii.ravel(), 10 + 92 * jj.ravel()]).astype(float)
+    fraction, uncovered = coverage([full], (640, 480), (cols, rows))
+    assert fraction > 0.9 and uncovered == []
+
+
+def test_intrinsics_command_on_a_folder(views, tmp_path, capsys):
+    folder = tmp_path / "views"
+    folder.mkdir()
+    for name, image in views[:6]:
+        cv2.imwrite(str(folder / f"{name.replace(' ', '_')}.png"), image)
+    (folder / "zz_corrupt.png").write_bytes(b"not an image")
+    out = tmp_path / "cam.yaml"
+    argv = ["intrinsics", str(folder), "--pattern", "9x6", "--square-size-m", "0.03"]
+    assert cli.main(argv + ["-o", str(out), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["views_used"] == 6
+    assert {"view": "zz_corrupt.png", "reason": result["rejected"][0]["reason"]} in result[
+        "rejected"
+    ]
+    assert "not a readable image" in result["rejected"][0]["reason"]
+    model = CameraModel.load(out)
+    assert model.K[0, 0] == pytest.approx(TRUE_CAMERA.K[0, 0], rel=0.01)
+    assert result["per_view_rms_px"].keys() == {f"synthetic_{i:02d}.png" for i in range(6)}
+    assert result["pose_kept"] is False
+    # Running again keeps a pose measured in between.
+    model.with_pose(CameraPose(0.7, 0.2)).save(out)
+    assert cli.main(argv + ["-o", str(out), "--json"]) == 0
+    assert CameraModel.load(out).pose.height_m == pytest.approx(0.7)
+
+
+def test_intrinsics_command_names_a_missing_folder(tmp_path, capsys):
+    argv = ["intrinsics", str(tmp_path / "nowhere"), "--pattern", "9x6", "--square-size-m", "0.03"]
+    assert cli.main(argv) == 2
+    assert "nowhere: no such file or folder" in capsys.readouterr().err
+
+
+def test_intrinsics_command_rejects_a_bad_pattern(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["intrinsics", "x", "--pattern", "9by6", "--square-size-m", "0.03"])
+    assert "must look like 9x6" in capsys.readouterr().err

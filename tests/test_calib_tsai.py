@@ -1,0 +1,143 @@
+import json
+import math
+
+import numpy as np
+import pytest
+
+from calib import cli
+from calib.gt_boxes import BoxFileError, motion_figures, read_boxes
+from calib.tsai import TsaiCamera, TsaiFileError
+from follow.camera import CameraModel
+
+PETS = "pets2009_s2l1"
+
+VALID_XML = """<?xml version="1.0"?>
+<Camera name="test">
+  <Geometry width="640" height="480" ncx="640" nfx="640" dx="0.005" dy="0.005"
+            dpx="0.005" dpy="0.005"/>
+  <Intrinsic focal="4.0" kappa1="{kappa1}" cx="321.5" cy="238.0" sx="1.02"/>
+  <Extrinsic tx="-300" ty="400" tz="9000" rx="{rx}" ry="0.05" rz="0.3"/>
+</Camera>
+"""
+
+
+def write(tmp_path, text, name="cam.xml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture
+def synthetic_tsai(tmp_path):
+    # rx ~ -110 deg: the optical axis points down at the floor, like a mast camera.
+    return TsaiCamera.from_xml(write(tmp_path, VALID_XML.format(kappa1=0.01, rx=-1.95)))
+
+
+def test_project_and_back_project_are_inverse(synthetic_tsai):
+    cam = synthetic_tsai
+    grid = cam.image_grid(20.0)
+    ground = cam.back_project_to_plane(grid, 0.0)
+    below = np.isfinite(ground[:, 0])
+    assert below.sum() > 100
+    assert np.allclose(ground[below, 2], 0.0)
+    assert np.abs(cam.project(ground[below]) - grid[below]).max() < 1e-6
+    xy = cam.back_project_to_ground(grid[below])
+    assert np.allclose(xy, ground[below, :2])
+
+
+def test_distortion_is_applied_to_projection(tmp_path):
+    with_k = TsaiCamera.from_xml(write(tmp_path, VALID_XML.format(kappa1=0.02, rx=-1.95)))
+    without = TsaiCamera.from_xml(write(tmp_path, VALID_XML.format(kappa1=0.0, rx=-1.95), "b.xml"))
+    corner = np.array([[0.0, 0.0]])
+    point = without.back_project_to_plane(corner, 0.0)
+    assert np.isfinite(point).all()
+    # Positive kappa1 pulls image points towards the centre (barrel distortion).
+    pix = with_k.project(point)[0]
+    centre = np.array([with_k.cx_px, with_k.cy_px])
+    assert np.linalg.norm(pix - centre) < np.linalg.norm(corner[0] - centre) - 5.0
+
+
+def test_converted_model_agrees_with_tsai(synthetic_tsai):
+    model, discrepancy_px = synthetic_tsai.to_camera_model()
+    assert discrepancy_px < 0.5
+    grid = synthetic_tsai.image_grid(16.0)
+    world = synthetic_tsai.back_project_to_plane(grid, 0.0)
+    ok = np.isfinite(world[:, 0])
+    assert np.abs(model.project(world[ok]) - grid[ok]).max() < 0.5
+    centre = synthetic_tsai.position_world_m
+    assert model.position_base == pytest.approx(centre)
+    # The converted camera looks down: positive pitch in `follow`'s convention.
+    assert model.pose.pitch_rad > 0
+
+
+def test_discrepancy_grows_when_the_model_is_wrong(synthetic_tsai):
+    model, good_px = synthetic_tsai.to_camera_model()
+    K = model.K.copy()
+    K[0, 2] += 2.0
+    bad_px = synthetic_tsai.max_discrepancy_px(
+        CameraModel(K, model.dist, model.image_size, model.pose)
+    )
+    assert bad_px > 1.9 > good_px
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("<Camera><Geometry", "not valid XML"),
+        (VALID_XML.format(kappa1=0.0, rx=0.0).replace("<Intrinsic", "<Other"), "<Intrinsic>"),
+        (VALID_XML.format(kappa1=0.0, rx=0.0).replace('cy="238.0"', ""), "'cy'"),
+        (VALID_XML.format(kappa1="abc", rx=0.0), "'kappa1' is not a number"),
+        (VALID_XML.format(kappa1=0.0, rx=0.0).replace('focal="4.0"', 'focal="-4"'), "focal"),
+    ],
+)
+def test_malformed_xml_names_the_problem(tmp_path, text, expected):
+    with pytest.raises(TsaiFileError, match=expected):
+        TsaiCamera.from_xml(write(tmp_path, text))
+
+
+def test_missing_file_is_named(tmp_path):
+    with pytest.raises(TsaiFileError, match="cannot read"):
+        TsaiCamera.from_xml(tmp_path / "absent.xml")
+
+
+def test_pets_import_agrees_and_gives_plausible_people(data_path):
+    tsai = TsaiCamera.from_xml(data_path(f"{PETS}/View_001.xml"))
+    model, discrepancy_px = tsai.to_camera_model()
+    assert discrepancy_px < 0.5
+    assert model.image_size == (768, 576)
+    boxes = read_boxes(data_path(f"{PETS}/PETS2009-S2L1.xml"))
+    figures = motion_figures(model, boxes, fps=7.0)
+    assert 0.8 <= figures["median_walking_speed_mps"] <= 1.2
+    assert 1.6 <= figures["median_stature_m"] <= 1.9
+    # The exact Tsai model gives the same figures.
+    exact = motion_figures(tsai, boxes, fps=7.0)
+    assert figures["median_stature_m"] == pytest.approx(exact["median_stature_m"], abs=0.01)
+
+
+def test_import_tsai_command_writes_a_loadable_camera(data_path, tmp_path, capsys):
+    out = tmp_path / "pets.yaml"
+    rc = cli.main(["import-tsai", str(data_path(f"{PETS}/View_001.xml")), "-o", str(out), "--json"])
+    assert rc == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["max_discrepancy_px"] < 0.5
+    model = CameraModel.load(out)
+    assert model.pose.height_m == pytest.approx(result["height_m"])
+    assert 2.0 < model.pose.height_m < 20.0
+    assert math.degrees(model.pose.pitch_rad) == pytest.approx(result["pitch_deg"])
+
+
+def test_import_tsai_command_reports_malformed_xml(tmp_path, capsys):
+    bad = write(tmp_path, "<Camera><Geometry width='1'/></Camera>")
+    rc = cli.main(["import-tsai", str(bad), "-o", str(tmp_path / "c.yaml"), "--json"])
+    assert rc == 2
+    captured = capsys.readouterr()
+    assert "lacks attribute" in captured.err
+    assert "error" in json.loads(captured.out.strip().splitlines()[-1])
+    assert not (tmp_path / "c.yaml").exists()
+
+
+def test_box_file_errors_name_the_place(tmp_path):
+    bad = write(tmp_path, '<dataset><frame number="3"><objectlist><object id="1">'
+                          '<box xc="1" yc="x" w="1" h="1"/></object></objectlist></frame></dataset>')  # fmt: skip
+    with pytest.raises(BoxFileError, match="frame 3"):
+        read_boxes(bad)
