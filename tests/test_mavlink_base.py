@@ -4,6 +4,7 @@ import math
 import time
 
 import pytest
+from pymavlink import mavutil
 
 from follow.config import ConfigError, MavlinkConfig
 from follow.control import mavlink_frames as mf
@@ -115,23 +116,25 @@ def test_a_stop_goes_out_at_once(rover, base):
     assert time.monotonic() - t0 < 1 / 15  # within one control period
 
 
-def test_link_cut_stops_motion_reports_it_and_odometry_goes_stale(rover, base):
-    drive(base, 1.0, 0.0, 1.0)
-    assert base.healthy() and base.odometry() is not None
-    rover.cut_link()
-    t0 = time.monotonic()
-    assert wait_for(lambda: base.odometry() is None, 1.0)  # stale odometry is not returned
-    assert wait_for(lambda: base.state is LinkState.LINK_LOST, 2.0)
-    detected_s = time.monotonic() - t0
-    assert detected_s < base.config.heartbeat_timeout_s + 1.1  # heartbeats are 1 Hz
-    assert not base.healthy() and "link lost" in base.status()["last_error"]
-    sent = base.setpoints_sent
-    drive(base, 1.0, 0.0, 0.3)
-    assert base.setpoints_sent == sent  # no motion commands into a lost link
-    # The vehicle's own timeout stops it 3 s after the last setpoint it heard.
-    assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 3.5)
-    rover.cut_link(False)
-    assert wait_for(lambda: base.state is LinkState.ACTIVE, 2.0)
+def test_link_cut_stops_motion_reports_it_and_odometry_goes_stale():
+    # The vehicle stops on its own 1 s after its last setpoint here (ArduPilot: 3 s, checked
+    # in the rover's own tests) to keep this test short.
+    with SimRover(heartbeat_rate_hz=5, limits=RoverLimits(guided_timeout_s=1.0)) as rover:
+        with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:
+            drive(base, 1.0, 0.0, 0.8)
+            assert base.healthy() and base.odometry() is not None
+            rover.cut_link()
+            t0 = time.monotonic()
+            assert wait_for(lambda: base.odometry() is None, 1.0)  # stale odometry not returned
+            assert wait_for(lambda: base.state is LinkState.LINK_LOST, 2.0)
+            assert time.monotonic() - t0 < base.config.heartbeat_timeout_s + 0.3
+            assert not base.healthy() and "link lost" in base.status()["last_error"]
+            sent = base.setpoints_sent
+            drive(base, 1.0, 0.0, 0.3)
+            assert base.setpoints_sent == sent  # no motion commands into a lost link
+            assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.5)
+            rover.cut_link(False)
+            assert wait_for(lambda: base.state is LinkState.ACTIVE, 1.0)
 
 
 def test_pilot_mode_switch_is_not_fought(rover, base):
@@ -148,7 +151,7 @@ def test_pilot_mode_switch_is_not_fought(rover, base):
 
 def test_close_sends_zero_velocity(rover):
     base = MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST))
-    drive(base, 1.0, 0.0, 1.0)
+    drive(base, 1.0, 0.0, 0.6)
     base.close()
     assert rover._target.speed_mps == 0.0 or wait_for(lambda: rover._target.speed_mps == 0.0, 0.2)
     assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.0)  # not the 3 s timeout
@@ -187,3 +190,15 @@ def test_no_vehicle_and_bad_config_are_clear_errors():
         MavlinkBase(MavlinkConfig(connection="udpout:127.0.0.1:1", stream_rate_hz=5.0))
     with pytest.raises(ConfigError, match="autopilot"):
         MavlinkBase(MavlinkConfig(connection="udpout:127.0.0.1:1", autopilot="pixhawk"))
+
+
+def test_only_the_newest_telemetry_is_used(rover, base):
+    assert wait_for(lambda: base.odometry() is not None, 1.0)
+    newest = base._newest["LOCAL_POSITION_NED"][0]
+    late = mavutil.mavlink.MAVLink_local_position_ned_message(
+        newest.time_boot_ms - 500, 50.0, 50.0, 0.0, 0.0, 0.0, 0.0
+    )  # a delayed packet from half a second ago
+    late._header = newest._header
+    base._on_message(late)
+    odo = base.odometry()
+    assert abs(odo.x_m) < 1.0 and abs(odo.y_m) < 1.0

@@ -44,6 +44,7 @@ class RunTrace:
     """Samples of one run, one per control period."""
 
     scenario: str
+    following_distance_m: float
     t_s: list[float] = field(default_factory=list)
     distance_error_m: list[float] = field(default_factory=list)
     steady: list[bool] = field(default_factory=list)
@@ -66,7 +67,7 @@ def run_following(
     once the vehicle is in GUIDED."""
     rng = np.random.default_rng(settings.seed)
     controller = FollowingController(control)
-    trace = RunTrace(name)
+    trace = RunTrace(name, control.following_distance_m)
     with SimRover(seed=settings.seed) as rover:
         rover.packet_loss, rover.latency_s = settings.packet_loss, settings.link_latency_s
         cfg = mavlink or MavlinkConfig()
@@ -141,7 +142,7 @@ def summarize(trace: RunTrace) -> dict:
         "duration_s": trace.t_s[-1] if trace.t_s else 0.0,
         "steady_walking": error_statistics(err[steady]),
         "all": error_statistics(err),
-        "min_distance_m": float(err.min() + 0) if err.size else None,
+        "min_distance_m": float(err.min() + trace.following_distance_m) if err.size else None,
         "max_forward_mps": float(np.max(trace.forward_mps)) if trace.forward_mps else 0.0,
         "max_abs_yaw_rate_radps": float(np.max(np.abs(trace.yaw_rate_radps)))
         if trace.yaw_rate_radps
