@@ -21,6 +21,7 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("eval", "pose"): ("follow.eval.pose", "skeleton detector recall/precision on PETS 2009"),
     ("eval", "crops"): ("follow.eval.crops", "target identification on real person crops"),
     ("eval", "tracking"): ("follow.eval.tracking", "CLEAR MOT / IDF1 on PETS 2009 against other trackers"),
+    ("eval", "following"): ("follow.eval.following", "closed-loop following over the simulated MAVLink rover"),
     ("eval", "identification"): ("follow.eval.identification", "CT/CL/WT/WL on PETS 2009"),
     ("bench", None): ("follow.eval.bench", "per-stage latency and end-to-end fps"),
     ("bench", "pose"): ("follow.eval.bench_pose", "pose network runtimes side by side"),

@@ -69,16 +69,16 @@ class IdentifyConfig:
 class ControlConfig:
     # Following distance: the 1.5-3 m band a walking person accepts behind them.
     following_distance_m: float = 1.8
-    max_forward_speed_mps: float = 1.2
+    max_forward_speed_mps: float = 1.5  # above a brisk walk, so the robot can catch up
     max_backward_speed_mps: float = 0.3
     allow_backing_off: bool = False
     max_yaw_rate_radps: float = 1.0
-    max_forward_accel_mps2: float = 1.0
+    max_forward_accel_mps2: float = 1.5
     # Braking may be harder than speeding up; a stop on loss/stale ignores both limits.
     max_forward_decel_mps2: float = 2.0
     max_yaw_accel_radps2: float = 3.0
     # Proportional gains: forward speed per metre of distance error, yaw rate per radian.
-    distance_gain_per_s: float = 1.0
+    distance_gain_per_s: float = 1.5
     bearing_gain_per_s: float = 1.5
     # Fraction of the target's own motion fed forward (radial speed, bearing rate).
     velocity_feedforward_gain: float = 1.0

@@ -1,0 +1,401 @@
+"""`MavlinkBase`: drive an ArduPilot Rover (GUIDED) or a PX4 rover (OFFBOARD) over MAVLink.
+
+Two threads own the link. The receiver drains every message as it arrives and keeps only
+the newest of each type (pymavlink would otherwise hand out stale queued ones). The sender
+runs at `stream_rate_hz`: it sends the companion HEARTBEAT once a second and, while the
+link is up and the vehicle is in the mode we put it in, repeats the newest velocity
+command, replacing it by zero once it is older than `command_timeout_s`. It sends no
+motion when the vehicle's heartbeat has been silent for `heartbeat_timeout_s` (link lost)
+or when the pilot has switched to another mode (we never switch back ourselves).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+
+from pymavlink import mavutil
+
+from follow.config import ConfigError, MavlinkConfig
+from follow.control import mavlink_frames as mf
+from follow.types import Odometry, VelocityCommand
+
+log = logging.getLogger(__name__)
+mavlink = mavutil.mavlink
+
+# Boot-time counters that jump back by more than this are a vehicle reboot, not reordering.
+_REBOOT_JUMP_MS = 10_000
+_ACK_RETRIES = 3
+
+
+class LinkState(str, enum.Enum):
+    CONNECTING = "connecting"
+    ACTIVE = "active"  # vehicle in our mode, commands go out
+    MODE_OVERRIDDEN = "mode_overridden"  # the pilot chose another mode: we stay quiet
+    LINK_LOST = "link_lost"  # no vehicle heartbeat within heartbeat_timeout_s
+    CLOSED = "closed"
+
+
+class MavlinkError(RuntimeError):
+    """The vehicle could not be reached or refused what the driver needs."""
+
+
+def check_mavlink_config(config: MavlinkConfig) -> None:
+    if not config.connection:
+        raise ConfigError("[mavlink] connection is empty (e.g. 'udpin:0.0.0.0:14550')")
+    if config.autopilot not in ("ardupilot", "px4"):
+        raise ConfigError(
+            f"[mavlink] autopilot must be 'ardupilot' or 'px4', got {config.autopilot!r}"
+        )
+    if not config.stream_rate_hz >= 10:
+        raise ConfigError(f"[mavlink] stream_rate_hz must be >= 10, got {config.stream_rate_hz}")
+    for name in ("heartbeat_timeout_s", "telemetry_rate_hz", "connect_timeout_s",
+                 "command_timeout_s", "odometry_timeout_s", "px4_turn_horizon_s"):  # fmt: skip
+        value = getattr(config, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"[mavlink] {name} must be > 0, got {value}")
+
+
+class MavlinkBase:
+    """A `Base` over MAVLink. Connects, sets the mode and starts streaming on construction;
+    raises MavlinkError when the vehicle does not answer or refuses the mode."""
+
+    def __init__(self, config: MavlinkConfig, clock: Callable[[], float] = time.monotonic):
+        check_mavlink_config(config)
+        self.config = config
+        self._clock = clock
+        self._px4 = config.autopilot == "px4"
+        self._lock = threading.Lock()
+        self._send_lock = threading.Lock()
+        self._changed = threading.Condition(self._lock)
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._state = LinkState.CONNECTING
+        self._target: tuple[int, int] | None = None
+        self._heartbeat = None  # newest vehicle HEARTBEAT
+        self._heartbeat_at_s = -math.inf
+        self._newest: dict[str, tuple[object, float]] = {}  # type -> (message, received at)
+        self._acks: dict[int, int] = {}  # command id -> result
+        self._command: tuple[VelocityCommand, float] | None = None
+        self._engaged = False  # we have put the vehicle in our mode
+        self._prestream = False  # PX4: stream setpoints before asking for OFFBOARD
+        self.last_error: str | None = None
+        self.setpoints_sent = 0
+        self._conn = mavutil.mavlink_connection(
+            config.connection,
+            source_system=config.source_system,
+            source_component=config.source_component,
+        )
+        self._receiver = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
+        self._sender = threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)
+        self._receiver.start()
+        self._sender.start()
+        try:
+            self._connect()
+        except BaseException:
+            self.close()
+            raise
+
+    # -- Base protocol ----------------------------------------------------------------
+
+    def send(self, cmd: VelocityCommand) -> None:
+        """Replace the command being streamed; a stop goes out at once."""
+        with self._lock:
+            if self._state is LinkState.CLOSED:
+                raise MavlinkError("send() on a closed MavlinkBase")
+            self._command = (cmd, self._clock())
+        self._wake.set()
+
+    def odometry(self) -> Odometry | None:
+        """Pose from the newest LOCAL_POSITION_NED and ATTITUDE, stamped with the older
+        receipt time of the two; None when either is missing or older than
+        odometry_timeout_s."""
+        with self._lock:
+            pos = self._newest.get("LOCAL_POSITION_NED")
+            att = self._newest.get("ATTITUDE")
+        if pos is None or att is None:
+            return None
+        stamp = min(pos[1], att[1])
+        if self._clock() - stamp > self.config.odometry_timeout_s:
+            return None
+        x, y, yaw = mf.ned_pose_to_odom(pos[0].x, pos[0].y, att[0].yaw)
+        return Odometry(x, y, yaw, stamp)
+
+    def healthy(self) -> bool:
+        """Link up, vehicle in our mode and armed."""
+        with self._lock:
+            self._check_link_locked()
+            return self._state is LinkState.ACTIVE and self._armed_locked()
+
+    def close(self) -> None:
+        """Send zero velocity (a few times, UDP may drop one), stop the threads, close."""
+        with self._lock:
+            if self._state is LinkState.CLOSED:
+                return
+            was_connected = self._target is not None
+            self._state = LinkState.CLOSED
+        if was_connected:
+            for _ in range(3):
+                self._send_setpoint(VelocityCommand.stop(self._clock()))
+                time.sleep(0.01)
+        self._stop.set()
+        self._wake.set()
+        for thread in (self._sender, self._receiver):
+            if thread.is_alive() and thread is not threading.current_thread():
+                thread.join(timeout=1.0)
+        self._conn.close()
+
+    def __enter__(self) -> MavlinkBase:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- status -------------------------------------------------------------------------
+
+    @property
+    def state(self) -> LinkState:
+        with self._lock:
+            self._check_link_locked()
+            return self._state
+
+    @property
+    def armed(self) -> bool:
+        with self._lock:
+            return self._armed_locked()
+
+    @property
+    def vehicle_mode(self) -> int | None:
+        with self._lock:
+            return None if self._heartbeat is None else self._heartbeat.custom_mode
+
+    def status(self) -> dict:
+        with self._lock:
+            self._check_link_locked()
+            return {
+                "state": self._state.value,
+                "vehicle_mode": None if self._heartbeat is None else self._heartbeat.custom_mode,
+                "armed": self._armed_locked(),
+                "heartbeat_age_s": self._clock() - self._heartbeat_at_s,
+                "setpoints_sent": self.setpoints_sent,
+                "last_error": self.last_error,
+            }
+
+    # -- connection ---------------------------------------------------------------------
+
+    def _connect(self) -> None:
+        cfg = self.config
+        deadline = self._clock() + cfg.connect_timeout_s
+        with self._lock:
+            while self._heartbeat is None:
+                if not self._changed.wait(timeout=max(0.0, deadline - self._clock())):
+                    if self._heartbeat is None:
+                        raise MavlinkError(
+                            f"no vehicle heartbeat on {cfg.connection} within "
+                            f"{cfg.connect_timeout_s} s"
+                        )
+        log.info("vehicle %s found on %s", self._target, cfg.connection)
+        interval_us = 1e6 / cfg.telemetry_rate_hz
+        for msg_id in (mf.MSG_ID_LOCAL_POSITION_NED, mf.MSG_ID_ATTITUDE):
+            result = self._command_long(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, msg_id, interval_us)
+            if result != mavlink.MAV_RESULT_ACCEPTED:
+                log.warning("message interval for id %d not accepted (result %s)", msg_id, result)
+        if self._px4:
+            self._prestream = True  # OFFBOARD needs setpoints flowing before the switch
+            time.sleep(1.0)
+        if cfg.arm and not self.armed:
+            self._require(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, "arm", 1)
+        elif not self.armed:
+            log.warning(
+                "vehicle is disarmed and arm=false: it will not move until the pilot arms it"
+            )
+        custom_mode = (
+            mf.px4_custom_mode(mf.PX4_MAIN_MODE_OFFBOARD) if self._px4 else mf.ROVER_MODE_GUIDED
+        )
+        params = (
+            (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mf.PX4_MAIN_MODE_OFFBOARD, 0)
+            if self._px4
+            else (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mf.ROVER_MODE_GUIDED)
+        )
+        self._require(mavlink.MAV_CMD_DO_SET_MODE, "mode change", *params)
+        with self._lock:
+            while not self._in_our_mode_locked():
+                remaining = deadline - self._clock()
+                if remaining <= 0:
+                    raise MavlinkError(
+                        f"mode change acknowledged but the heartbeat still reports mode "
+                        f"{self._heartbeat.custom_mode}, not {custom_mode}"
+                    )
+                self._changed.wait(timeout=remaining)
+            self._engaged = True
+            self._prestream = False
+            self._state = LinkState.ACTIVE
+        log.info(
+            "vehicle in %s; streaming velocity setpoints", "OFFBOARD" if self._px4 else "GUIDED"
+        )
+
+    def _require(self, command: int, what: str, *params: float) -> None:
+        result = self._command_long(command, *params)
+        if result != mavlink.MAV_RESULT_ACCEPTED:
+            reason = "no acknowledgement" if result is None else f"result {result}"
+            raise MavlinkError(f"vehicle refused {what} ({reason})")
+
+    def _command_long(self, command: int, *params: float) -> int | None:
+        """Send COMMAND_LONG and wait for its COMMAND_ACK, resending on silence."""
+        params = tuple(params) + (0.0,) * (7 - len(params))
+        per_try_s = self.config.connect_timeout_s / _ACK_RETRIES
+        for attempt in range(_ACK_RETRIES):
+            with self._lock:
+                self._acks.pop(command, None)
+            with self._send_lock:
+                self._conn.mav.command_long_send(*self._target, command, attempt, *params)
+            deadline = self._clock() + per_try_s
+            with self._lock:
+                while command not in self._acks:
+                    remaining = deadline - self._clock()
+                    if remaining <= 0 or self._stop.is_set():
+                        break
+                    self._changed.wait(timeout=remaining)
+                if command in self._acks:
+                    return self._acks.pop(command)
+        return None
+
+    # -- receiving ------------------------------------------------------------------------
+
+    def _receive_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self._conn.recv_match(blocking=True, timeout=0.05)
+            except (OSError, ValueError) as exc:  # socket closed under us at shutdown
+                if not self._stop.is_set():
+                    log.error("MAVLink receive failed: %s", exc)
+                    time.sleep(0.05)
+                continue
+            if msg is not None:
+                self._on_message(msg)
+
+    def _on_message(self, msg) -> None:
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            return
+        now = self._clock()
+        with self._lock:
+            if kind == "HEARTBEAT":
+                if msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+                    return  # a ground station or another companion, not the vehicle
+                if self._target is None:
+                    self._target = (msg.get_srcSystem(), msg.get_srcComponent())
+                if (msg.get_srcSystem(), msg.get_srcComponent()) != self._target:
+                    return
+                self._heartbeat, self._heartbeat_at_s = msg, now
+                self._on_heartbeat_locked()
+            elif self._target is None or msg.get_srcSystem() != self._target[0]:
+                return
+            elif kind == "COMMAND_ACK":
+                self._acks[msg.command] = msg.result
+            elif kind in ("LOCAL_POSITION_NED", "ATTITUDE"):
+                previous = self._newest.get(kind)
+                if previous is not None:
+                    back_ms = previous[0].time_boot_ms - msg.time_boot_ms
+                    if 0 <= back_ms < _REBOOT_JUMP_MS:
+                        return  # reordered or repeated: keep the newer one
+                self._newest[kind] = (msg, now)
+            else:
+                return
+            self._changed.notify_all()
+
+    def _on_heartbeat_locked(self) -> None:
+        if self._state is LinkState.LINK_LOST:
+            self._state = LinkState.ACTIVE if self._engaged else LinkState.CONNECTING
+            log.warning("vehicle heartbeat back: link restored")
+        if not self._engaged:
+            return
+        in_mode = self._in_our_mode_locked()
+        if self._state is LinkState.ACTIVE and not in_mode:
+            self._state = LinkState.MODE_OVERRIDDEN
+            self.last_error = f"pilot switched the vehicle to mode {self._heartbeat.custom_mode}"
+            log.warning("%s: no longer commanding it", self.last_error)
+        elif self._state is LinkState.MODE_OVERRIDDEN and in_mode:
+            self._state = LinkState.ACTIVE
+            log.warning("vehicle back in our mode: commanding again")
+
+    def _in_our_mode_locked(self) -> bool:
+        mode = self._heartbeat.custom_mode
+        if self._px4:
+            return mf.px4_main_mode(mode) == mf.PX4_MAIN_MODE_OFFBOARD
+        return mode == mf.ROVER_MODE_GUIDED
+
+    def _armed_locked(self) -> bool:
+        hb = self._heartbeat
+        return hb is not None and bool(hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+
+    def _check_link_locked(self) -> None:
+        if self._state in (LinkState.CLOSED, LinkState.LINK_LOST) or self._heartbeat is None:
+            return
+        silent_s = self._clock() - self._heartbeat_at_s
+        if silent_s > self.config.heartbeat_timeout_s:
+            self._state = LinkState.LINK_LOST
+            self.last_error = f"no vehicle heartbeat for {silent_s:.1f} s: link lost"
+            log.error("%s; motion commands stopped", self.last_error)
+
+    # -- sending ------------------------------------------------------------------------
+
+    def _send_loop(self) -> None:
+        period_s = 1.0 / self.config.stream_rate_hz
+        next_heartbeat_s = -math.inf
+        while not self._stop.is_set():
+            self._wake.wait(timeout=period_s)
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            now = self._clock()
+            try:
+                if now >= next_heartbeat_s:
+                    next_heartbeat_s = now + 1.0
+                    with self._send_lock:
+                        self._conn.mav.heartbeat_send(
+                            mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID,
+                            0, 0, mavlink.MAV_STATE_ACTIVE,
+                        )  # fmt: skip
+                command = self._command_to_stream(now)
+                if command is not None:
+                    self._send_setpoint(command)
+            except Exception as exc:  # keep the watchdog alive; report and go on
+                self.last_error = f"send failed: {exc}"
+                log.error("MAVLink %s", self.last_error)
+
+    def _command_to_stream(self, now: float) -> VelocityCommand | None:
+        """The command to send now, or None when we must not command the vehicle."""
+        with self._lock:
+            self._check_link_locked()
+            if self._prestream and self._state is LinkState.CONNECTING:
+                return VelocityCommand.stop(now)
+            if self._state is not LinkState.ACTIVE:
+                return None
+            if self._command is None:
+                return VelocityCommand.stop(now)
+            command, received_s = self._command
+        if now - received_s > self.config.command_timeout_s:
+            return VelocityCommand.stop(now)
+        return command
+
+    def _send_setpoint(self, cmd: VelocityCommand) -> None:
+        if self._target is None:
+            return
+        if self._px4:
+            vx, vy = mf.px4_setpoint(cmd, self.config.px4_turn_horizon_s)
+            yaw_rate, mask, frame = 0.0, mf.TYPE_MASK_VELOCITY_ONLY, mavlink.MAV_FRAME_BODY_NED
+        else:
+            vx, vy, yaw_rate = mf.ardupilot_setpoint(cmd)
+            mask, frame = mf.TYPE_MASK_VELOCITY_YAW_RATE, mavlink.MAV_FRAME_BODY_OFFSET_NED
+        boot_ms = int(self._clock() * 1000) & 0xFFFFFFFF
+        with self._send_lock:
+            self._conn.mav.set_position_target_local_ned_send(
+                boot_ms, *self._target, frame, mask,
+                0, 0, 0, vx, vy, 0, 0, 0, 0, 0, yaw_rate,
+            )  # fmt: skip
+        self.setpoints_sent += 1

@@ -1,0 +1,242 @@
+"""`follow eval following`: closed-loop following over the simulated MAVLink rover.
+
+A scripted walker (straight, turning, stopping) is followed in real time: its position,
+delayed and noised like a tracker's output, is put into the robot frame with the
+odometry that `MavlinkBase` reads back over UDP from `SimRover`, the controller turns it
+into a command, and the driver streams that command to the rover. The distance error is
+measured between the walker and the rover's true pose.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from follow.config import Config, ControlConfig, MavlinkConfig
+from follow.control.controller import FollowingController
+from follow.control.mavlink_base import MavlinkBase
+from follow.control.target import TargetMotion
+from follow.frames import odom_to_base, vector_odom_to_base
+from follow.sim.rover import SimRover
+from follow.sim.walker_paths import SCENARIOS, WalkerPath, scenario
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    perception_latency_s: float = 0.1  # age of the target estimate handed to the controller
+    position_noise_m: float = 0.05  # std of the estimate's position error
+    velocity_noise_mps: float = 0.05
+    settle_s: float = 2.5  # after the walker changes speed or turn, before "steady"
+    packet_loss: float = 0.0
+    link_latency_s: float = 0.0
+    seed: int = 0
+
+
+@dataclass
+class RunTrace:
+    """Samples of one run, one per control period."""
+
+    scenario: str
+    following_distance_m: float
+    t_s: list[float] = field(default_factory=list)
+    distance_error_m: list[float] = field(default_factory=list)
+    steady: list[bool] = field(default_factory=list)
+    walking: list[bool] = field(default_factory=list)
+    forward_mps: list[float] = field(default_factory=list)
+    yaw_rate_radps: list[float] = field(default_factory=list)
+    walker_xy: list[tuple[float, float]] = field(default_factory=list)
+    robot_xy: list[tuple[float, float]] = field(default_factory=list)
+    target_missing: int = 0
+
+
+def run_following(
+    path: WalkerPath,
+    name: str,
+    control: ControlConfig = ControlConfig(),  # noqa: B008 (frozen)
+    mavlink: MavlinkConfig | None = None,
+    settings: RunSettings = RunSettings(),  # noqa: B008 (frozen)
+) -> RunTrace:
+    """Follow `path` in real time through MavlinkBase + SimRover; the walker's script starts
+    once the vehicle is in GUIDED."""
+    rng = np.random.default_rng(settings.seed)
+    controller = FollowingController(control)
+    trace = RunTrace(name, control.following_distance_m)
+    with SimRover(seed=settings.seed) as rover:
+        rover.packet_loss, rover.latency_s = settings.packet_loss, settings.link_latency_s
+        cfg = mavlink or MavlinkConfig()
+        cfg = MavlinkConfig(**{**cfg.__dict__, "connection": rover.connection})
+        with MavlinkBase(cfg) as base:
+            period_s = controller.period_s
+            t0 = time.monotonic()
+            next_tick = t0
+            while (now := time.monotonic()) - t0 <= path.duration_s:
+                t = now - t0
+                target = _estimate(path, t, now, base.odometry(), settings, rng)
+                trace.target_missing += target is None
+                command = controller.update(target, now)
+                base.send(command)
+                _record(trace, path, t, rover, command, control, settings)
+                next_tick += period_s
+                time.sleep(max(0.0, next_tick - time.monotonic()))
+    return trace
+
+
+def _estimate(path, t, now, odometry, settings, rng) -> TargetMotion | None:
+    """What a tracker would report: the walker `perception_latency_s` ago, with noise,
+    in the robot frame of the newest odometry (None without odometry)."""
+    if odometry is None:
+        return None
+    seen_at = t - settings.perception_latency_s
+    xy, v = path.state(max(seen_at, 0.0))
+    xy = xy + rng.normal(0.0, settings.position_noise_m, 2)
+    v = v + rng.normal(0.0, settings.velocity_noise_mps, 2)
+    # Predict the latency away with the estimated velocity, as the tracker's filter would.
+    xy = xy + v * settings.perception_latency_s
+    return TargetMotion(odom_to_base(xy, odometry), vector_odom_to_base(v, odometry), now)
+
+
+def _record(trace, path, t, rover, command, control, settings) -> None:
+    truth = rover.true_pose()
+    walker_xy, _ = path.state(t)
+    distance = math.hypot(walker_xy[0] - truth.x_m, walker_xy[1] - truth.y_m)
+    seg = path.segment_at(t)
+    walking = seg.speed_mps > 0
+    trace.t_s.append(t)
+    trace.distance_error_m.append(distance - control.following_distance_m)
+    trace.walking.append(walking)
+    trace.steady.append(walking and path.time_in_segment(t) >= settings.settle_s)
+    trace.forward_mps.append(command.forward_mps)
+    trace.yaw_rate_radps.append(command.yaw_rate_radps)
+    trace.walker_xy.append((float(walker_xy[0]), float(walker_xy[1])))
+    trace.robot_xy.append((truth.x_m, truth.y_m))
+
+
+def error_statistics(errors_m) -> dict:
+    e = np.abs(np.asarray(errors_m, dtype=np.float64))
+    if e.size == 0:
+        return {"samples": 0}
+    signed = np.asarray(errors_m, dtype=np.float64)
+    return {
+        "samples": int(e.size),
+        "mean_m": float(signed.mean()),
+        "mean_abs_m": float(e.mean()),
+        "median_abs_m": float(np.median(e)),
+        "p90_abs_m": float(np.percentile(e, 90)),
+        "max_abs_m": float(e.max()),
+        "within_0_3_m": float((e <= 0.3).mean()),
+    }
+
+
+def summarize(trace: RunTrace) -> dict:
+    err = np.asarray(trace.distance_error_m)
+    steady = np.asarray(trace.steady, dtype=bool)
+    return {
+        "scenario": trace.scenario,
+        "duration_s": trace.t_s[-1] if trace.t_s else 0.0,
+        "steady_walking": error_statistics(err[steady]),
+        "all": error_statistics(err),
+        "min_distance_m": float(err.min() + trace.following_distance_m) if err.size else None,
+        "max_forward_mps": float(np.max(trace.forward_mps)) if trace.forward_mps else 0.0,
+        "max_abs_yaw_rate_radps": float(np.max(np.abs(trace.yaw_rate_radps)))
+        if trace.yaw_rate_radps
+        else 0.0,
+        "target_missing_periods": trace.target_missing,
+    }
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--scenario", choices=(*SCENARIOS, "all"), default="all", help="walker script"
+    )
+    parser.add_argument("--speed-mps", type=float, default=1.0, help="walking speed")
+    parser.add_argument("--config", help="TOML file ([control] and [mavlink] are used)")
+    parser.add_argument("--latency-s", type=float, default=RunSettings.perception_latency_s)
+    parser.add_argument("--noise-m", type=float, default=RunSettings.position_noise_m)
+    parser.add_argument("--packet-loss", type=float, default=0.0, help="fraction, both ways")
+    parser.add_argument("--link-latency-s", type=float, default=0.0, help="one way")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--plot", help="write a PNG of distance error and paths here")
+
+
+def main(args: argparse.Namespace) -> dict:
+    config = Config.load(args.config) if args.config else Config()
+    settings = RunSettings(
+        perception_latency_s=args.latency_s, position_noise_m=args.noise_m,
+        packet_loss=args.packet_loss, link_latency_s=args.link_latency_s, seed=args.seed,
+    )  # fmt: skip
+    if not 0.0 <= args.packet_loss < 1.0:
+        raise ValueError(f"--packet-loss must be in [0, 1), got {args.packet_loss}")
+    names = SCENARIOS if args.scenario == "all" else (args.scenario,)
+    start = config.control.following_distance_m
+    traces = []
+    for name in names:
+        path = scenario(name, speed_mps=args.speed_mps, start_distance_m=start)
+        print(f"running '{name}' ({path.duration_s:.0f} s, real time) ...", flush=True)
+        traces.append(run_following(path, name, config.control, config.mavlink, settings))
+    results = [summarize(t) for t in traces]
+    steady_all = np.concatenate(
+        [np.asarray(t.distance_error_m)[np.asarray(t.steady, dtype=bool)] for t in traces]
+    )
+    overall = error_statistics(steady_all)
+    if not args.json:
+        _print_table(results, overall, config.control.following_distance_m)
+    if args.plot:
+        _plot(traces, args.plot)
+        print(f"plot written to {args.plot}")
+    return {
+        "following_distance_m": config.control.following_distance_m,
+        "walking_speed_mps": args.speed_mps,
+        "settings": settings.__dict__,
+        "scenarios": results,
+        "steady_walking": overall,
+        "goal_abs_error_m": 0.3,
+    }
+
+
+def _print_table(results: list[dict], overall: dict, distance_m: float) -> None:
+    print(f"distance error (m) against the {distance_m} m set point, steady walking:")
+    print(f"{'scenario':<10} {'n':>5} {'mean':>7} {'median|e|':>10} {'p90|e|':>8} {'max|e|':>8}")
+    rows = [(r["scenario"], r["steady_walking"]) for r in results] + [("all", overall)]
+    for name, s in rows:
+        if not s["samples"]:
+            print(f"{name:<10} {0:>5}")
+            continue
+        print(
+            f"{name:<10} {s['samples']:>5} {s['mean_m']:>7.3f} {s['median_abs_m']:>10.3f} "
+            f"{s['p90_abs_m']:>8.3f} {s['max_abs_m']:>8.3f}"
+        )
+
+
+def _plot(traces: list[RunTrace], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(traces), figsize=(5 * len(traces), 8), squeeze=False)
+    for col, tr in enumerate(traces):
+        ax = axes[0][col]
+        ax.plot(tr.t_s, tr.distance_error_m, label="distance error")
+        steady = np.asarray(tr.steady)
+        ax.scatter(np.asarray(tr.t_s)[steady], np.asarray(tr.distance_error_m)[steady], s=3, c="g",
+                   label="steady walking")  # fmt: skip
+        ax.axhspan(-0.3, 0.3, color="g", alpha=0.1)
+        ax.set(title=tr.scenario, xlabel="t (s)", ylabel="distance - set point (m)")
+        ax.legend(loc="lower right")
+        ax = axes[1][col]
+        w, r = np.asarray(tr.walker_xy), np.asarray(tr.robot_xy)
+        ax.plot(w[:, 0], w[:, 1], label="walker")
+        ax.plot(r[:, 0], r[:, 1], label="rover")
+        ax.set(xlabel="odom x (m)", ylabel="odom y (m)")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

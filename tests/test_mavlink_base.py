@@ -1,0 +1,204 @@
+"""MavlinkBase against the simulated rover over real UDP sockets on 127.0.0.1."""
+
+import math
+import time
+
+import pytest
+from pymavlink import mavutil
+
+from follow.config import ConfigError, MavlinkConfig
+from follow.control import mavlink_frames as mf
+from follow.control.base import Base
+from follow.control.mavlink_base import LinkState, MavlinkBase, MavlinkError
+from follow.sim.rover import RoverLimits, SimRover
+from follow.types import Odometry, VelocityCommand
+
+FAST = dict(heartbeat_timeout_s=0.6, connect_timeout_s=2.0, odometry_timeout_s=0.3)
+
+
+def wait_for(predicate, timeout_s=2.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def drive(base, forward, yaw_rate, seconds, period_s=0.05):
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        base.send(VelocityCommand(forward, yaw_rate, time.monotonic()))
+        time.sleep(period_s)
+
+
+@pytest.fixture
+def rover():
+    with SimRover(heartbeat_rate_hz=5, limits=RoverLimits(guided_timeout_s=3.0)) as r:
+        yield r
+
+
+@pytest.fixture
+def base(rover):
+    with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as b:
+        yield b
+
+
+def test_connect_sets_guided_requests_streams_and_never_arms_by_itself():
+    with SimRover(heartbeat_rate_hz=5, armed=False) as rover:
+        with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:
+            assert isinstance(base, Base)
+            assert rover.mode == mf.ROVER_MODE_GUIDED and base.vehicle_mode == mf.ROVER_MODE_GUIDED
+            assert base.state is LinkState.ACTIVE
+            assert set(rover._intervals_s) == {mf.MSG_ID_ATTITUDE, mf.MSG_ID_LOCAL_POSITION_NED}
+            assert rover._intervals_s[mf.MSG_ID_ATTITUDE] == pytest.approx(1 / 30)
+            assert 400 not in rover.commands_received  # MAV_CMD_COMPONENT_ARM_DISARM
+            assert not base.healthy()  # disarmed: commands would not move it
+            drive(base, 1.0, 0.0, 0.3)
+            assert rover.true_velocity() == (0.0, 0.0) and not rover.armed
+
+
+def test_arms_only_when_configured():
+    with SimRover(heartbeat_rate_hz=5, armed=False) as rover:
+        cfg = MavlinkConfig(connection=rover.connection, arm=True, **FAST)
+        with MavlinkBase(cfg) as base:
+            assert rover.armed and wait_for(base.healthy)
+
+
+def test_streams_velocity_and_yaw_rate_setpoints_at_rate(rover, base):
+    # The vehicle beats at 5 Hz in these tests so that a 0.6 s link timeout is meaningful.
+    time.sleep(0.1)
+    n0 = len(rover.setpoint_log)
+    time.sleep(1.0)
+    window = [e for e in list(rover.setpoint_log)[n0:]]
+    assert len(window) >= 15  # >= 10 Hz with margin; configured 20 Hz
+    assert {(frame, mask) for _, frame, mask in window} == {
+        (9, 0x05C7)  # MAV_FRAME_BODY_OFFSET_NED, velocity + yaw rate
+    }
+    assert rover.setpoints_ignored == 0
+    heartbeats_before = rover.companion_heartbeats
+    time.sleep(1.1)
+    assert rover.companion_heartbeats - heartbeats_before in (1, 2)
+
+
+def test_commands_move_the_rover_and_odometry_follows_in_odom_frame():
+    start = Odometry(2.0, -1.0, 0.3, 0.0)
+    with SimRover(heartbeat_rate_hz=5, start_pose=start) as rover:
+        with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:
+            odo = base.odometry()
+            assert wait_for(lambda: base.odometry() is not None, 1.0)
+            odo = base.odometry()
+            assert (odo.x_m, odo.y_m, odo.yaw_rad) == pytest.approx((2.0, -1.0, 0.3), abs=1e-4)
+            drive(base, 0.8, 0.4, 1.5)  # forward and counter-clockwise (left)
+            forward, yaw_rate = rover.true_velocity()
+            assert forward == pytest.approx(0.8) and yaw_rate == pytest.approx(0.4)
+            truth, odo = rover.true_pose(), base.odometry()
+            assert truth.yaw_rad > 0.3 + 0.4 and truth.y_m > -1.0  # turned and drove left
+            assert math.hypot(truth.x_m - odo.x_m, truth.y_m - odo.y_m) < 0.1
+            assert abs(truth.yaw_rad - odo.yaw_rad) < 0.1
+            assert time.monotonic() - odo.stamp_s < base.config.odometry_timeout_s
+
+
+def test_a_stale_command_is_replaced_by_zero(rover, base):
+    drive(base, 1.0, 0.0, 1.0)
+    assert rover.true_velocity()[0] == pytest.approx(1.0)
+    # No new command: after command_timeout_s the driver streams zero, long before the
+    # vehicle's own 3 s timeout would stop it.
+    assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.5)
+
+
+def test_a_stop_goes_out_at_once(rover, base):
+    drive(base, 1.0, 0.5, 1.0)
+    sent = len(rover.setpoint_log)
+    base.send(VelocityCommand.stop(time.monotonic()))
+    t0 = time.monotonic()
+    assert wait_for(lambda: rover._target.speed_mps == 0.0 and len(rover.setpoint_log) > sent)
+    assert time.monotonic() - t0 < 1 / 15  # within one control period
+
+
+def test_link_cut_stops_motion_reports_it_and_odometry_goes_stale():
+    # The vehicle stops on its own 1 s after its last setpoint here (ArduPilot: 3 s, checked
+    # in the rover's own tests) to keep this test short.
+    with SimRover(heartbeat_rate_hz=5, limits=RoverLimits(guided_timeout_s=1.0)) as rover:
+        with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:
+            drive(base, 1.0, 0.0, 0.8)
+            assert base.healthy() and base.odometry() is not None
+            rover.cut_link()
+            t0 = time.monotonic()
+            assert wait_for(lambda: base.odometry() is None, 1.0)  # stale odometry not returned
+            assert wait_for(lambda: base.state is LinkState.LINK_LOST, 2.0)
+            assert time.monotonic() - t0 < base.config.heartbeat_timeout_s + 0.3
+            assert not base.healthy() and "link lost" in base.status()["last_error"]
+            sent = base.setpoints_sent
+            drive(base, 1.0, 0.0, 0.3)
+            assert base.setpoints_sent == sent  # no motion commands into a lost link
+            assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.5)
+            rover.cut_link(False)
+            assert wait_for(lambda: base.state is LinkState.ACTIVE, 1.0)
+
+
+def test_pilot_mode_switch_is_not_fought(rover, base):
+    drive(base, 1.0, 0.0, 0.5)
+    rover.pilot_set_mode(mf.ROVER_MODE_MANUAL)
+    assert wait_for(lambda: base.state is LinkState.MODE_OVERRIDDEN, 1.0)
+    assert not base.healthy() and "pilot" in base.status()["last_error"]
+    sent = base.setpoints_sent
+    drive(base, 1.0, 0.0, 0.5)
+    assert base.setpoints_sent == sent
+    assert rover.commands_received.count(176) == 1  # never asked for GUIDED again
+    assert rover.mode == mf.ROVER_MODE_MANUAL and rover.true_velocity()[0] == 0.0
+
+
+def test_close_sends_zero_velocity(rover):
+    base = MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST))
+    drive(base, 1.0, 0.0, 0.6)
+    base.close()
+    assert rover._target.speed_mps == 0.0 or wait_for(lambda: rover._target.speed_mps == 0.0, 0.2)
+    assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.0)  # not the 3 s timeout
+    with pytest.raises(MavlinkError, match="closed"):
+        base.send(VelocityCommand.stop(0.0))
+    base.close()  # idempotent
+
+
+def test_exception_in_the_with_block_still_stops(rover):
+    with pytest.raises(KeyError):
+        with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:
+            drive(base, 1.0, 0.0, 0.8)
+            raise KeyError("boom")
+    assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.0)
+
+
+def test_survives_packet_loss_and_latency():
+    with SimRover(heartbeat_rate_hz=5) as rover:
+        rover.packet_loss, rover.latency_s = 0.2, 0.05
+        with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:
+            drive(base, 0.6, 0.0, 1.0)
+            assert rover.true_velocity()[0] == pytest.approx(0.6)
+            assert base.state is LinkState.ACTIVE
+
+
+def test_no_vehicle_and_bad_config_are_clear_errors():
+    with SimRover(heartbeat_rate_hz=5) as rover:
+        port = rover.port
+    t0 = time.monotonic()
+    with pytest.raises(MavlinkError, match="no vehicle heartbeat"):
+        MavlinkBase(MavlinkConfig(connection=f"udpout:127.0.0.1:{port}", connect_timeout_s=0.5))
+    assert time.monotonic() - t0 < 2.0
+    with pytest.raises(ConfigError, match="connection is empty"):
+        MavlinkBase(MavlinkConfig())
+    with pytest.raises(ConfigError, match="stream_rate_hz"):
+        MavlinkBase(MavlinkConfig(connection="udpout:127.0.0.1:1", stream_rate_hz=5.0))
+    with pytest.raises(ConfigError, match="autopilot"):
+        MavlinkBase(MavlinkConfig(connection="udpout:127.0.0.1:1", autopilot="pixhawk"))
+
+
+def test_only_the_newest_telemetry_is_used(rover, base):
+    assert wait_for(lambda: base.odometry() is not None, 1.0)
+    newest = base._newest["LOCAL_POSITION_NED"][0]
+    late = mavutil.mavlink.MAVLink_local_position_ned_message(
+        newest.time_boot_ms - 500, 50.0, 50.0, 0.0, 0.0, 0.0, 0.0
+    )  # a delayed packet from half a second ago
+    late._header = newest._header
+    base._on_message(late)
+    odo = base.odometry()
+    assert abs(odo.x_m) < 1.0 and abs(odo.y_m) < 1.0
