@@ -15,10 +15,10 @@ CHANNELS, H, W = 4, 16, 8
 def person(rng, top: float, legs: float, noise: float = 0.08) -> FeatureMaps:
     """Maps of a synthetic person: channel 0 = upper body colour, 1 = legs colour,
     channels 2-3 = clutter common to everyone."""
-    maps = rng.random((CHANNELS, H, W)) * 0.6
-    maps[0, : H // 2] = top
-    maps[1, H // 2 :] = legs
-    maps[:2] += rng.normal(0.0, noise, (2, H, W))
+    maps = rng.random((H, W, CHANNELS)) * 0.6
+    maps[: H // 2, :, 0] = top
+    maps[H // 2 :, :, 1] = legs
+    maps[..., :2] += rng.normal(0.0, noise, (H, W, 2))
     return FeatureMaps.from_maps(np.clip(maps, 0.0, 1.0))
 
 
@@ -95,10 +95,10 @@ def test_bad_inputs_are_rejected():
     with pytest.raises(ValueError, match="label"):
         clf.update(person(rng, *TARGET), 0)
     clf.update(person(rng, *TARGET), 1)
-    wrong_size = FeatureMaps.from_maps(np.zeros((CHANNELS, 8, 8)))
+    wrong_size = FeatureMaps.from_maps(np.zeros((8, 8, CHANNELS)))
     with pytest.raises(ValueError, match="size"):
         clf.update(wrong_size, -1)
     with pytest.raises(ValueError, match="channels"):
-        clf.update(FeatureMaps.from_maps(np.zeros((2, H, W))), -1)
+        clf.update(FeatureMaps.from_maps(np.zeros((H, W, 2))), -1)
     with pytest.raises(ValueError, match="rect_min_fraction"):
         OnlineBoostingClassifier(CHANNELS, IdentifyConfig(rect_min_fraction=0.6))

@@ -10,7 +10,7 @@ from follow.ccf.features import FeatureMaps, RectIndex
 
 def test_rect_means_equal_direct_means():
     rng = np.random.default_rng(0)
-    maps = rng.random((3, 20, 10))
+    maps = rng.random((20, 10, 3))
     fm = FeatureMaps.from_maps(maps)
     rects = np.array([[0.0, 0.0, 1.0, 1.0], [0.2, 0.25, 0.5, 0.75], [0.9, 0.9, 0.95, 0.95]])
     channels = np.array([0, 2, 1])
@@ -19,8 +19,8 @@ def test_rect_means_equal_direct_means():
     for k in range(3):
         r0, r1, c0, c1 = idx.r0[k], idx.r1[k], idx.c0[k], idx.c1[k]
         assert r1 > r0 and c1 > c0  # never empty, even for a sliver
-        assert np.isclose(got[k], maps[channels[k], r0:r1, c0:c1].mean())
-    assert np.isclose(got[0], maps[0].mean())
+        assert np.isclose(got[k], maps[r0:r1, c0:c1, channels[k]].mean())
+    assert np.isclose(got[0], maps[..., 0].mean())
     assert (idx.r0[1], idx.r1[1], idx.c0[1], idx.c1[1]) == (5, 15, 2, 5)
 
 

@@ -93,7 +93,7 @@ def test_feature_maps_are_scaled_integrals_of_the_quantised_maps():
     assert len(maps) == 2
     q = extractor.forward(np.stack([_resized(image, (10, 5, 26, 69))]))[0] / 255.0
     assert maps[0].map_size == (16, 8)
-    np.testing.assert_allclose(maps[0].integral[:, -1, -1], q.sum(axis=(1, 2)), rtol=1e-5)
+    np.testing.assert_allclose(maps[0].integral[-1, -1], q.sum(axis=(1, 2)), rtol=1e-5)
 
 
 def _resized(image, roi):

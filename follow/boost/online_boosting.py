@@ -10,8 +10,12 @@ weight alpha = 0.5 ln((1 - e) / e), lambda grows when it was wrong and shrinks w
 was right, and the worst weak classifier is replaced by a fresh random one (initialised
 from the sample banks) with probability `replace_probability`.
 
-For speed the Gaussians of all S x W weak classifiers learn each sample with unit weight
-(the sample banks keep the classes balanced); lambda weighs the selectors' error counts.
+For speed (everything is a handful of whole-array numpy operations) two simplifications
+are made: the Gaussians of all S x W weak classifiers learn each sample with unit weight
+(the sample banks keep the classes balanced) while lambda weighs the selectors' error
+counts; and lambda is carried along the chain by the weak classifier each selector had
+chosen before this sample (its error updated with this sample), so the chain is a scalar
+recurrence. Each selector's new best weak classifier and alpha are then chosen exactly.
 The Gaussians have a bounded memory (`gaussian_memory_samples`) and the error counts a
 forgetting factor (`selector_error_decay`), so that the classifier follows an appearance
 that changes. Everything random comes from one seeded generator.
@@ -19,7 +23,6 @@ that changes. Everything random comes from one seeded generator.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -31,6 +34,7 @@ from follow.types import InvalidInput
 
 MIN_SELECTOR_ERROR = 0.01  # keeps alpha finite (<= 2.3) for a flawless weak classifier
 MAX_IMPORTANCE = 1e3  # cap of lambda along the selector chain
+STOCK_SIZE = 512  # random weak-classifier parameters drawn at once
 NEG, POS = 0, 1
 
 
@@ -47,86 +51,120 @@ class OnlineBoostingClassifier:
                 "rect_min_fraction and rect_max_fraction must satisfy 0 < min <= max <= 1, got "
                 f"{config.rect_min_fraction}, {config.rect_max_fraction}"
             )
+        if config.gaussian_memory_samples < 1.0 or not 0.0 < config.selector_error_decay <= 1.0:
+            raise ValueError("gaussian_memory_samples must be >= 1, selector_error_decay in (0, 1]")
         self.config = config
         self.num_channels = int(num_channels)
         self.rng = np.random.default_rng(config.seed if seed is None else seed)
         s, w = config.num_selectors, config.weak_classifiers_per_selector
         self.channels = np.zeros((s, w), dtype=np.intp)
-        self.rects = np.zeros((s, w, 4))
-        self.mean = np.zeros((2, s, w))
+        self.rects = np.zeros((s, w, 4))  # x0, y0, x1, y1 normalised
+        self.mean = np.zeros((2, s, w))  # [others, target] Gaussians
         self.var = np.zeros((2, s, w))
         self.count = np.zeros((2, s, w))
-        self.correct = np.ones((s, w))
+        self.correct = np.ones((s, w))  # lambda-weighted counts of right and wrong votes
         self.wrong = np.ones((s, w))
         self.alpha = np.zeros(s)
         self.best = np.full(s, -1, dtype=np.intp)
         self.num_updates = 0
         self.banks = (SampleBank(config.sample_bank_size), SampleBank(config.sample_bank_size))
         self._map_size: tuple[int, int] | None = None
-        self._index: RectIndex | None = None
+        self._flat = np.zeros((4, s, w), dtype=np.intp)  # corner offsets into an integral
+        self._inv_area = np.zeros((s, w))
         self._min_var = config.min_feature_std**2
-        rows, cols = np.indices((s, w))
-        self._new_weak(rows.ravel(), cols.ravel())
+        self._rows = np.arange(s)
+        self._draw(STOCK_SIZE)
+        self._new_weak(np.arange(s * w))
 
     # ----------------------------------------------------------------- weak classifiers
-    def _new_weak(self, rows: np.ndarray, cols: np.ndarray) -> None:
-        """Fresh random weak classifiers at (rows, cols), trained on the sample banks."""
-        n = len(rows)
+    def _draw(self, n: int) -> None:
+        """Stock up n random weak-classifier parameters (rectangle, channel and, once the
+        map size is known, corner offsets), drawn in bulk because drawing is per call."""
         lo, hi = self.config.rect_min_fraction, self.config.rect_max_fraction
-        size = self.rng.uniform(lo, hi, size=(n, 2))
-        corner = self.rng.uniform(0.0, 1.0, size=(n, 2)) * (1.0 - size)
-        self.rects[rows, cols] = np.concatenate([corner, corner + size], axis=1)
-        self.channels[rows, cols] = self.rng.integers(0, self.num_channels, size=n)
-        self.correct[rows, cols] = 1.0
-        self.wrong[rows, cols] = 1.0
-        if self._map_size is not None:
-            sub = RectIndex.build(self.rects[rows, cols], self._map_size)
-            for name in ("r0", "c0", "r1", "c1", "inv_area"):
-                getattr(self._index, name)[rows, cols] = getattr(sub, name)
-        for label in (NEG, POS):
-            self.mean[label, rows, cols] = 0.0
-            self.var[label, rows, cols] = 0.0
-            self.count[label, rows, cols] = 0.0
-            bank = self.banks[label]
-            if len(bank) and self._index is not None:
-                f = _means(bank.integrals(), self.channels[rows, cols], self._sub(rows, cols))
-                self.mean[label, rows, cols] = f.mean(axis=0)
-                self.var[label, rows, cols] = f.var(axis=0)
-                self.count[label, rows, cols] = min(len(bank), self.config.gaussian_memory_samples)
+        u = self.rng.random((n, 5))
+        size = lo + (hi - lo) * u[:, :2]
+        corner = u[:, 2:4] * (1.0 - size)
+        rects = np.concatenate([corner, corner + size], axis=1)
+        channels = np.minimum((u[:, 4] * self.num_channels).astype(np.intp), self.num_channels - 1)
+        flat, inv_area = self._offsets(rects, channels)
+        self._stock = [rects, channels, flat, inv_area]
+        self._stock_next = 0
 
-    def _sub(self, rows, cols) -> RectIndex:
-        idx = self._index
-        return RectIndex(idx.r0[rows, cols], idx.c0[rows, cols], idx.r1[rows, cols],
-                         idx.c1[rows, cols], idx.inv_area[rows, cols])  # fmt: skip
+    def _offsets(self, rects: np.ndarray, channels: np.ndarray):
+        """Corner offsets (4, n) into an integral image and 1 / area (n,) of rectangles."""
+        if self._map_size is None:
+            return np.zeros((4, len(rects)), dtype=np.intp), np.zeros(len(rects))
+        h, w = self._map_size
+        c = self.num_channels
+        idx = RectIndex.build(rects, (h, w))
+        rows = np.stack([idx.r1, idx.r0, idx.r1, idx.r0]) * ((w + 1) * c)
+        cols = np.stack([idx.c1, idx.c1, idx.c0, idx.c0]) * c
+        return rows + cols + channels, idx.inv_area
+
+    def _new_weak(self, k: np.ndarray) -> None:
+        """Fresh random weak classifiers at flat indices k, trained on the sample banks."""
+        n = len(k)
+        if self._stock_next + n > len(self._stock[0]):
+            self._draw(max(STOCK_SIZE, n))
+        take = slice(self._stock_next, self._stock_next + n)
+        self._stock_next += n
+        rects, channels = self._stock[0][take], self._stock[1][take]
+        flat, inv = self._stock[2][:, take], self._stock[3][take]
+        self.rects.reshape(-1, 4)[k] = rects
+        self.channels.reshape(-1)[k] = channels
+        self._flat.reshape(4, -1)[:, k] = flat
+        self._inv_area.reshape(-1)[k] = inv
+        self.correct.reshape(-1)[k] = 1.0
+        self.wrong.reshape(-1)[k] = 1.0
+        mean, var, count = (a.reshape(2, -1) for a in (self.mean, self.var, self.count))
+        mean[:, k] = 0.0
+        var[:, k] = 0.0
+        count[:, k] = 0.0
+        if self._map_size is None:
+            return
+        for label in (NEG, POS):
+            bank = self.banks[label]
+            if len(bank):
+                f = _rect_means(bank.integrals(), flat, inv)
+                m = f.sum(axis=0) * (1.0 / len(f))
+                mean[label, k] = m
+                var[label, k] = np.maximum((f * f).sum(axis=0) * (1.0 / len(f)) - m * m, 0.0)
+                count[label, k] = min(len(bank), self.config.gaussian_memory_samples)
+
+    def _features(self, integrals: np.ndarray, rows=None, cols=None) -> np.ndarray:
+        """Rectangle means (B, ...) of stacked integrals (B, H+1, W+1, C) for all weak
+        classifiers (S, W) or those at (rows, cols)."""
+        flat = self._flat if rows is None else self._flat[:, rows, cols]
+        inv = self._inv_area if rows is None else self._inv_area[rows, cols]
+        return _rect_means(integrals, flat, inv)
 
     def _check(self, integral: np.ndarray) -> None:
-        if integral.ndim != 3 or integral.shape[0] != self.num_channels:
+        if integral.ndim != 3 or integral.shape[2] != self.num_channels:
             raise InvalidInput(
                 f"feature maps have shape {integral.shape}, expected {self.num_channels} channels"
             )
-        size = (integral.shape[1] - 1, integral.shape[2] - 1)
+        size = (integral.shape[0] - 1, integral.shape[1] - 1)
         if self._map_size is None:
             self._map_size = size
-            self._index = RectIndex.build(self.rects, size)
+            flat, inv = self._offsets(self.rects.reshape(-1, 4), self.channels.reshape(-1))
+            self._flat[:] = flat.reshape(self._flat.shape)
+            self._inv_area[:] = inv.reshape(self._inv_area.shape)
+            self._draw(STOCK_SIZE)
         elif size != self._map_size:
             raise InvalidInput(
                 f"feature maps of size {size} given to a classifier trained on {self._map_size}"
             )
 
-    def _log_likelihood_ratio(self, x: np.ndarray, rows=None, cols=None) -> np.ndarray:
-        """log N(x; target) - log N(x; others) of all weak classifiers (rows/cols None) or
-        of some for a batch x (B, n); +1/-1 where only one class is known yet, 0 where neither is."""
-        if rows is None:
-            mean, var, count = self.mean, self.var, self.count
-        else:
-            mean, var, count = (a[:, None, rows, cols] for a in (self.mean, self.var, self.count))
-        var = np.maximum(var, self._min_var)
-        ll = -0.5 * ((x - mean) ** 2 / var + np.log(var))
-        known = count > 0
-        ll = np.where(known, ll, -np.inf)
-        with np.errstate(invalid="ignore"):
-            llr = ll[POS] - ll[NEG]
-        return np.nan_to_num(llr, nan=0.0, posinf=1.0, neginf=-1.0)
+    def _votes(self, x: np.ndarray, mean, var, count) -> np.ndarray:
+        """+1 (target) / -1 per feature value by naive Bayes between the two Gaussians
+        (equal priors); a class not seen yet loses, neither seen gives -1."""
+        vn = np.maximum(var[NEG], self._min_var)
+        vp = np.maximum(var[POS], self._min_var)
+        dn, dp = x - mean[NEG], x - mean[POS]
+        llr2 = dn * dn / vn - dp * dp / vp + np.log(vn / vp)  # 2 log(p_target / p_other)
+        known_n, known_p = count[NEG] > 0, count[POS] > 0
+        llr2 = np.where(known_n & known_p, llr2, np.where(known_p, 1.0, -1.0))
+        return np.where(llr2 >= 0.0, 1.0, -1.0)
 
     # ------------------------------------------------------------------------ training
     def update(self, maps: FeatureMaps, label: int) -> None:
@@ -144,8 +182,7 @@ class OnlineBoostingClassifier:
         order = [(m, 1) for m in positives] + [(m, -1) for m in negatives]
         if not order:
             return
-        perm = self.rng.permutation(len(order))
-        for i in perm:
+        for i in self.rng.permutation(len(order)):
             self.update(*order[i])
         deficit = len(negatives) - len(positives)
         cls = POS if deficit > 0 else NEG
@@ -157,7 +194,8 @@ class OnlineBoostingClassifier:
 
     def _learn(self, integral: np.ndarray, cls: int) -> None:
         cfg = self.config
-        x = _means(integral[None], self.channels, self._index)[0]
+        x = self._features(integral[None])[0]
+        # the class Gaussians, running mean/variance with a bounded memory
         n = np.minimum(self.count[cls] + 1.0, cfg.gaussian_memory_samples)
         rate = 1.0 / n
         delta = x - self.mean[cls]
@@ -165,40 +203,37 @@ class OnlineBoostingClassifier:
         self.var[cls] = (1.0 - rate) * (self.var[cls] + rate * delta * delta)
         self.count[cls] = n
         label = 1.0 if cls == POS else -1.0
-        hit = (np.where(self._log_likelihood_ratio(x) >= 0.0, 1.0, -1.0) == label).astype(float)
-        miss = 1.0 - hit
-        self.correct *= cfg.selector_error_decay
-        self.wrong *= cfg.selector_error_decay
+        hit = self._votes(x, self.mean, self.var, self.count) == label
 
-        replace = self.rng.random(cfg.num_selectors) < cfg.replace_probability
-        lam = 1.0
-        lams = np.zeros(cfg.num_selectors)
-        worst = np.zeros(cfg.num_selectors, dtype=np.intp)
-        last = cfg.num_selectors
-        for s in range(cfg.num_selectors):
-            lams[s] = lam
-            corr = self.correct[s] + lam * hit[s]
-            wrong = self.wrong[s] + lam * miss[s]
-            self.correct[s] = corr
-            self.wrong[s] = wrong
-            err = wrong / (corr + wrong)
-            b = int(err.argmin())
-            worst[s] = int(err.argmax())
-            e = max(float(err[b]), MIN_SELECTOR_ERROR)
-            if e >= 0.5:
-                self.alpha[s] = 0.0
-                self.best[s] = -1
-                replace[s] = True
-                last = s + 1
-                break
-            self.best[s] = b
-            self.alpha[s] = 0.5 * math.log((1.0 - e) / e)
-            lam = min(lam / (2.0 * (1.0 - e)) if hit[s, b] else lam / (2.0 * e), MAX_IMPORTANCE)
-        rows = np.flatnonzero(replace[:last])
-        cols = worst[rows]
-        keep = cols != self.best[rows]
-        if keep.any():
-            self._new_weak(rows[keep], cols[keep])
+        # importance weight lambda along the selector chain
+        decay = cfg.selector_error_decay
+        correct, wrong = self.correct * decay, self.wrong * decay
+        chosen = np.where(self.best >= 0, self.best, (wrong / (correct + wrong)).argmin(axis=1))
+        rows = self._rows
+        lams = _importance_chain(
+            correct[rows, chosen].tolist(), wrong[rows, chosen].tolist(),
+            hit[rows, chosen].tolist(),
+        )  # fmt: skip
+        lam = np.asarray(lams)[:, None]
+        correct += lam * hit
+        wrong += lam * ~hit
+        self.correct, self.wrong = correct, wrong
+
+        # each selector's best weak classifier, its voting weight, and the worst one
+        err = wrong / (correct + wrong)
+        best = err.argmin(axis=1)
+        worst = err.argmax(axis=1)
+        e = np.maximum(err[rows, best], MIN_SELECTOR_ERROR)
+        good = e < 0.5
+        self.best = np.where(good, best, -1)
+        self.alpha = np.where(good, 0.5 * np.log((1.0 - e) / np.minimum(e, 0.5)), 0.0)
+        updated = lam[:, 0] > 0.0
+        replace = updated & (self.rng.random(len(rows)) < cfg.replace_probability)
+        replace |= updated & ~good
+        replace &= worst != best
+        if replace.any():
+            sel = np.flatnonzero(replace)
+            self._new_weak(sel * self.channels.shape[1] + worst[sel])
         self.num_updates += 1
 
     # ---------------------------------------------------------------------- prediction
@@ -216,13 +251,33 @@ class OnlineBoostingClassifier:
             return out
         for m in maps:
             self._check(m.integral)
-        integrals = np.stack([m.integral for m in maps])
         cols = self.best[active]
-        x = _means(integrals, self.channels[active, cols], self._sub(active, cols))
-        llr = self._log_likelihood_ratio(x, active, cols)
-        votes = np.where(llr >= 0.0, 1.0, -1.0) @ self.alpha[active]
-        return np.clip(votes / total, -1.0, 1.0)
+        x = self._features(np.stack([m.integral for m in maps]), active, cols)
+        sub = [a[:, None, active, cols] for a in (self.mean, self.var, self.count)]
+        votes = self._votes(x, *sub)
+        return np.clip(votes @ self.alpha[active] / total, -1.0, 1.0)
 
 
-def _means(integrals: np.ndarray, channels: np.ndarray, index: RectIndex) -> np.ndarray:
-    return index.means(integrals, channels)
+def _rect_means(integrals: np.ndarray, flat: np.ndarray, inv_area: np.ndarray) -> np.ndarray:
+    """Means (B, ...) of rectangles given by corner offsets flat (4, ...) into stacked
+    integral images (B, H+1, W+1, C)."""
+    corners = integrals.reshape(len(integrals), -1)[:, flat]
+    return (corners[:, 0] - corners[:, 1] - corners[:, 2] + corners[:, 3]) * inv_area
+
+
+def _importance_chain(correct: list, wrong: list, hit: list) -> list[float]:
+    """lambda entering each selector: 1 at the first; divided by 2(1 - e) after a selector
+    whose chosen weak classifier was right, by 2e after a wrong one (e = its error with
+    this sample counted). A selector no better than chance ends the chain (lambda 0)."""
+    lams, lam = [], 1.0
+    for c, w, h in zip(correct, wrong, hit, strict=True):
+        lams.append(lam)
+        if lam == 0.0:
+            continue
+        c, w = (c + lam, w) if h else (c, w + lam)
+        e = max(w / (c + w), MIN_SELECTOR_ERROR)
+        if e >= 0.5:
+            lam = 0.0
+        else:
+            lam = min(lam / (2.0 * (1.0 - e)) if h else lam / (2.0 * e), MAX_IMPORTANCE)
+    return lams

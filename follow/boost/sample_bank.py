@@ -10,7 +10,7 @@ import numpy as np
 
 
 class SampleBank:
-    """The `capacity` most recent integral images (C, H+1, W+1), stored contiguously."""
+    """The `capacity` most recent integral images (H+1, W+1, C), stored contiguously."""
 
     def __init__(self, capacity: int):
         if capacity < 1:
@@ -35,7 +35,7 @@ class SampleBank:
         self._size = min(self._size + 1, self.capacity)
 
     def integrals(self) -> np.ndarray:
-        """All stored samples (N, C, H+1, W+1), a view."""
+        """All stored samples (N, H+1, W+1, C), a view."""
         if self._data is None:
             raise ValueError("sample bank is empty")
         return self._data[: self._size]

@@ -30,7 +30,7 @@ class ChannelFeatureExtractor:
         self.num_channels = 3 + 1 + ORIENTATION_BINS
 
     def channels_of(self, crop_bgr: np.ndarray) -> np.ndarray:
-        """(C, H/shrink, W/shrink) float32 channels of one crop."""
+        """(H/shrink, W/shrink, C) float32 channels of one crop."""
         luv = cv2.cvtColor(crop_bgr, cv2.COLOR_BGR2Luv).astype(np.float32) * (1.0 / 255.0)
         gray = cv2.cvtColor(crop_bgr, cv2.COLOR_BGR2GRAY).astype(np.float32) * (1.0 / 255.0)
         gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3) * 0.125
@@ -41,16 +41,16 @@ class ChannelFeatureExtractor:
             (angle * (ORIENTATION_BINS / np.pi)).astype(np.int32), ORIENTATION_BINS - 1
         )
         h, w = gray.shape
-        full = np.zeros((self.num_channels, h, w), dtype=np.float32)
-        full[0:3] = luv.transpose(2, 0, 1)
-        full[3] = magnitude
-        orient = full[4:]
-        np.put_along_axis(orient, bins[None], magnitude[None], axis=0)
+        full = np.zeros((h, w, self.num_channels), dtype=np.float32)
+        full[..., 0:3] = luv
+        full[..., 3] = magnitude
+        orient = full[..., 4:]
+        np.put_along_axis(orient, bins[..., None], magnitude[..., None], axis=2)
         h2, w2 = h // SHRINK, w // SHRINK
-        blocks = full[:, : h2 * SHRINK, : w2 * SHRINK].reshape(
-            self.num_channels, h2, SHRINK, w2, SHRINK
+        blocks = full[: h2 * SHRINK, : w2 * SHRINK].reshape(
+            h2, SHRINK, w2, SHRINK, self.num_channels
         )
-        return np.clip(blocks.mean(axis=(2, 4)), 0.0, 1.0)
+        return np.clip(blocks.mean(axis=(1, 3)), 0.0, 1.0)
 
     def _maps(self, crops: np.ndarray) -> list[FeatureMaps]:
         if len(crops) == 0:

@@ -22,43 +22,51 @@ Roi = tuple[int, int, int, int]
 
 @dataclass(frozen=True)
 class FeatureMaps:
-    """Per-channel integral images (C, H+1, W+1) of maps with values in about [0, 1]."""
+    """Integral images (H+1, W+1, C), float32, of one person's maps with values in about
+    [0, 1]; channels last, as OpenCV computes them."""
 
     integral: np.ndarray
 
     def __post_init__(self):
-        if self.integral.ndim != 3 or self.integral.shape[1] < 2 or self.integral.shape[2] < 2:
+        if self.integral.ndim != 3 or self.integral.shape[0] < 2 or self.integral.shape[1] < 2:
             raise InvalidInput(
-                f"feature integral: expected (C, H+1, W+1), got {self.integral.shape}"
+                f"feature integral: expected (H+1, W+1, C), got {self.integral.shape}"
             )
 
     @classmethod
     def from_maps(cls, maps: np.ndarray) -> FeatureMaps:
-        """From maps (C, H, W)."""
-        return cls(integral_images(maps[None])[0])
+        """From maps (H, W, C)."""
+        return cls(integral_images(np.asarray(maps, dtype=np.float32)[None])[0])
 
     @property
     def num_channels(self) -> int:
-        return int(self.integral.shape[0])
+        return int(self.integral.shape[2])
 
     @property
     def map_size(self) -> tuple[int, int]:
         """(height, width) of the maps."""
-        return int(self.integral.shape[1]) - 1, int(self.integral.shape[2]) - 1
+        return int(self.integral.shape[0]) - 1, int(self.integral.shape[1]) - 1
 
     def rect_means(self, channels: np.ndarray, rects: np.ndarray) -> np.ndarray:
         """Means over rectangles (..., 4) = (x0, y0, x1, y1) normalised, on `channels` (...)."""
-        idx = RectIndex.build(np.asarray(rects), self.map_size)
-        return idx.means(self.integral[None], np.asarray(channels))[0]
+        idx = RectIndex.build(np.asarray(rects, dtype=np.float64), self.map_size)
+        ii, ch = self.integral, np.asarray(channels)
+        total = ii[idx.r1, idx.c1, ch] - ii[idx.r0, idx.c1, ch] - ii[idx.r1, idx.c0, ch]
+        return (total + ii[idx.r0, idx.c0, ch]) * idx.inv_area
 
 
-def integral_images(maps: np.ndarray) -> np.ndarray:
-    """Integral images (B, C, H+1, W+1) float64 of maps (B, C, H, W), zero first row/col."""
-    b, c, h, w = maps.shape
-    out = np.zeros((b, c, h + 1, w + 1), dtype=np.float64)
-    np.cumsum(maps, axis=2, dtype=np.float64, out=out[:, :, 1:, 1:])
-    np.cumsum(out[:, :, 1:, 1:], axis=3, out=out[:, :, 1:, 1:])
-    return out
+def integral_images(maps: np.ndarray) -> list[np.ndarray]:
+    """Integral images (H+1, W+1, C) float32 of maps (B, H, W, C), zero first row/col.
+
+    float32 is exact enough for maps in [0, 1] of up to ~10^4 pixels and halves what the
+    sample banks copy."""
+    b, h, w, c = maps.shape
+    return [
+        cv2.integral(np.ascontiguousarray(m, dtype=np.float32), sdepth=cv2.CV_32F).reshape(
+            h + 1, w + 1, c
+        )
+        for m in maps
+    ]
 
 
 @dataclass(frozen=True)
@@ -74,24 +82,12 @@ class RectIndex:
     @classmethod
     def build(cls, rects: np.ndarray, map_size: tuple[int, int]) -> RectIndex:
         h, w = map_size
-        c0 = np.clip(np.floor(rects[..., 0] * w + 0.5).astype(np.intp), 0, w - 1)
-        r0 = np.clip(np.floor(rects[..., 1] * h + 0.5).astype(np.intp), 0, h - 1)
-        c1 = np.clip(np.floor(rects[..., 2] * w + 0.5).astype(np.intp), c0 + 1, w)
-        r1 = np.clip(np.floor(rects[..., 3] * h + 0.5).astype(np.intp), r0 + 1, h)
+        rects = np.clip(rects, 0.0, 1.0)
+        c0 = np.minimum((rects[..., 0] * w + 0.5).astype(np.intp), w - 1)
+        r0 = np.minimum((rects[..., 1] * h + 0.5).astype(np.intp), h - 1)
+        c1 = np.maximum((rects[..., 2] * w + 0.5).astype(np.intp), c0 + 1)
+        r1 = np.maximum((rects[..., 3] * h + 0.5).astype(np.intp), r0 + 1)
         return cls(r0, c0, r1, c1, 1.0 / ((r1 - r0) * (c1 - c0)))
-
-    def means(self, integrals: np.ndarray, channels: np.ndarray) -> np.ndarray:
-        """Rectangle means for a stack of integrals (B, C, H+1, W+1): (B, *rect shape)."""
-        return _box_sum(integrals, channels, self) * self.inv_area
-
-
-def _box_sum(integrals: np.ndarray, channels: np.ndarray, idx: RectIndex) -> np.ndarray:
-    return (
-        integrals[:, channels, idx.r1, idx.c1]
-        - integrals[:, channels, idx.r0, idx.c1]
-        - integrals[:, channels, idx.r1, idx.c0]
-        + integrals[:, channels, idx.r0, idx.c0]
-    )
 
 
 @runtime_checkable

@@ -55,39 +55,48 @@ def forward_numpy(weights: CcfWeights, batch_rgb: np.ndarray) -> np.ndarray:
 
 
 def _onnx_session(weights: CcfWeights, threads: int):
-    """An onnxruntime session of the network, or None when `onnx` is not installed."""
+    """An onnxruntime session of the whole extraction, or None when `onnx` is missing.
+
+    Input: crops (N, H, W, 3) BGR uint8. Output: maps (N, H/2, W/2, C) float32 in [0, 1],
+    quantised to 8 bits. The pixel scale and the BGR -> RGB swap are folded into conv1's
+    weights, so no preprocessing runs in Python."""
     try:
         import onnxruntime as ort
         from onnx import TensorProto, helper, numpy_helper
     except ImportError:
         return None
     k1, k2 = weights.conv1.kernel_size, weights.conv2.kernel_size
+    w1_bgr = weights.conv1.weights[:, ::-1] * np.float32(INPUT_SCALE)
+    node = helper.make_node
     nodes = [
-        helper.make_node(
-            "Conv", ["x", "w1", "b1"], ["c1"], kernel_shape=list(k1),
-            pads=[k1[0] // 2, k1[1] // 2, k1[0] // 2, k1[1] // 2],
-        ),
-        helper.make_node("Relu", ["c1"], ["r1"]),
-        helper.make_node(
-            "MaxPool", ["r1"], ["p1"], kernel_shape=[POOL_SIZE] * 2, strides=[POOL_SIZE] * 2
-        ),
-        helper.make_node(
-            "Conv", ["p1", "w2", "b2"], ["y"], kernel_shape=list(k2),
-            pads=[k2[0] // 2, k2[1] // 2, k2[0] // 2, k2[1] // 2],
-        ),
+        node("Cast", ["crops"], ["f"], to=TensorProto.FLOAT),
+        node("Transpose", ["f"], ["x"], perm=[0, 3, 1, 2]),
+        node("Conv", ["x", "w1", "b1"], ["c1"], kernel_shape=list(k1),
+             pads=[k1[0] // 2, k1[1] // 2, k1[0] // 2, k1[1] // 2]),
+        node("Relu", ["c1"], ["r1"]),
+        node("MaxPool", ["r1"], ["p1"], kernel_shape=[POOL_SIZE] * 2, strides=[POOL_SIZE] * 2),
+        node("Conv", ["p1", "w2", "b2"], ["c2"], kernel_shape=list(k2),
+             pads=[k2[0] // 2, k2[1] // 2, k2[0] // 2, k2[1] // 2]),
+        node("Mul", ["c2", "gain"], ["g"]),
+        node("Round", ["g"], ["q"]),
+        node("Clip", ["q", "zero", "top"], ["qc"]),
+        node("Mul", ["qc", "unit"], ["u"]),
+        node("Transpose", ["u"], ["maps"], perm=[0, 2, 3, 1]),
     ]  # fmt: skip
+    consts = {
+        "w1": w1_bgr, "b1": weights.conv1.biases, "w2": weights.conv2.weights,
+        "b2": weights.conv2.biases, "gain": np.float32(OUTPUT_QUANT_GAIN),
+        "zero": np.float32(0.0), "top": np.float32(255.0), "unit": np.float32(1.0 / 255.0),
+    }  # fmt: skip
     inits = [
-        numpy_helper.from_array(np.ascontiguousarray(a, dtype=np.float32), n)
-        for a, n in (
-            (weights.conv1.weights, "w1"), (weights.conv1.biases, "b1"),
-            (weights.conv2.weights, "w2"), (weights.conv2.biases, "b2"),
-        )
-    ]  # fmt: skip
+        numpy_helper.from_array(np.ascontiguousarray(v, dtype=np.float32), k)
+        for k, v in consts.items()
+    ]
     graph = helper.make_graph(
         nodes,
         "ccf",
-        [helper.make_tensor_value_info("x", TensorProto.FLOAT, ["n", 3, "h", "w"])],
-        [helper.make_tensor_value_info("y", TensorProto.FLOAT, None)],
+        [helper.make_tensor_value_info("crops", TensorProto.UINT8, ["n", "h", "w", 3])],
+        [helper.make_tensor_value_info("maps", TensorProto.FLOAT, None)],
         inits,
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
@@ -124,20 +133,24 @@ class CcfExtractor:
             raise ValueError("CCF backend 'onnxruntime' needs the `onnx` package")
         self.backend = "onnxruntime" if self._session is not None else "numpy"
 
+    def maps(self, crops_bgr: np.ndarray) -> np.ndarray:
+        """Maps (N, H/2, W/2, C) float32 in [0, 1] (8-bit quantised) of crops (N, H, W, 3)
+        BGR uint8."""
+        crops_bgr = np.ascontiguousarray(crops_bgr, dtype=np.uint8)
+        if self._session is not None:
+            return self._session.run(None, {"crops": crops_bgr})[0]
+        rgb = crops_bgr[..., ::-1].transpose(0, 3, 1, 2).astype(np.float32) * INPUT_SCALE
+        q = quantise(forward_numpy(self.weights, rgb)).transpose(0, 2, 3, 1)
+        return q.astype(np.float32) * np.float32(1.0 / 255.0)
+
     def forward(self, crops_bgr: np.ndarray) -> np.ndarray:
         """Quantised 8-bit maps (N, C, H/2, W/2) of crops (N, H, W, 3) BGR uint8."""
-        batch = crops_bgr[..., ::-1].transpose(0, 3, 1, 2).astype(np.float32) * INPUT_SCALE
-        if self._session is not None:
-            raw = self._session.run(None, {"x": np.ascontiguousarray(batch)})[0]
-        else:
-            raw = forward_numpy(self.weights, batch)
-        return quantise(raw)
+        return np.rint(self.maps(crops_bgr) * 255.0).astype(np.uint8).transpose(0, 3, 1, 2)
 
     def _maps(self, crops: np.ndarray) -> list[FeatureMaps]:
         if len(crops) == 0:
             return []
-        maps = self.forward(crops).astype(np.float32) * (1.0 / 255.0)
-        return [FeatureMaps(ii) for ii in integral_images(maps)]
+        return [FeatureMaps(ii) for ii in integral_images(self.maps(crops))]
 
     def extract(self, image_bgr: np.ndarray, rois: Sequence[Roi]) -> list[FeatureMaps]:
         return self._maps(cut_crops(image_bgr, rois, self.crop_size))
