@@ -86,7 +86,7 @@ def test_sample_banks_are_bounded_and_balance_updates():
     n0 = clf.num_updates
     clf.train([person(rng, *TARGET)], [person(rng, *OTHER) for _ in range(5)])
     assert clf.num_updates - n0 == 6 + 4  # 4 banked positives replayed
-    assert len(clf.banks[0]) == 4 and len(clf.banks[1]) == 2
+    assert clf.banks.size(0) == 4 and clf.banks.size(1) == 2
 
 
 def test_bad_inputs_are_rejected():

@@ -27,7 +27,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from follow.boost.sample_bank import SampleBank
+from follow.boost.sample_bank import SampleBanks
 from follow.ccf.features import FeatureMaps, RectIndex
 from follow.config import IdentifyConfig
 from follow.types import InvalidInput
@@ -62,19 +62,34 @@ class OnlineBoostingClassifier:
         self.mean = np.zeros((2, s, w))  # [others, target] Gaussians
         self.var = np.zeros((2, s, w))
         self.count = np.zeros((2, s, w))
-        self.correct = np.ones((s, w))  # lambda-weighted counts of right and wrong votes
-        self.wrong = np.ones((s, w))
+        # lambda-weighted counts of right and wrong votes, stored multiplied by
+        # `_decay_gain` (1 / the forgetting applied so far): forgetting costs nothing
+        self._correct = np.ones((s, w))
+        self._wrong = np.ones((s, w))
+        self._decay_gain = 1.0
         self.alpha = np.zeros(s)
-        self.best = np.full(s, -1, dtype=np.intp)
+        self.best = np.full(s, -1, dtype=np.intp)  # -1: selector no better than chance
+        self._lowest_error = np.zeros(s, dtype=np.intp)  # per selector, even if >= 0.5
+        self._all_known = False  # every weak classifier has seen both classes
         self.num_updates = 0
-        self.banks = (SampleBank(config.sample_bank_size), SampleBank(config.sample_bank_size))
+        self.banks = SampleBanks(config.sample_bank_size)
         self._map_size: tuple[int, int] | None = None
         self._flat = np.zeros((4, s, w), dtype=np.intp)  # corner offsets into an integral
         self._inv_area = np.zeros((s, w))
         self._min_var = config.min_feature_std**2
-        self._rows = np.arange(s)
+        self._row_offsets = np.arange(s) * w
         self._draw(STOCK_SIZE)
         self._new_weak(np.arange(s * w))
+
+    @property
+    def correct(self) -> np.ndarray:
+        """Lambda-weighted count of right votes per weak classifier (S, W)."""
+        return self._correct / self._decay_gain
+
+    @property
+    def wrong(self) -> np.ndarray:
+        """Lambda-weighted count of wrong votes per weak classifier (S, W)."""
+        return self._wrong / self._decay_gain
 
     # ----------------------------------------------------------------- weak classifiers
     def _draw(self, n: int) -> None:
@@ -108,28 +123,30 @@ class OnlineBoostingClassifier:
             self._draw(max(STOCK_SIZE, n))
         take = slice(self._stock_next, self._stock_next + n)
         self._stock_next += n
-        rects, channels = self._stock[0][take], self._stock[1][take]
         flat, inv = self._stock[2][:, take], self._stock[3][take]
-        self.rects.reshape(-1, 4)[k] = rects
-        self.channels.reshape(-1)[k] = channels
+        self.rects.reshape(-1, 4)[k] = self._stock[0][take]
+        self.channels.reshape(-1)[k] = self._stock[1][take]
         self._flat.reshape(4, -1)[:, k] = flat
         self._inv_area.reshape(-1)[k] = inv
-        self.correct.reshape(-1)[k] = 1.0
-        self.wrong.reshape(-1)[k] = 1.0
+        self._correct.reshape(-1)[k] = self._decay_gain
+        self._wrong.reshape(-1)[k] = self._decay_gain
         mean, var, count = (a.reshape(2, -1) for a in (self.mean, self.var, self.count))
-        mean[:, k] = 0.0
-        var[:, k] = 0.0
-        count[:, k] = 0.0
-        if self._map_size is None:
+        sizes = self.banks.sizes
+        if self._map_size is None or sizes.max() == 0:
+            mean[:, k] = var[:, k] = count[:, k] = 0.0
+            self._all_known = False
             return
-        for label in (NEG, POS):
-            bank = self.banks[label]
-            if len(bank):
-                f = _rect_means(bank.integrals(), flat, inv)
-                m = f.sum(axis=0) * (1.0 / len(f))
-                mean[label, k] = m
-                var[label, k] = np.maximum((f * f).sum(axis=0) * (1.0 / len(f)) - m * m, 0.0)
-                count[label, k] = min(len(bank), self.config.gaussian_memory_samples)
+        # both banks at once: unused slots are zero, sums are divided by the fill levels
+        data = self.banks.data
+        corners = data.reshape(2, data.shape[1], -1)[:, :, flat]  # 2, N, 4, k
+        f = np.einsum("j,cnjk->cnk", _CORNER_SIGNS, corners) * inv
+        inv_n = (1.0 / np.maximum(sizes, 1))[:, None]
+        m = f.sum(axis=1) * inv_n
+        mean[:, k] = m
+        var[:, k] = np.maximum(np.einsum("cnk,cnk->ck", f, f) * inv_n - m * m, 0.0)
+        count[:, k] = np.minimum(sizes, self.config.gaussian_memory_samples)[:, None]
+        if sizes.min() == 0:
+            self._all_known = False
 
     def _features(self, integrals: np.ndarray, rows=None, cols=None) -> np.ndarray:
         """Rectangle means (B, ...) of stacked integrals (B, H+1, W+1, C) for all weak
@@ -155,16 +172,17 @@ class OnlineBoostingClassifier:
                 f"feature maps of size {size} given to a classifier trained on {self._map_size}"
             )
 
-    def _votes(self, x: np.ndarray, mean, var, count) -> np.ndarray:
-        """+1 (target) / -1 per feature value by naive Bayes between the two Gaussians
-        (equal priors); a class not seen yet loses, neither seen gives -1."""
-        vn = np.maximum(var[NEG], self._min_var)
-        vp = np.maximum(var[POS], self._min_var)
-        dn, dp = x - mean[NEG], x - mean[POS]
-        llr2 = dn * dn / vn - dp * dp / vp + np.log(vn / vp)  # 2 log(p_target / p_other)
-        known_n, known_p = count[NEG] > 0, count[POS] > 0
-        llr2 = np.where(known_n & known_p, llr2, np.where(known_p, 1.0, -1.0))
-        return np.where(llr2 >= 0.0, 1.0, -1.0)
+    def _votes(self, x: np.ndarray, mean, var, count, all_known: bool) -> np.ndarray:
+        """True (target) / False per feature value by naive Bayes between the two class
+        Gaussians (equal priors); a class not seen yet loses, neither seen gives False."""
+        v = np.maximum(var, self._min_var)
+        d = x - mean
+        q = d * d / v + np.log(v)  # -2 log N(x) + const, per class
+        target = q[NEG] >= q[POS]
+        if not all_known:
+            known_n, known_p = count[NEG] > 0, count[POS] > 0
+            target = np.where(known_n & known_p, target, known_p & ~known_n)
+        return target
 
     # ------------------------------------------------------------------------ training
     def update(self, maps: FeatureMaps, label: int) -> None:
@@ -173,7 +191,7 @@ class OnlineBoostingClassifier:
             raise ValueError(f"label must be +1 or -1, got {label}")
         self._check(maps.integral)
         cls = POS if label > 0 else NEG
-        self.banks[cls].push(maps.integral)
+        self.banks.push(cls, maps.integral)
         self._learn(maps.integral, cls)
 
     def train(self, positives: Sequence[FeatureMaps], negatives: Sequence[FeatureMaps]) -> None:
@@ -186,54 +204,60 @@ class OnlineBoostingClassifier:
             self.update(*order[i])
         deficit = len(negatives) - len(positives)
         cls = POS if deficit > 0 else NEG
-        bank = self.banks[cls]
-        if len(bank) == 0 or len(self.banks[1 - cls]) == 0:
+        if self.banks.size(cls) == 0 or self.banks.size(1 - cls) == 0:
             return
         for _ in range(abs(deficit)):
-            self._learn(bank.sample(self.rng), cls)
+            self._learn(self.banks.sample(cls, self.rng), cls)
 
     def _learn(self, integral: np.ndarray, cls: int) -> None:
         cfg = self.config
         x = self._features(integral[None])[0]
-        # the class Gaussians, running mean/variance with a bounded memory
-        n = np.minimum(self.count[cls] + 1.0, cfg.gaussian_memory_samples)
+        # the class Gaussians: running mean and variance with a bounded memory
+        count = self.count[cls]
+        n = np.minimum(count + 1.0, cfg.gaussian_memory_samples)
         rate = 1.0 / n
         delta = x - self.mean[cls]
         self.mean[cls] += rate * delta
         self.var[cls] = (1.0 - rate) * (self.var[cls] + rate * delta * delta)
-        self.count[cls] = n
-        label = 1.0 if cls == POS else -1.0
-        hit = self._votes(x, self.mean, self.var, self.count) == label
+        count[...] = n
+        if not self._all_known:
+            self._all_known = bool(self.count.min() > 0)
+        hit = self._votes(x, self.mean, self.var, self.count, self._all_known)
+        if cls == NEG:
+            hit = ~hit
 
-        # importance weight lambda along the selector chain
-        decay = cfg.selector_error_decay
-        correct, wrong = self.correct * decay, self.wrong * decay
-        chosen = np.where(self.best >= 0, self.best, (wrong / (correct + wrong)).argmin(axis=1))
-        rows = self._rows
+        # importance weight lambda along the selector chain (counts in decayed units)
+        self._decay_gain /= cfg.selector_error_decay
+        if self._decay_gain > 1e150:
+            self._correct /= self._decay_gain
+            self._wrong /= self._decay_gain
+            self._decay_gain = 1.0
+        gain = self._decay_gain
+        chosen = self._row_offsets + self._lowest_error
         lams = _importance_chain(
-            correct[rows, chosen].tolist(), wrong[rows, chosen].tolist(),
-            hit[rows, chosen].tolist(),
-        )  # fmt: skip
-        lam = np.asarray(lams)[:, None]
-        correct += lam * hit
-        wrong += lam * ~hit
-        self.correct, self.wrong = correct, wrong
+            (self._correct.reshape(-1)[chosen] / gain).tolist(),
+            (self._wrong.reshape(-1)[chosen] / gain).tolist(),
+            hit.reshape(-1)[chosen].tolist(),
+        )
+        lam = np.asarray(lams)[:, None] * gain
+        added = lam * hit
+        self._correct += added
+        self._wrong += lam - added
 
         # each selector's best weak classifier, its voting weight, and the worst one
-        err = wrong / (correct + wrong)
+        err = self._wrong / (self._correct + self._wrong)
         best = err.argmin(axis=1)
         worst = err.argmax(axis=1)
-        e = np.maximum(err[rows, best], MIN_SELECTOR_ERROR)
+        self._lowest_error = best
+        e = np.maximum(err.reshape(-1)[self._row_offsets + best], MIN_SELECTOR_ERROR)
         good = e < 0.5
         self.best = np.where(good, best, -1)
         self.alpha = np.where(good, 0.5 * np.log((1.0 - e) / np.minimum(e, 0.5)), 0.0)
-        updated = lam[:, 0] > 0.0
-        replace = updated & (self.rng.random(len(rows)) < cfg.replace_probability)
-        replace |= updated & ~good
-        replace &= worst != best
-        if replace.any():
-            sel = np.flatnonzero(replace)
-            self._new_weak(sel * self.channels.shape[1] + worst[sel])
+        replace = (self.rng.random(len(e)) < cfg.replace_probability) | ~good
+        replace &= (lam[:, 0] > 0.0) & (worst != best)
+        sel = np.flatnonzero(replace)
+        if len(sel):
+            self._new_weak(self._row_offsets[sel] + worst[sel])
         self.num_updates += 1
 
     # ---------------------------------------------------------------------- prediction
@@ -254,8 +278,11 @@ class OnlineBoostingClassifier:
         cols = self.best[active]
         x = self._features(np.stack([m.integral for m in maps]), active, cols)
         sub = [a[:, None, active, cols] for a in (self.mean, self.var, self.count)]
-        votes = self._votes(x, *sub)
+        votes = np.where(self._votes(x, *sub, all_known=False), 1.0, -1.0)
         return np.clip(votes @ self.alpha[active] / total, -1.0, 1.0)
+
+
+_CORNER_SIGNS = np.array([1.0, -1.0, -1.0, 1.0])
 
 
 def _rect_means(integrals: np.ndarray, flat: np.ndarray, inv_area: np.ndarray) -> np.ndarray:

@@ -22,6 +22,7 @@ log = logging.getLogger(__name__)
 INPUT_SCALE = 1.0 / 256.0  # pixel -> network input
 OUTPUT_QUANT_GAIN = 128.0  # network output -> 8-bit map
 POOL_SIZE = 2
+MAX_BATCH = 4  # crops per network run: larger batches spill the conv1 output out of cache
 
 
 def conv2d_same(x: np.ndarray, layer: ConvLayer) -> np.ndarray:
@@ -138,7 +139,14 @@ class CcfExtractor:
         BGR uint8."""
         crops_bgr = np.ascontiguousarray(crops_bgr, dtype=np.uint8)
         if self._session is not None:
-            return self._session.run(None, {"crops": crops_bgr})[0]
+            if len(crops_bgr) <= MAX_BATCH:
+                return self._session.run(None, {"crops": crops_bgr})[0]
+            return np.concatenate(
+                [
+                    self._session.run(None, {"crops": crops_bgr[i : i + MAX_BATCH]})[0]
+                    for i in range(0, len(crops_bgr), MAX_BATCH)
+                ]
+            )
         rgb = crops_bgr[..., ::-1].transpose(0, 3, 1, 2).astype(np.float32) * INPUT_SCALE
         q = quantise(forward_numpy(self.weights, rgb)).transpose(0, 2, 3, 1)
         return q.astype(np.float32) * np.float32(1.0 / 255.0)
