@@ -72,10 +72,13 @@ def test_deterministic_from_the_seed():
         clf = OnlineBoostingClassifier(CHANNELS, IdentifyConfig(seed=seed))
         rng = np.random.default_rng(3)
         train_frames(clf, rng, 5, TARGET, OTHER)
-        return clf.confidence([person(np.random.default_rng(4), *TARGET) for _ in range(5)])
+        probes = [person(np.random.default_rng(4), *p) for p in (TARGET, OTHER, CHANGED)]
+        return clf.rects.copy(), clf.confidence(probes)
 
-    np.testing.assert_array_equal(run(7), run(7))
-    assert not np.array_equal(run(7), run(8))
+    (rects_a, conf_a), (rects_b, conf_b) = run(7), run(7)
+    np.testing.assert_array_equal(rects_a, rects_b)
+    np.testing.assert_array_equal(conf_a, conf_b)
+    assert not np.array_equal(run(8)[0], rects_a)
 
 
 def test_sample_banks_are_bounded_and_balance_updates():

@@ -78,6 +78,8 @@ class OnlineBoostingClassifier:
         self._inv_area = np.zeros((s, w))
         self._min_var = config.min_feature_std**2
         self._row_offsets = np.arange(s) * w
+        self._reached = np.zeros(s, dtype=bool)  # selectors reached since the last replacement
+        self._pending = False  # samples learnt since the last replacement
         self._draw(STOCK_SIZE)
         self._new_weak(np.arange(s * w))
 
@@ -186,28 +188,35 @@ class OnlineBoostingClassifier:
 
     # ------------------------------------------------------------------------ training
     def update(self, maps: FeatureMaps, label: int) -> None:
-        """Learn one sample: label +1 = target, -1 = someone else; stored in its bank."""
+        """Learn one sample: label +1 = target, -1 = someone else; stored in its bank.
+        The selectors it reached then replace their worst weak classifier (each with
+        probability `replace_probability`, always when no better than chance)."""
+        self._learn_one(maps, label)
+        self._replace_worst()
+
+    def train(self, positives: Sequence[FeatureMaps], negatives: Sequence[FeatureMaps]) -> None:
+        """Learn one frame's samples, then replay banked samples of the rarer class until
+        both classes have had as many updates (once both banks hold samples). The worst
+        weak classifiers are replaced once, after the frame, as `update` does per sample."""
+        order = [(m, 1) for m in positives] + [(m, -1) for m in negatives]
+        if not order:
+            return
+        for i in self.rng.permutation(len(order)):
+            self._learn_one(*order[i])
+        deficit = len(negatives) - len(positives)
+        cls = POS if deficit > 0 else NEG
+        if self.banks.size(cls) > 0 and self.banks.size(1 - cls) > 0:
+            for _ in range(abs(deficit)):
+                self._learn(self.banks.sample(cls, self.rng), cls)
+        self._replace_worst()
+
+    def _learn_one(self, maps: FeatureMaps, label: int) -> None:
         if label not in (1, -1):
             raise ValueError(f"label must be +1 or -1, got {label}")
         self._check(maps.integral)
         cls = POS if label > 0 else NEG
         self.banks.push(cls, maps.integral)
         self._learn(maps.integral, cls)
-
-    def train(self, positives: Sequence[FeatureMaps], negatives: Sequence[FeatureMaps]) -> None:
-        """Learn one frame's samples, then replay banked samples of the rarer class until
-        both classes have had as many updates (once both banks hold samples)."""
-        order = [(m, 1) for m in positives] + [(m, -1) for m in negatives]
-        if not order:
-            return
-        for i in self.rng.permutation(len(order)):
-            self.update(*order[i])
-        deficit = len(negatives) - len(positives)
-        cls = POS if deficit > 0 else NEG
-        if self.banks.size(cls) == 0 or self.banks.size(1 - cls) == 0:
-            return
-        for _ in range(abs(deficit)):
-            self._learn(self.banks.sample(cls, self.rng), cls)
 
     def _learn(self, integral: np.ndarray, cls: int) -> None:
         cfg = self.config
@@ -239,26 +248,38 @@ class OnlineBoostingClassifier:
             (self._wrong.reshape(-1)[chosen] / gain).tolist(),
             hit.reshape(-1)[chosen].tolist(),
         )
-        lam = np.asarray(lams)[:, None] * gain
-        added = lam * hit
+        lam = np.asarray(lams)
+        self._reached |= lam > 0.0
+        added = (lam * gain)[:, None] * hit
         self._correct += added
-        self._wrong += lam - added
+        self._wrong += lam[:, None] * gain - added
 
-        # each selector's best weak classifier, its voting weight, and the worst one
+        # each selector's best weak classifier and its voting weight
         err = self._wrong / (self._correct + self._wrong)
         best = err.argmin(axis=1)
-        worst = err.argmax(axis=1)
         self._lowest_error = best
         e = np.maximum(err.reshape(-1)[self._row_offsets + best], MIN_SELECTOR_ERROR)
         good = e < 0.5
         self.best = np.where(good, best, -1)
         self.alpha = np.where(good, 0.5 * np.log((1.0 - e) / np.minimum(e, 0.5)), 0.0)
-        replace = (self.rng.random(len(e)) < cfg.replace_probability) | ~good
-        replace &= (lam[:, 0] > 0.0) & (worst != best)
+        self._pending = True
+        self.num_updates += 1
+
+    def _replace_worst(self) -> None:
+        """Selectors reached by the last samples swap their worst weak classifier for a
+        fresh one: each with probability `replace_probability`, always when no better
+        than chance."""
+        if not self._pending:
+            return
+        err = self._wrong / (self._correct + self._wrong)
+        worst = err.argmax(axis=1)
+        replace = (self.rng.random(len(worst)) < self.config.replace_probability) | (self.best < 0)
+        replace &= self._reached & (worst != self._lowest_error)
         sel = np.flatnonzero(replace)
         if len(sel):
             self._new_weak(self._row_offsets[sel] + worst[sel])
-        self.num_updates += 1
+        self._reached[:] = False
+        self._pending = False
 
     # ---------------------------------------------------------------------- prediction
     @property
