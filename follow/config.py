@@ -54,15 +54,39 @@ class TrackerConfig:
 @dataclass(frozen=True)
 class IdentifyConfig:
     identifier: str = "ccf10"  # ccf10 | ccf25 | channels | reid | ccf10+reid
+    # Online boosting (Grabner & Bischof): S selectors of W weak classifiers each.
     num_selectors: int = 15
     weak_classifiers_per_selector: int = 15
-    sample_bank_size: int = 32
+    sample_bank_size: int = 32  # recent positives and negatives kept (each)
+    rect_min_fraction: float = 0.2  # weak classifier rectangle side, fraction of the map
+    rect_max_fraction: float = 0.5
+    replace_probability: float = 0.5  # per selector and update: swap out its worst classifier
+    gaussian_memory_samples: float = 30.0  # effective sample count of a class Gaussian
+    min_feature_std: float = 0.01  # floor of a class Gaussian's std (features in [0, 1])
+    selector_error_decay: float = 0.99  # forgetting factor of the selectors' error counts
+    # Target state machine.
     initial_training_frames: int = 10
     max_initial_distance_m: float = 5.0
     id_switch_confidence: float = -0.1
     reid_confidence: float = 0.2
     reid_frames: int = 5
     seed: int = 0
+    # Region of interest cut from a track's neck and ankle pixels.
+    crop_height_px: int = 128  # every ROI is resized to this before feature extraction
+    crop_width_px: int = 48
+    feature_threads: int = 1  # onnxruntime threads of the CCF network
+    roi_height_per_neck_ankle: float = 1.35  # ROI height / neck-ankle distance
+    roi_width_per_neck_ankle: float = 0.5  # ROI width / neck-ankle distance
+    roi_center_offset_per_neck_ankle: float = -0.05  # centre shift along neck->ankle (up < 0)
+    neck_ankle_per_neck_hip: float = 2.7  # body proportion used when no ankle is known
+    min_roi_height_px: float = 24.0  # smaller ROIs (in the image) are skipped
+    min_roi_visible_fraction: float = 0.5  # ROIs more clipped than this are skipped
+    # Deep re-id second opinion (identifier "reid" or "*+reid").
+    reid_gallery_size: int = 64  # target embeddings kept
+    reid_same_similarity: float = 0.5  # cosine similarity mapped to confidence 0
+    reid_similarity_scale: float = 0.25  # similarity span mapped to confidence +-1
+    reid_weight: float = 0.5  # weight of the re-id confidence in a fused confidence
+    reid_threads: int = 1  # onnxruntime threads of the re-id network
 
 
 @dataclass(frozen=True)

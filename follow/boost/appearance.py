@@ -1,0 +1,119 @@
+"""What a person looks like to the identifier, and the learnt model of the target.
+
+An `Appearance` holds one person's cues in one frame: the feature maps for the boosted
+classifier and/or the re-id embedding. The `AppearanceModel` learns the target from them
+(positives) against everyone else (negatives) and scores any appearance with a
+confidence in [-1, 1]; with both cues the confidences are fused as a weighted mean.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from follow.boost.online_boosting import OnlineBoostingClassifier
+from follow.boost.reid import ReidEmbedder, ReidGallery
+from follow.ccf.features import FeatureExtractor, FeatureMaps, Roi
+from follow.config import IdentifyConfig
+
+
+@dataclass(frozen=True)
+class Appearance:
+    """One person's cues in one frame (None where that cue is not used)."""
+
+    maps: FeatureMaps | None = None
+    embedding: np.ndarray | None = None
+
+
+class AppearanceModel:
+    """Online model of the target's appearance from one or two cues."""
+
+    def __init__(
+        self,
+        config: IdentifyConfig,
+        extractor: FeatureExtractor | None,
+        reid: ReidEmbedder | None = None,
+    ):
+        if extractor is None and reid is None:
+            raise ValueError(
+                "an appearance model needs a feature extractor, a re-id network or both"
+            )
+        if not 0.0 <= config.reid_weight <= 1.0:
+            raise ValueError(f"reid_weight must lie in [0, 1], got {config.reid_weight}")
+        self.config = config
+        self.extractor = extractor
+        self.reid = reid
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the target."""
+        self.classifier = (
+            OnlineBoostingClassifier(self.extractor.num_channels, self.config)
+            if self.extractor is not None
+            else None
+        )
+        self.gallery = ReidGallery(self.config) if self.reid is not None else None
+
+    @property
+    def name(self) -> str:
+        parts = [self.extractor.name] if self.extractor is not None else []
+        return "+".join(parts + (["reid"] if self.reid is not None else []))
+
+    @property
+    def ready(self) -> bool:
+        """Whether it has learnt anything to score with."""
+        boost_ready = self.classifier is not None and self.classifier.is_trained
+        return boost_ready or (self.gallery is not None and len(self.gallery) > 0)
+
+    def _combine(self, maps, embeddings) -> list[Appearance]:
+        n = len(maps) if maps is not None else len(embeddings)
+        return [
+            Appearance(
+                maps[i] if maps is not None else None,
+                embeddings[i] if embeddings is not None else None,
+            )
+            for i in range(n)
+        ]
+
+    def describe(self, image_bgr: np.ndarray, rois: Sequence[Roi]) -> list[Appearance]:
+        """The cues of each ROI of a frame (all people in one batch)."""
+        if not rois:
+            return []
+        maps = self.extractor.extract(image_bgr, rois) if self.extractor is not None else None
+        emb = self.reid.embed(image_bgr, rois) if self.reid is not None else None
+        return self._combine(maps, emb)
+
+    def describe_crops(self, crops_bgr: Sequence[np.ndarray]) -> list[Appearance]:
+        """The cues of whole person crops."""
+        if not crops_bgr:
+            return []
+        maps = self.extractor.extract_crops(crops_bgr) if self.extractor is not None else None
+        emb = self.reid.embed_crops(crops_bgr) if self.reid is not None else None
+        return self._combine(maps, emb)
+
+    def learn(self, positives: Sequence[Appearance], negatives: Sequence[Appearance]) -> None:
+        """One frame's samples: the target (positives) and others (negatives)."""
+        if self.classifier is not None:
+            self.classifier.train([a.maps for a in positives], [a.maps for a in negatives])
+        if self.gallery is not None:
+            for a in positives:
+                self.gallery.add(a.embedding)
+
+    def confidence(self, appearances: Sequence[Appearance]) -> np.ndarray:
+        """Confidence in [-1, 1] of each appearance being the target (0 before learning)."""
+        n = len(appearances)
+        if n == 0:
+            return np.zeros(0)
+        scores, weights = [], []
+        if self.classifier is not None and self.classifier.is_trained:
+            scores.append(self.classifier.confidence([a.maps for a in appearances]))
+            weights.append(1.0 - self.config.reid_weight if self.gallery is not None else 1.0)
+        if self.gallery is not None and len(self.gallery) > 0:
+            scores.append(self.gallery.confidence(np.stack([a.embedding for a in appearances])))
+            weights.append(self.config.reid_weight if self.classifier is not None else 1.0)
+        if not scores or sum(weights) <= 0.0:
+            return np.zeros(n)
+        fused = sum(w * s for w, s in zip(weights, scores, strict=True)) / sum(weights)
+        return np.clip(fused, -1.0, 1.0)

@@ -1,0 +1,216 @@
+"""The target state machine: which track is the person to follow.
+
+initial -> initial training -> tracking <-> re-identification
+
+- initial: the target is the track the user selected, else the nearest confirmed track
+  in front of the robot within `max_initial_distance_m`.
+- initial training: the target's appearance is learnt as positive and every other
+  observed track's as negative for `initial_training_frames` frames in which it is seen.
+- tracking: learning goes on while the target's confidence stays at or above
+  `id_switch_confidence`; below it, or when the target's track is lost, the identity is
+  no longer trusted and the state becomes re-identification.
+- re-identification: nothing is learnt; a track whose confidence is at least
+  `reid_confidence` in `reid_frames` consecutive frames in which it is seen becomes the
+  target again.
+
+A track's appearance is cut from the observation associated with it in this frame; a
+track without one (occluded, missed) has no appearance and no confidence this frame.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from follow.boost.appearance import Appearance, AppearanceModel
+from follow.boost.reid import ReidEmbedder
+from follow.ccf.features import FeatureExtractor, check_image
+from follow.ccf.roi import roi_from_keypoints
+from follow.config import IdentifyConfig
+from follow.frames import odom_to_base
+from follow.types import InvalidInput, Odometry, TargetEstimate, TargetStatus, TrackState
+
+log = logging.getLogger(__name__)
+
+R_HIP, L_HIP = 8, 11
+HIP_MIN_CONFIDENCE = 0.0
+
+
+class TargetIdentifier:
+    """Learns the target's appearance online and says, per frame, which track it is."""
+
+    def __init__(
+        self,
+        config: IdentifyConfig,
+        extractor: FeatureExtractor | None,
+        reid: ReidEmbedder | None = None,
+    ):
+        if config.initial_training_frames < 1 or config.reid_frames < 1:
+            raise ValueError("initial_training_frames and reid_frames must be >= 1")
+        if config.reid_confidence < config.id_switch_confidence:
+            raise ValueError(
+                f"reid_confidence ({config.reid_confidence}) must not be below "
+                f"id_switch_confidence ({config.id_switch_confidence})"
+            )
+        self.config = config
+        self.model = AppearanceModel(config, extractor, reid)
+        self._requested_id: int | None = None
+        self.reset()
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+    def reset(self) -> None:
+        """Forget the target and everything learnt; a selected id stays requested."""
+        self.model.reset()
+        self.status = TargetStatus.INITIAL
+        self.target_id: int | None = None
+        self._training_frames = 0
+        self._reid_streaks: dict[int, int] = {}
+
+    def select_target(self, track_id: int) -> None:
+        """Follow this track id: learning starts afresh on the next frame it is present."""
+        self._requested_id = int(track_id)
+        self.reset()
+
+    # ------------------------------------------------------------------ appearance
+    def rois(self, tracks: Sequence[TrackState], image_size: tuple[int, int]) -> dict:
+        """track id -> ROI for the tracks with an observation this frame and a usable box."""
+        out = {}
+        for track in tracks:
+            obs = track.observation
+            if obs is None:
+                continue
+            ankle = obs.ankle_px if obs.ankle_px is not None else track.expected_ankle_px
+            roi = roi_from_keypoints(
+                obs.neck_px, ankle, image_size, self.config, hip_px=_hip_of(obs)
+            )
+            if roi is not None:
+                out[track.track_id] = roi
+        return out
+
+    def _appearances(self, image_bgr, tracks) -> dict[int, Appearance]:
+        h, w = image_bgr.shape[:2]
+        rois = self.rois(tracks, (w, h))
+        ids = list(rois)
+        described = self.model.describe(image_bgr, [rois[i] for i in ids])
+        return dict(zip(ids, described, strict=True))
+
+    # -------------------------------------------------------------------- per frame
+    def update(
+        self,
+        image_bgr: np.ndarray,
+        tracks: Sequence[TrackState],
+        stamp_s: float,
+        robot: Odometry | None = None,
+    ) -> TargetEstimate:
+        """One frame: the tracks of the tracker (with this frame's observations)."""
+        check_image(image_bgr, "identifier image")
+        if not math.isfinite(stamp_s):
+            raise InvalidInput(f"identifier stamp_s is not finite: {stamp_s}")
+        by_id = {t.track_id: t for t in tracks}
+        if len(by_id) != len(tracks):
+            raise InvalidInput("identifier: duplicate track ids in one frame")
+        self._reid_streaks = {k: v for k, v in self._reid_streaks.items() if k in by_id}
+
+        if self.status == TargetStatus.INITIAL:
+            self.target_id = self._choose_initial(tracks, robot)
+            if self.target_id is None:
+                return TargetEstimate(self.status, None, {}, stamp_s)
+            log.info("target: track %d chosen, initial training", self.target_id)
+            self.status = TargetStatus.INITIAL_TRAINING
+            self._training_frames = 0
+
+        if self.target_id is not None and self.target_id not in by_id:
+            if self.status == TargetStatus.INITIAL_TRAINING:
+                log.info("target track %d lost during initial training", self.target_id)
+                self.reset()
+                return TargetEstimate(self.status, None, {}, stamp_s)
+            log.info("target track %d lost: re-identification", self.target_id)
+            self._enter_reidentification()
+
+        appearances = self._appearances(image_bgr, tracks)
+        ids = list(appearances)
+        scores = (
+            self.model.confidence([appearances[i] for i in ids])
+            if self.model.ready
+            else np.zeros(len(ids))
+        )
+        confidences = {i: float(c) for i, c in zip(ids, scores, strict=True)}
+
+        if self.status == TargetStatus.INITIAL_TRAINING:
+            if self.target_id in appearances:
+                self._learn(appearances)
+                self._training_frames += 1
+                if self._training_frames >= self.config.initial_training_frames:
+                    log.info("target track %d learnt: tracking", self.target_id)
+                    self.status = TargetStatus.TRACKING
+        elif self.status == TargetStatus.TRACKING:
+            if self.target_id in confidences:
+                if confidences[self.target_id] < self.config.id_switch_confidence:
+                    log.info(
+                        "target track %d confidence %.2f below %.2f: re-identification",
+                        self.target_id, confidences[self.target_id],
+                        self.config.id_switch_confidence,
+                    )  # fmt: skip
+                    self._enter_reidentification()
+                else:
+                    self._learn(appearances)
+        if self.status == TargetStatus.REIDENTIFICATION:
+            self._reidentify(confidences)
+        return TargetEstimate(self.status, self.target_id, confidences, stamp_s)
+
+    # ----------------------------------------------------------------------- states
+    def _choose_initial(self, tracks: Sequence[TrackState], robot: Odometry | None) -> int | None:
+        if self._requested_id is not None:
+            present = any(t.track_id == self._requested_id for t in tracks)
+            return self._requested_id if present else None
+        robot = robot if robot is not None else Odometry.origin()
+        best, best_distance = None, self.config.max_initial_distance_m
+        for track in tracks:
+            if not track.confirmed:
+                continue
+            x, y = odom_to_base(track.position_m, robot)
+            distance = math.hypot(x, y)
+            if x > 0.0 and distance <= best_distance:
+                best, best_distance = track.track_id, distance
+        return best
+
+    def _learn(self, appearances: dict[int, Appearance]) -> None:
+        positives = [appearances[self.target_id]]
+        negatives = [a for i, a in appearances.items() if i != self.target_id]
+        self.model.learn(positives, negatives)
+
+    def _enter_reidentification(self) -> None:
+        self.status = TargetStatus.REIDENTIFICATION
+        self.target_id = None
+        self._reid_streaks = {}
+
+    def _reidentify(self, confidences: dict[int, float]) -> None:
+        for track_id, confidence in confidences.items():
+            if confidence >= self.config.reid_confidence:
+                self._reid_streaks[track_id] = self._reid_streaks.get(track_id, 0) + 1
+            else:
+                self._reid_streaks[track_id] = 0
+        ready = [
+            i for i, n in self._reid_streaks.items()
+            if n >= self.config.reid_frames and i in confidences
+        ]  # fmt: skip
+        if ready:
+            self.target_id = max(ready, key=lambda i: confidences[i])
+            self.status = TargetStatus.TRACKING
+            self._reid_streaks = {}
+            log.info("target re-identified as track %d", self.target_id)
+
+
+def _hip_of(observation) -> np.ndarray | None:
+    """Mean of the detected hips of the observation's skeleton, if any."""
+    skeleton = observation.skeleton
+    if skeleton is None:
+        return None
+    hips = [skeleton.keypoints_px[k] for k in (R_HIP, L_HIP) if skeleton.has(k, HIP_MIN_CONFIDENCE)]
+    return np.mean(hips, axis=0) if hips else None

@@ -1,0 +1,92 @@
+"""A deep re-identification embedding as a second opinion on who the target is.
+
+The network (person-reidentification-retail-0248) maps a 256x128 BGR crop to a 256-d
+embedding. A gallery of the target's embeddings is gathered while the target is tracked;
+a person's similarity is the highest cosine similarity to the gallery, mapped linearly
+to a confidence in [-1, 1] (`reid_same_similarity` -> 0, +-`reid_similarity_scale` ->
++-1). The graph has a fixed batch of one, so crops run one after another.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from follow.ccf.features import Roi, cut_crops, resize_crops
+from follow.config import IdentifyConfig
+
+REID_INPUT_SIZE = (128, 256)  # (width, height) of the network input
+EMBEDDING_SIZE = 256
+
+
+class ReidEmbedder:
+    """Unit-length embeddings of person crops (onnxruntime, CPU)."""
+
+    def __init__(self, model_path: Path, threads: int = 1):
+        import onnxruntime as ort
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = max(1, int(threads))
+        options.inter_op_num_threads = 1
+        try:
+            self._session = ort.InferenceSession(
+                str(model_path), options, providers=["CPUExecutionProvider"]
+            )
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise ValueError(f"re-id model {model_path}: cannot load ({exc})") from None
+        inp = self._session.get_inputs()[0]
+        if list(inp.shape[1:]) != [REID_INPUT_SIZE[1], REID_INPUT_SIZE[0], 3]:
+            raise ValueError(
+                f"re-id model {model_path}: input {inp.shape}, expected [1, 256, 128, 3] NHWC"
+            )
+        self._input_name = inp.name
+
+    def _embed(self, crops: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(crops), EMBEDDING_SIZE), dtype=np.float32)
+        for i, crop in enumerate(crops):
+            blob = crop[None].astype(np.float32)
+            out[i] = self._session.run(None, {self._input_name: blob})[0].reshape(-1)
+        norms = np.linalg.norm(out, axis=1, keepdims=True)
+        return out / np.maximum(norms, 1e-12)
+
+    def embed(self, image_bgr: np.ndarray, rois: Sequence[Roi]) -> np.ndarray:
+        """(N, 256) unit embeddings of the ROIs of a BGR uint8 image."""
+        return self._embed(cut_crops(image_bgr, rois, REID_INPUT_SIZE))
+
+    def embed_crops(self, crops_bgr: Sequence[np.ndarray]) -> np.ndarray:
+        """(N, 256) unit embeddings of whole BGR uint8 crops."""
+        return self._embed(resize_crops(crops_bgr, REID_INPUT_SIZE))
+
+
+class ReidGallery:
+    """The target's most recent embeddings and the confidence that another is the same."""
+
+    def __init__(self, config: IdentifyConfig):
+        if config.reid_gallery_size < 1 or config.reid_similarity_scale <= 0.0:
+            raise ValueError("reid_gallery_size must be >= 1 and reid_similarity_scale > 0")
+        self.config = config
+        self._embeddings = np.zeros((config.reid_gallery_size, EMBEDDING_SIZE), np.float32)
+        self._size = 0
+        self._next = 0
+
+    def __len__(self) -> int:
+        return self._size
+
+    def add(self, embedding: np.ndarray) -> None:
+        self._embeddings[self._next] = embedding
+        self._next = (self._next + 1) % len(self._embeddings)
+        self._size = min(self._size + 1, len(self._embeddings))
+
+    def similarity(self, embeddings: np.ndarray) -> np.ndarray:
+        """Highest cosine similarity of each embedding (N, 256) to the gallery."""
+        if self._size == 0:
+            raise ValueError("re-id gallery is empty")
+        return (embeddings @ self._embeddings[: self._size].T).max(axis=1)
+
+    def confidence(self, embeddings: np.ndarray) -> np.ndarray:
+        """Confidence in [-1, 1] that each embedding is the target."""
+        cfg = self.config
+        sim = self.similarity(embeddings)
+        return np.clip((sim - cfg.reid_same_similarity) / cfg.reid_similarity_scale, -1.0, 1.0)

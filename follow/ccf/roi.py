@@ -1,0 +1,73 @@
+"""The image region a person's appearance is learnt from, cut from neck and ankle pixels.
+
+The box is centred between the neck and the ankle (shifted by a configured fraction of
+their distance) and its sides are proportional to that distance, so it covers the same
+part of the body at any range. Without an ankle, the ankle is extrapolated from the hip
+with an assumed body proportion, or else taken at the image bottom below the neck (the
+feet of a close person are out of view).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from follow.config import IdentifyConfig
+
+Roi = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, half-open
+
+
+def _point(value, name: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    p = np.asarray(value, dtype=np.float64).reshape(-1)
+    if p.shape != (2,) or not np.isfinite(p).all():
+        return None
+    return p
+
+
+def roi_from_keypoints(
+    neck_px,
+    ankle_px,
+    image_size: tuple[int, int],
+    config: IdentifyConfig,
+    hip_px=None,
+) -> Roi | None:
+    """(x0, y0, x1, y1) of a person's box clipped to the image (width, height), or None.
+
+    None when the box would be degenerate (ankle not below the neck), too small
+    (`min_roi_height_px`) or mostly outside the image (`min_roi_visible_fraction`).
+    """
+    width, height = int(image_size[0]), int(image_size[1])
+    if width <= 0 or height <= 0:
+        raise ValueError(f"roi_from_keypoints: image_size must be positive, got {image_size}")
+    neck = _point(neck_px, "neck")
+    if neck is None:
+        return None
+    ankle = _point(ankle_px, "ankle")
+    if ankle is None:
+        hip = _point(hip_px, "hip")
+        if hip is not None and hip[1] > neck[1]:
+            ankle = neck + (hip - neck) * config.neck_ankle_per_neck_hip
+        else:
+            ankle = np.array([neck[0], float(height)])
+    axis = ankle - neck
+    length_px = math.hypot(axis[0], axis[1])
+    if axis[1] <= 0.5 * length_px or length_px <= 0.0:  # ankle not below the neck
+        return None
+    box_h = config.roi_height_per_neck_ankle * length_px
+    box_w = config.roi_width_per_neck_ankle * length_px
+    if box_h < config.min_roi_height_px:
+        return None
+    centre = neck + (0.5 + config.roi_center_offset_per_neck_ankle) * axis
+    fx0, fy0 = centre[0] - 0.5 * box_w, centre[1] - 0.5 * box_h
+    fx1, fy1 = fx0 + box_w, fy0 + box_h
+    x0, y0 = max(0, int(round(fx0))), max(0, int(round(fy0)))
+    x1, y1 = min(width, int(round(fx1))), min(height, int(round(fy1)))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        return None
+    visible = (x1 - x0) * (y1 - y0) / (box_w * box_h)
+    if visible < config.min_roi_visible_fraction or (y1 - y0) < config.min_roi_height_px:
+        return None
+    return x0, y0, x1, y1

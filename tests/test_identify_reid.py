@@ -1,0 +1,110 @@
+"""Re-id embedding, gallery, cue fusion and the identifier factory."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from follow.boost.appearance import Appearance, AppearanceModel
+from follow.boost.factory import build_identifier, parse_identifier
+from follow.boost.reid import ReidEmbedder, ReidGallery
+from follow.ccf.channels import ChannelFeatureExtractor
+from follow.config import ConfigError, IdentifyConfig
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=np.float32)
+    return v / np.linalg.norm(v)
+
+
+def test_gallery_maps_similarity_to_confidence():
+    cfg = IdentifyConfig(reid_same_similarity=0.5, reid_similarity_scale=0.25, reid_gallery_size=2)
+    gallery = ReidGallery(cfg)
+    with pytest.raises(ValueError, match="empty"):
+        gallery.similarity(np.zeros((1, 256), np.float32))
+    e = np.eye(256, dtype=np.float32)
+    gallery.add(e[0])
+    probes = np.stack([e[0], _unit(e[0] + e[1]), e[1]])  # similarity 1, 0.707, 0
+    np.testing.assert_allclose(gallery.confidence(probes), [1.0, 0.828, -1.0], atol=1e-3)
+    gallery.add(e[1])
+    gallery.add(e[2])  # capacity 2: e[0] is forgotten
+    assert len(gallery) == 2
+    np.testing.assert_allclose(gallery.similarity(np.stack([e[0], e[2]])), [0.0, 1.0])
+
+
+class _FakeReid:
+    """Stands in for the network: the embedding is given by the crop's mean colour."""
+
+    def embed_crops(self, crops):
+        return np.stack(
+            [_unit(np.r_[c.reshape(-1, 3).mean(0), np.zeros(253)] + 1e-3) for c in crops]
+        )
+
+
+def test_fusion_weighs_boosting_and_reid():
+    cfg = IdentifyConfig(reid_weight=0.25, initial_training_frames=1)
+    model = AppearanceModel(cfg, ChannelFeatureExtractor(), _FakeReid())
+    assert model.name == "channels+reid" and not model.ready
+    rng = np.random.default_rng(0)
+    red = [
+        np.clip(rng.normal((30, 30, 200), 10, (64, 32, 3)), 0, 255).astype(np.uint8)
+        for _ in range(6)
+    ]
+    blue = [
+        np.clip(rng.normal((200, 30, 30), 10, (64, 32, 3)), 0, 255).astype(np.uint8)
+        for _ in range(6)
+    ]
+    for r, b in zip(red[:4], blue[:4], strict=True):
+        model.learn(model.describe_crops([r]), model.describe_crops([b]))
+    probes = model.describe_crops([red[5], blue[5]])
+    fused = model.confidence(probes)
+    boost = model.classifier.confidence([p.maps for p in probes])
+    reid = model.gallery.confidence(np.stack([p.embedding for p in probes]))
+    np.testing.assert_allclose(fused, 0.75 * boost + 0.25 * reid)
+    assert fused[0] > 0.5 > -0.5 > fused[1]
+
+
+def test_reid_only_model_scores_with_the_gallery():
+    model = AppearanceModel(IdentifyConfig(), None, _FakeReid())
+    crop = np.full((64, 32, 3), (30, 30, 200), np.uint8)
+    model.learn(model.describe_crops([crop]), [])
+    assert model.ready
+    assert model.confidence(model.describe_crops([crop]))[0] == pytest.approx(1.0)
+    assert model.confidence([Appearance(embedding=_unit(np.r_[0.0, 1.0, np.zeros(254)]))])[0] < 0
+
+
+def test_real_reid_embeddings_are_unit_length_and_discriminative(model_path, data_path):
+    import cv2
+
+    embedder = ReidEmbedder(model_path("reid/person-reidentification-retail-0248.onnx"))
+    crops = [cv2.imread(str(data_path(f"ccf_crops/{n}.jpg"))) for n in ("p01", "p02", "n01-01")]
+    emb = embedder.embed_crops(crops)
+    assert emb.shape == (3, 256)
+    np.testing.assert_allclose(np.linalg.norm(emb, axis=1), 1.0, atol=1e-5)
+    assert emb[0] @ emb[1] > emb[0] @ emb[2] + 0.2  # same person closer than another
+    image = np.zeros((300, 200, 3), np.uint8)
+    image[20:148, 50:100] = cv2.resize(crops[0], (50, 128))
+    roi_emb = embedder.embed(image, [(50, 20, 100, 148)])
+    assert roi_emb[0] @ emb[0] > 0.9
+
+
+@pytest.mark.parametrize(
+    "name, expected",
+    [("ccf10", ("ccf10", False)), ("ccf10+reid", ("ccf10", True)), ("reid", (None, True)),
+     ("channels", ("channels", False)), ("CCF25+reid", ("ccf25", True))],
+)  # fmt: skip
+def test_identifier_names(name, expected):
+    assert parse_identifier(name) == expected
+
+
+@pytest.mark.parametrize("name", ["ccf11", "ccf10+ccf25", "", "reid+reid+reid"])
+def test_unknown_identifier_names_are_errors(name):
+    with pytest.raises(ConfigError, match="identifier"):
+        parse_identifier(name)
+
+
+@pytest.mark.parametrize("name", ["ccf10", "ccf25", "channels", "reid", "ccf10+reid"])
+def test_factory_builds_every_configuration(model_path, name):
+    model_path("ccf/ccf10")
+    identifier = build_identifier(IdentifyConfig(identifier=name))
+    assert identifier.name == name

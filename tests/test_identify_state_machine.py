@@ -1,0 +1,139 @@
+"""The target state machine on scripted tracks and synthetic images."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from follow.boost.identifier import TargetIdentifier
+from follow.ccf.channels import ChannelFeatureExtractor
+from follow.config import IdentifyConfig
+from follow.types import InvalidInput, Observation, Odometry, TargetStatus, TrackState
+
+IMAGE_SIZE = (640, 480)
+RED, BLUE, GREEN, GRAY = (40, 40, 200), (200, 60, 40), (40, 180, 40), (120, 120, 120)
+CFG = IdentifyConfig(identifier="channels", initial_training_frames=5, reid_frames=3)
+
+
+class Person:
+    def __init__(self, track_id, x_m, column_px, shirt, trousers=GRAY, confirmed=True):
+        self.track_id, self.x_m, self.column_px = track_id, x_m, column_px
+        self.shirt, self.trousers, self.confirmed = shirt, trousers, confirmed
+        self.observed = True
+
+
+def frame(people, rng):
+    image = rng.integers(90, 140, size=(IMAGE_SIZE[1], IMAGE_SIZE[0], 3), dtype=np.uint8)
+    tracks = []
+    for p in people:
+        neck = np.array([p.column_px, 120.0])
+        ankle = np.array([p.column_px, 400.0])
+        x0, x1 = int(p.column_px - 45), int(p.column_px + 45)
+        image[100:260, x0:x1] = p.shirt
+        image[260:410, x0 + 10 : x1 - 10] = p.trousers
+        image[100:410, x0:x1] = np.clip(
+            image[100:410, x0:x1] + rng.normal(0, 6, (310, x1 - x0, 3)), 0, 255
+        ).astype(np.uint8)
+        tracks.append(
+            TrackState(
+                p.track_id, np.array([p.x_m, 0.0, 0.0, 0.0, 1.45]), np.eye(5) * 0.1,
+                p.confirmed, 0.0,
+                observation=Observation(neck, ankle) if p.observed else None,
+            )
+        )  # fmt: skip
+    return image, tracks
+
+
+def run(identifier, people, n, rng, t0=0.0):
+    out = []
+    for k in range(n):
+        image, tracks = frame(people, rng)
+        out.append(identifier.update(image, tracks, t0 + k / 10.0))
+    return out
+
+
+@pytest.fixture
+def identifier():
+    return TargetIdentifier(CFG, ChannelFeatureExtractor((CFG.crop_width_px, CFG.crop_height_px)))
+
+
+def test_lost_target_is_reidentified_under_a_new_track_id(identifier):
+    rng = np.random.default_rng(0)
+    target = Person(1, 2.0, 180, RED)
+    other = Person(2, 3.5, 460, BLUE)
+    est = run(identifier, [target, other], 1, rng)[0]
+    assert est.status == TargetStatus.INITIAL_TRAINING and est.target_id == 1  # nearest
+    est = run(identifier, [target, other], CFG.initial_training_frames - 1, rng)[-1]
+    assert est.status == TargetStatus.TRACKING and est.target_id == 1
+
+    tracking = run(identifier, [target, other], 5, rng)
+    assert all(e.status == TargetStatus.TRACKING and e.target_id == 1 for e in tracking)
+    assert all(e.confidences[1] > CFG.reid_confidence > e.confidences[2] for e in tracking)
+
+    lost = run(identifier, [other], 4, rng)  # the target leaves the view
+    assert all(e.status == TargetStatus.REIDENTIFICATION and e.target_id is None for e in lost)
+    assert all(e.confidences[2] < CFG.reid_confidence for e in lost)
+
+    back = Person(7, 2.5, 300, RED)  # comes back: the tracker gives a new id
+    ests = run(identifier, [back, other], CFG.reid_frames, rng)
+    assert [e.status for e in ests[:-1]] == [TargetStatus.REIDENTIFICATION] * (CFG.reid_frames - 1)
+    assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 7
+
+
+def test_confidence_drop_triggers_reidentification(identifier):
+    rng = np.random.default_rng(1)
+    target = Person(1, 2.0, 180, RED)
+    other = Person(2, 3.0, 460, BLUE)
+    run(identifier, [target, other], CFG.initial_training_frames + 3, rng)
+    assert identifier.status == TargetStatus.TRACKING
+    # the tracker swaps identities: track 1 now follows the other person
+    swapped = [Person(1, 2.0, 180, BLUE), Person(2, 3.0, 460, RED)]
+    est = run(identifier, swapped, 1, rng)[0]
+    assert est.confidences[1] < CFG.id_switch_confidence
+    assert est.status == TargetStatus.REIDENTIFICATION and est.target_id is None
+    ests = run(identifier, swapped, CFG.reid_frames, rng)
+    assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 2
+
+
+def test_unobserved_tracks_have_no_appearance_and_do_not_break_tracking(identifier):
+    rng = np.random.default_rng(2)
+    target = Person(1, 2.0, 180, RED)
+    other = Person(2, 3.0, 460, BLUE)
+    run(identifier, [target, other], CFG.initial_training_frames, rng)
+    target.observed = False  # occluded, but its track lives on
+    est = run(identifier, [target, other], 2, rng)[-1]
+    assert est.status == TargetStatus.TRACKING and est.target_id == 1
+    assert 1 not in est.confidences and 2 in est.confidences
+
+
+def test_initial_choice_needs_a_confirmed_track_in_front_within_range(identifier):
+    rng = np.random.default_rng(3)
+    behind = Person(1, -1.0, 180, RED)
+    far = Person(2, 9.0, 300, BLUE)
+    tentative = Person(3, 1.5, 460, GREEN, confirmed=False)
+    est = run(identifier, [behind, far, tentative], 2, rng)[-1]
+    assert est.status == TargetStatus.INITIAL and est.target_id is None
+    # the robot turned around: the person at x = -1 m is now 2 m in front of it
+    image, tracks = frame([behind, far], rng)
+    est = identifier.update(image, tracks, 1.0, robot=Odometry(1.0, 0.0, np.pi, 1.0))
+    assert est.status == TargetStatus.INITIAL_TRAINING and est.target_id == 1
+
+
+def test_selected_target_and_loss_during_initial_training(identifier):
+    rng = np.random.default_rng(4)
+    a, b = Person(1, 2.0, 180, RED), Person(2, 3.0, 460, BLUE)
+    identifier.select_target(2)
+    assert run(identifier, [a], 1, rng)[0].status == TargetStatus.INITIAL
+    est = run(identifier, [a, b], 1, rng)[0]
+    assert est.status == TargetStatus.INITIAL_TRAINING and est.target_id == 2
+    est = run(identifier, [a], 1, rng)[0]  # lost before it was learnt
+    assert est.status == TargetStatus.INITIAL and est.target_id is None
+
+
+def test_bad_input_is_rejected(identifier):
+    with pytest.raises(InvalidInput, match="uint8"):
+        identifier.update(np.zeros((48, 64, 3), np.float32), [], 0.0)
+    with pytest.raises(InvalidInput, match="stamp"):
+        identifier.update(np.zeros((48, 64, 3), np.uint8), [], float("nan"))
+    with pytest.raises(ValueError, match="reid_confidence"):
+        TargetIdentifier(IdentifyConfig(reid_confidence=-0.5), ChannelFeatureExtractor())
