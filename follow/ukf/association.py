@@ -1,0 +1,47 @@
+"""Observation-to-track association: Mahalanobis gate, likelihood cost, global nearest
+neighbour."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.stats import chi2
+
+# Cost standing in for "not allowed" in the assignment problem.
+_FORBIDDEN = 1e12
+
+
+@lru_cache(maxsize=64)
+def gate_mahalanobis_sq(dim: int, quantile: float) -> float:
+    """Squared Mahalanobis distance below which an observation of `dim` dimensions may
+    belong to a track (the chi-square quantile)."""
+    return float(chi2.ppf(quantile, dim))
+
+
+def mahalanobis_cost(innovation: np.ndarray, S: np.ndarray) -> tuple[float, float]:
+    """(squared Mahalanobis distance, negative log-likelihood) of an innovation with
+    covariance S; (inf, inf) when S is not positive definite."""
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        return float("inf"), float("inf")
+    w = np.linalg.solve(L, innovation)
+    d2 = float(w @ w)
+    log_det = 2.0 * float(np.log(np.diag(L)).sum())
+    nll = 0.5 * (d2 + log_det + len(innovation) * np.log(2.0 * np.pi))
+    return d2, nll
+
+
+def global_nearest_neighbour(cost: np.ndarray) -> list[tuple[int, int]]:
+    """Pairs (row, column) minimising the total cost; entries that are inf are never
+    paired."""
+    if cost.size == 0:
+        return []
+    finite = np.isfinite(cost)
+    if not finite.any():
+        return []
+    work = np.where(finite, cost, _FORBIDDEN)
+    rows, cols = linear_sum_assignment(work)
+    return [(int(r), int(c)) for r, c in zip(rows, cols, strict=True) if finite[r, c]]

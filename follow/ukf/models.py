@@ -1,0 +1,76 @@
+"""Motion and measurement models of one person on the floor.
+
+State `[x, y, vx, vy, h]`: ground position and velocity in `odom`, neck height. People
+move at constant velocity disturbed by white acceleration noise; the neck height drifts
+by a small random walk. The camera sees the neck at `(x, y, h)` and the ankle point at
+`(x, y, ankle_height)` (the mean ankle keypoint height over a gait cycle).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from follow.camera import CameraModel
+from follow.frames import odom_to_base
+from follow.types import Odometry
+
+STATE_DIM = 5
+X, Y, VX, VY, H = range(STATE_DIM)
+
+
+def constant_velocity(state: np.ndarray, dt: float) -> np.ndarray:
+    """Move state(s) (..., 5) forward by `dt` seconds at constant velocity."""
+    out = np.array(state, dtype=np.float64, copy=True)
+    out[..., X] += dt * out[..., VX]
+    out[..., Y] += dt * out[..., VY]
+    return out
+
+
+def process_noise(dt_s: float, accel_noise_mps2: float, height_noise_mps: float) -> np.ndarray:
+    """Q for a time step: white acceleration on (x, y) integrated over `dt_s`, plus a
+    height random walk. A long gap therefore adds much more uncertainty than a short one."""
+    dt = max(float(dt_s), 0.0)
+    q = accel_noise_mps2**2
+    Q = np.zeros((STATE_DIM, STATE_DIM))
+    for p, v in ((X, VX), (Y, VY)):
+        Q[p, p] = q * dt**3 / 3.0
+        Q[p, v] = Q[v, p] = q * dt**2 / 2.0
+        Q[v, v] = q * dt
+    Q[H, H] = height_noise_mps**2 * dt
+    return Q
+
+
+class MeasurementModel:
+    """Projects states to the neck and ankle pixels for one camera pose and robot pose."""
+
+    def __init__(self, camera: CameraModel, robot: Odometry, ankle_height_m: float = 0.0):
+        self.camera = camera
+        self.robot = robot
+        self.ankle_height_m = float(ankle_height_m)
+
+    def _points_base(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        s = np.atleast_2d(states)
+        ground = odom_to_base(s[:, :2], self.robot)
+        neck = np.column_stack([ground, s[:, H]])
+        ankle = np.column_stack([ground, np.full(len(s), self.ankle_height_m)])
+        return neck, ankle
+
+    def neck_ankle(self, states: np.ndarray) -> np.ndarray:
+        """(N, 4) pixels [neck_u, neck_v, ankle_u, ankle_v] for states (N, 5); NaN where a
+        point is behind the camera."""
+        neck, ankle = self._points_base(states)
+        uv = self.camera.project(np.vstack([neck, ankle]))
+        n = len(neck)
+        return np.hstack([uv[:n], uv[n:]])
+
+    def neck_only(self, states: np.ndarray) -> np.ndarray:
+        """(N, 2) neck pixels for states (N, 5)."""
+        neck, _ = self._points_base(states)
+        return self.camera.project(neck)
+
+    # Single-state versions, in the form filterpy's update calls them.
+    def hx_neck_ankle(self, state: np.ndarray) -> np.ndarray:
+        return self.neck_ankle(state[None])[0]
+
+    def hx_neck(self, state: np.ndarray) -> np.ndarray:
+        return self.neck_only(state[None])[0]
