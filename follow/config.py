@@ -41,8 +41,12 @@ class TrackerConfig:
     neck_noise_px: float = 3.0
     ankle_noise_px: float = 5.0
     detection_height_px: int = 360  # resolution the pixel noises above refer to
-    # Height of the ankle keypoint over the floor assumed by the measurement model.
+    # Height of the ankle keypoint over the floor assumed by the measurement model when
+    # standing, and its mean extra height over a gait cycle when walking at or above
+    # full_gait_speed_mps (each ankle rises in its swing phase).
     ankle_height_m: float = 0.0
+    walking_ankle_lift_m: float = 0.025
+    full_gait_speed_mps: float = 0.6
     init_velocity_std_mps: float = 1.0
     # Population prior on the neck height, fused into a new track's first estimate.
     init_height_std_m: float = 0.1

@@ -74,18 +74,25 @@ def test_process_noise_grows_with_the_time_step():
 @pytest.mark.parametrize("distance_m", [4.0, 9.0, 16.0])
 def test_ukf_converges_to_true_position_and_height(camera, distance_m):
     rng = np.random.default_rng(int(distance_m))
-    tracker = PeopleTracker(camera)
+    # These observations have no gait: the ankle point is on the floor.
+    tracker = PeopleTracker(camera, TrackerConfig(walking_ankle_lift_m=0.0))
     robot = Odometry.origin()
     height, start, velocity = 1.55, np.array([distance_m, -1.0]), np.array([0.15, 0.15])
+    errors, height_errors, velocities = [], [], []
     for k in range(150):
         t = k / FPS
         xy = start + velocity * t
         states = tracker.update([observe(camera, robot, xy, height, rng)], t, robot)
+        if k >= 120:
+            errors.append(np.linalg.norm(states[0].position_m - xy))
+            height_errors.append(states[0].neck_height_m - height)
+            velocities.append(states[0].velocity_mps)
     assert len(states) == 1 and states[0].confirmed
+    # Far less than one frame's own uncertainty (about 0.08 m per metre of range at 16 m).
+    assert np.mean(errors) < 0.035 * distance_m
+    assert abs(np.mean(height_errors)) < 0.04
     s = states[0]
-    assert np.linalg.norm(s.position_m - xy) < 0.05 * distance_m
-    assert abs(s.neck_height_m - height) < 0.05
-    assert np.linalg.norm(s.velocity_mps - velocity) < 0.3
+    assert np.linalg.norm(np.mean(velocities, axis=0) - velocity) < 0.3
     assert s.observation is not None
     # The expected pixels are where the person is seen.
     truth = observe(camera, robot, xy, height)

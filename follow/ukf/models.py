@@ -3,7 +3,10 @@
 State `[x, y, vx, vy, h]`: ground position and velocity in `odom`, neck height. People
 move at constant velocity disturbed by white acceleration noise; the neck height drifts
 by a small random walk. The camera sees the neck at `(x, y, h)` and the ankle point at
-`(x, y, ankle_height)` (the mean ankle keypoint height over a gait cycle).
+`(x, y, a)`, where `a` is the ankle keypoint's mean height over the floor: its height
+when standing, plus, for a walking person, the mean lift of the feet over a gait cycle
+(each foot rises in its swing phase, so the midpoint of the ankles is on average above
+the floor, which would otherwise read as a person farther away).
 """
 
 from __future__ import annotations
@@ -43,16 +46,32 @@ def process_noise(dt_s: float, accel_noise_mps2: float, height_noise_mps: float)
 class MeasurementModel:
     """Projects states to the neck and ankle pixels for one camera pose and robot pose."""
 
-    def __init__(self, camera: CameraModel, robot: Odometry, ankle_height_m: float = 0.0):
+    def __init__(
+        self,
+        camera: CameraModel,
+        robot: Odometry,
+        ankle_height_m: float = 0.0,
+        walking_ankle_lift_m: float = 0.0,
+        full_gait_speed_mps: float = 0.6,
+    ):
         self.camera = camera
         self.robot = robot
         self.ankle_height_m = float(ankle_height_m)
+        self.walking_ankle_lift_m = float(walking_ankle_lift_m)
+        self.full_gait_speed_mps = max(float(full_gait_speed_mps), 1e-6)
+
+    def ankle_heights_m(self, states: np.ndarray) -> np.ndarray:
+        """Expected ankle keypoint height (N,) of states (N, 5): the standing height plus
+        the gait's mean lift, in proportion to the speed up to a full walking gait."""
+        speed = np.hypot(states[:, VX], states[:, VY])
+        gait = np.minimum(speed / self.full_gait_speed_mps, 1.0)
+        return self.ankle_height_m + self.walking_ankle_lift_m * gait
 
     def _points_base(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         s = np.atleast_2d(states)
         ground = odom_to_base(s[:, :2], self.robot)
         neck = np.column_stack([ground, s[:, H]])
-        ankle = np.column_stack([ground, np.full(len(s), self.ankle_height_m)])
+        ankle = np.column_stack([ground, self.ankle_heights_m(s)])
         return neck, ankle
 
     def neck_ankle(self, states: np.ndarray) -> np.ndarray:

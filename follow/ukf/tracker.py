@@ -105,7 +105,13 @@ class PeopleTracker:
         self._last_stamp_s = stamp_s
         robot = robot if robot is not None else Odometry.origin(stamp_s)
         cfg = self.config
-        model = MeasurementModel(self.camera, robot, cfg.ankle_height_m)
+        model = MeasurementModel(
+            self.camera,
+            robot,
+            cfg.ankle_height_m,
+            cfg.walking_ankle_lift_m,
+            cfg.full_gait_speed_mps,
+        )
 
         checked = [
             check_observation(o, self.camera, cfg.max_outside_image_px) for o in observations
