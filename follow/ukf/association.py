@@ -20,18 +20,35 @@ def gate_mahalanobis_sq(dim: int, quantile: float) -> float:
     return float(chi2.ppf(quantile, dim))
 
 
+class InnovationGate:
+    """A predicted measurement's mean and covariance, factored once for scoring many
+    observations against it."""
+
+    def __init__(self, mean: np.ndarray, cov: np.ndarray):
+        self.mean = np.asarray(mean, dtype=np.float64)
+        try:
+            self._L = np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            self._L = None
+            return
+        self._log_norm = float(np.log(np.diag(self._L)).sum()) + 0.5 * len(self.mean) * np.log(
+            2.0 * np.pi
+        )
+
+    def cost(self, z: np.ndarray) -> tuple[float, float]:
+        """(squared Mahalanobis distance, negative log-likelihood) of a measurement; (inf,
+        inf) when the covariance is not positive definite."""
+        if self._L is None:
+            return float("inf"), float("inf")
+        w = np.linalg.solve(self._L, z - self.mean)
+        d2 = float(w @ w)
+        return d2, 0.5 * d2 + self._log_norm
+
+
 def mahalanobis_cost(innovation: np.ndarray, S: np.ndarray) -> tuple[float, float]:
     """(squared Mahalanobis distance, negative log-likelihood) of an innovation with
     covariance S; (inf, inf) when S is not positive definite."""
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
-        return float("inf"), float("inf")
-    w = np.linalg.solve(L, innovation)
-    d2 = float(w @ w)
-    log_det = 2.0 * float(np.log(np.diag(L)).sum())
-    nll = 0.5 * (d2 + log_det + len(innovation) * np.log(2.0 * np.pi))
-    return d2, nll
+    return InnovationGate(np.zeros(len(innovation)), S).cost(np.asarray(innovation))
 
 
 def global_nearest_neighbour(cost: np.ndarray) -> list[tuple[int, int]]:

@@ -22,7 +22,7 @@ from follow.camera import CameraModel
 from follow.config import TrackerConfig
 from follow.frames import base_to_odom
 from follow.types import Observation, Odometry, TrackState
-from follow.ukf.association import gate_mahalanobis_sq, global_nearest_neighbour, mahalanobis_cost
+from follow.ukf.association import InnovationGate, gate_mahalanobis_sq, global_nearest_neighbour
 from follow.ukf.models import MeasurementModel, process_noise
 from follow.ukf.person import PersonFilter, initial_state_base
 
@@ -160,16 +160,21 @@ class PeopleTracker:
     ) -> list[tuple[int, int]]:
         cost = np.full((len(obs), len(expected)), np.inf)
         q = self.config.gate_chi2_quantile
+        # Per track: the neck+ankle prediction and its neck-only marginal.
+        gates = [
+            None
+            if e is None
+            else (InnovationGate(e[0], e[1]), InnovationGate(e[0][:2], e[1][:2, :2]))
+            for e in expected
+        ]
         for i, o in enumerate(obs):
             z = np.concatenate([o.neck_px, o.ankle_px]) if o.has_ankle else o.neck_px
-            gate = gate_mahalanobis_sq(len(z), q)
-            for j, e in enumerate(expected):
-                if e is None:
+            limit = gate_mahalanobis_sq(len(z), q)
+            for j, g in enumerate(gates):
+                if g is None:
                     continue
-                zp, S = e
-                k = len(z)
-                d2, nll = mahalanobis_cost(z - zp[:k], S[:k, :k])
-                if d2 <= gate:
+                d2, nll = (g[0] if o.has_ankle else g[1]).cost(z)
+                if d2 <= limit:
                     cost[i, j] = nll
         return global_nearest_neighbour(cost)
 
