@@ -41,14 +41,33 @@ class TrackerConfig:
     neck_noise_px: float = 3.0
     ankle_noise_px: float = 5.0
     detection_height_px: int = 360  # resolution the pixel noises above refer to
+    # Height of the ankle keypoint over the floor assumed by the measurement model when
+    # standing, and its mean extra height over a gait cycle when walking at or above
+    # full_gait_speed_mps (each ankle rises in its swing phase).
+    ankle_height_m: float = 0.0
+    walking_ankle_lift_m: float = 0.025
+    full_gait_speed_mps: float = 0.6
     init_velocity_std_mps: float = 1.0
+    # Population prior on the neck height, fused into a new track's first estimate.
     init_height_std_m: float = 0.1
     default_neck_height_m: float = 1.45
+    # Observations implying a neck outside this range cannot be a standing person.
+    min_neck_height_m: float = 0.5
+    max_neck_height_m: float = 2.5
+    # Unscented transform spread (filterpy's MerweScaledSigmaPoints).
+    sigma_alpha: float = 1.0
+    sigma_beta: float = 2.0
+    sigma_kappa: float = 0.0
     gate_chi2_quantile: float = 0.99
     min_updates_to_confirm: int = 3
+    # Deletion when the position std exceeds max_position_std_m plus this fraction of the
+    # range (far people are always uncertain along the viewing ray).
     max_position_std_m: float = 1.5
+    max_position_std_per_range: float = 0.15
     max_unseen_s: float = 2.0
     tentative_max_unseen_s: float = 0.5
+    # Observations this far outside the image are rejected as broken input.
+    max_outside_image_px: float = 2.0
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,176 @@
+"""One tracked person: a filterpy unscented Kalman filter over `[x, y, vx, vy, h]`.
+
+The filter is started from a neck+ankle observation (the ankle's ground point and the
+neck height where the neck's ray meets the vertical through it) and then predicted with
+the real time step and updated with either the 4-d neck+ankle or the 2-d neck-only
+measurement model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import unscented_transform as filterpy_unscented_transform
+
+from follow.camera import CameraModel
+from follow.config import TrackerConfig
+from follow.ukf.models import STATE_DIM, MeasurementModel, constant_velocity
+
+_MIN_EIGENVALUE = 1e-10
+
+
+def make_psd(P: np.ndarray) -> np.ndarray:
+    """Symmetrise P and lift eigenvalues that rounding pushed to (or below) zero."""
+    P = 0.5 * (P + P.T)
+    try:
+        np.linalg.cholesky(P)
+        return P
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(P)
+        P = (V * np.maximum(w, _MIN_EIGENVALUE)) @ V.T
+        return 0.5 * (P + P.T)
+
+
+def _project_ray_onto_vertical(
+    camera: CameraModel, pixel: np.ndarray, ground_xy: np.ndarray
+) -> float:
+    """Height where the ray through `pixel` passes the vertical line at `ground_xy` (base)."""
+    ray = camera.pixel_rays_base(pixel)[0]
+    c = camera.position_base
+    horizontal = ray[:2] @ ray[:2]
+    if horizontal < 1e-12:
+        return float("nan")
+    t = float((ground_xy - c[:2]) @ ray[:2]) / horizontal
+    if t <= 0:
+        return float("nan")
+    return float(c[2] + t * ray[2])
+
+
+def ground_and_height(
+    camera: CameraModel, neck_px: np.ndarray, ankle_px: np.ndarray, ankle_height_m: float = 0.0
+) -> np.ndarray:
+    """(x, y, h) in `base` from a neck and an ankle pixel; NaN when the ankle has no ground
+    point (on or above the horizon) or the neck's ray never passes over it."""
+    ground = camera.back_project_to_plane(np.asarray(ankle_px, dtype=np.float64), ankle_height_m)
+    if np.isnan(ground).any():
+        return np.full(3, np.nan)
+    h = _project_ray_onto_vertical(camera, np.asarray(neck_px, dtype=np.float64), ground[:2])
+    return np.array([ground[0], ground[1], h])
+
+
+def initial_state_base(
+    camera: CameraModel,
+    neck_px: np.ndarray,
+    ankle_px: np.ndarray,
+    neck_sigma_px: float,
+    ankle_sigma_px: float,
+    config: TrackerConfig,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Mean and covariance of (x, y, h) in `base` seen at a neck and an ankle pixel.
+
+    The covariance is the pixel noise carried through the back-projection (numerical
+    Jacobian), then combined with the population prior on the neck height, which is what
+    pins the range of a far person whose ankle pixel alone says little about it.
+    Returns None for a geometrically impossible observation.
+    """
+    z = np.concatenate([neck_px, ankle_px]).astype(np.float64)
+    xyh = ground_and_height(camera, z[:2], z[2:], config.ankle_height_m)
+    if not np.isfinite(xyh).all():
+        return None
+    if not (config.min_neck_height_m <= xyh[2] <= config.max_neck_height_m):
+        return None
+    J = np.zeros((3, 4))
+    step_px = 0.5
+    for i in range(4):
+        dz = np.zeros(4)
+        dz[i] = step_px
+        plus = ground_and_height(camera, (z + dz)[:2], (z + dz)[2:], config.ankle_height_m)
+        minus = ground_and_height(camera, (z - dz)[:2], (z - dz)[2:], config.ankle_height_m)
+        if not (np.isfinite(plus).all() and np.isfinite(minus).all()):
+            return None
+        J[:, i] = (plus - minus) / (2 * step_px)
+    R = np.diag([neck_sigma_px**2] * 2 + [ankle_sigma_px**2] * 2)
+    P = J @ R @ J.T + np.eye(3) * 1e-6
+    # Linear fusion with the prior h ~ N(default_neck_height_m, init_height_std_m^2).
+    s = P[2, 2] + config.init_height_std_m**2
+    gain = P[:, 2] / s
+    mean = xyh + gain * (config.default_neck_height_m - xyh[2])
+    P = P - np.outer(gain, P[2, :])
+    return mean, make_psd(P)
+
+
+class PersonFilter:
+    """The UKF of one person, in `odom`."""
+
+    def __init__(self, mean: np.ndarray, cov: np.ndarray, config: TrackerConfig):
+        points = MerweScaledSigmaPoints(
+            STATE_DIM,
+            alpha=config.sigma_alpha,
+            beta=config.sigma_beta,
+            kappa=config.sigma_kappa,
+        )
+        self.ukf = UnscentedKalmanFilter(
+            dim_x=STATE_DIM, dim_z=4, dt=0.0, hx=None, fx=constant_velocity, points=points
+        )
+        self.ukf.x = np.asarray(mean, dtype=np.float64).copy()
+        self.ukf.P = make_psd(np.asarray(cov, dtype=np.float64))
+        self._refresh_sigmas()
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.ukf.x
+
+    @property
+    def cov(self) -> np.ndarray:
+        return self.ukf.P
+
+    def _refresh_sigmas(self) -> None:
+        self.ukf.P = make_psd(self.ukf.P)
+        self.ukf.sigmas_f = self.ukf.points_fn.sigma_points(self.ukf.x, self.ukf.P)
+
+    def predict(self, dt_s: float, Q: np.ndarray) -> None:
+        """Move forward by `dt_s` seconds (nothing to do for dt = 0)."""
+        if dt_s > 0:
+            self.ukf.Q = Q
+            self.ukf.predict(dt=dt_s)
+        # Draw fresh sigma points from the prior, so that they include Q.
+        self._refresh_sigmas()
+
+    def expected_measurement(
+        self, model: MeasurementModel, R: np.ndarray, with_ankle: bool
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Mean and covariance of the measurement by the unscented transform, or None when
+        part of the distribution falls behind the camera."""
+        sigmas = self.ukf.sigmas_f
+        Z = model.neck_ankle(sigmas) if with_ankle else model.neck_only(sigmas)
+        if not np.isfinite(Z).all():
+            return None
+        zp, S = filterpy_unscented_transform(Z, self.ukf.Wm, self.ukf.Wc, R)
+        return zp, 0.5 * (S + S.T)
+
+    def update(self, z: np.ndarray, R: np.ndarray, model: MeasurementModel) -> bool:
+        """Fuse a 4-d neck+ankle or a 2-d neck-only measurement; False (and no change) if
+        the update would not give a finite state."""
+        # filterpy calls hx once per sigma point, in order; project them all at once.
+        sigmas = self.ukf.sigmas_f
+        projected = model.neck_ankle(sigmas) if len(z) == 4 else model.neck_only(sigmas)
+        if not np.isfinite(projected).all():
+            return False
+        rows = iter(projected)
+
+        def hx(_state: np.ndarray) -> np.ndarray:
+            return next(rows)
+
+        x_before, P_before = self.ukf.x.copy(), self.ukf.P.copy()
+        try:
+            self.ukf.update(np.asarray(z, dtype=np.float64), R=R, hx=hx)
+        except (np.linalg.LinAlgError, ValueError):
+            self.ukf.x, self.ukf.P = x_before, P_before
+            self._refresh_sigmas()
+            return False
+        if not (np.isfinite(self.ukf.x).all() and np.isfinite(self.ukf.P).all()):
+            self.ukf.x, self.ukf.P = x_before, P_before
+            self._refresh_sigmas()
+            return False
+        self._refresh_sigmas()
+        return True

@@ -1,0 +1,248 @@
+"""Multi-person tracker on the ground plane.
+
+Every frame: predict each person's UKF to the frame's time with the real time step,
+work out where each track expects the neck and ankle in the image (unscented transform),
+gate and associate the observations (global nearest neighbour on the negative
+log-likelihood), update, start tracks from unclaimed neck+ankle observations, and
+retire tracks that are lost. Tracks live in `odom`; the robot's pose at the frame's time
+maps them into the camera, so the robot's own motion does not move them.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from follow.camera import CameraModel
+from follow.config import TrackerConfig
+from follow.frames import base_to_odom
+from follow.types import Observation, Odometry, TrackState
+from follow.ukf.association import InnovationGate, gate_mahalanobis_sq, global_nearest_neighbour
+from follow.ukf.models import MeasurementModel, process_noise
+from follow.ukf.person import PersonFilter, initial_state_base
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Track:
+    track_id: int
+    filter: PersonFilter
+    created_s: float
+    last_seen_s: float
+    updates: int = 1
+    confirmed: bool = False
+
+
+def measurement_sigmas_px(camera: CameraModel, config: TrackerConfig) -> tuple[float, float]:
+    """Neck and ankle pixel noise at the camera's resolution."""
+    scale = camera.image_size[1] / float(config.detection_height_px)
+    return config.neck_noise_px * scale, config.ankle_noise_px * scale
+
+
+def check_observation(
+    obs: object, camera: CameraModel, max_outside_px: float
+) -> Observation | None:
+    """The observation as the tracker may use it: None (with a warning) when it is not an
+    Observation or its neck lies outside the image; its ankle is dropped (with a warning)
+    when that lies outside the image."""
+    if not isinstance(obs, Observation):
+        log.warning("dropping an observation of type %s", type(obs).__name__)
+        return None
+    if not np.isfinite(obs.neck_px).all() or not camera.in_image(obs.neck_px, -max_outside_px)[0]:
+        log.warning("dropping an observation whose neck %s is outside the image", obs.neck_px)
+        return None
+    if obs.ankle_px is not None and not camera.in_image(obs.ankle_px, -max_outside_px)[0]:
+        log.warning("ignoring an ankle %s outside the image", obs.ankle_px)
+        return Observation(obs.neck_px, None, obs.touches_border, obs.skeleton)
+    return obs
+
+
+class PeopleTracker:
+    """Tracks people from per-frame neck/ankle observations."""
+
+    def __init__(self, camera: CameraModel, config: TrackerConfig | None = None):
+        self.camera = camera
+        self.config = config if config is not None else TrackerConfig()
+        self._ids = itertools.count(1)
+        self._tracks: list[_Track] = []
+        self._states: list[TrackState] = []
+        self._last_stamp_s: float | None = None
+        neck_px, ankle_px = measurement_sigmas_px(camera, self.config)
+        self._neck_sigma_px, self._ankle_sigma_px = neck_px, ankle_px
+        self._R4 = np.diag([neck_px**2] * 2 + [ankle_px**2] * 2)
+        self._R2 = self._R4[:2, :2].copy()
+
+    @property
+    def tracks(self) -> list[TrackState]:
+        """The live tracks as of the last update."""
+        return list(self._states)
+
+    # ------------------------------------------------------------------ one frame
+    def update(
+        self,
+        observations: Sequence[Observation],
+        stamp_s: float,
+        robot: Odometry | None = None,
+    ) -> list[TrackState]:
+        """Fold one frame's observations in; returns every live track for this frame."""
+        if not math.isfinite(stamp_s):
+            log.warning("ignoring a frame with a non-finite timestamp %r", stamp_s)
+            return self.tracks
+        if self._last_stamp_s is not None and stamp_s < self._last_stamp_s:
+            log.warning(
+                "ignoring a frame whose timestamp %.3f s goes back from %.3f s",
+                stamp_s,
+                self._last_stamp_s,
+            )
+            return self.tracks
+        dt = 0.0 if self._last_stamp_s is None else stamp_s - self._last_stamp_s
+        self._last_stamp_s = stamp_s
+        robot = robot if robot is not None else Odometry.origin(stamp_s)
+        cfg = self.config
+        model = MeasurementModel(
+            self.camera,
+            robot,
+            cfg.ankle_height_m,
+            cfg.walking_ankle_lift_m,
+            cfg.full_gait_speed_mps,
+        )
+
+        checked = [
+            check_observation(o, self.camera, cfg.max_outside_image_px) for o in observations
+        ]
+        obs = [o for o in checked if o is not None]
+
+        Q = process_noise(dt, cfg.accel_noise_mps2, cfg.height_noise_mps)
+        for track in self._tracks:
+            track.filter.predict(dt, Q)
+
+        expected = [t.filter.expected_measurement(model, self._R4, True) for t in self._tracks]
+        pairs = self._associate(obs, expected)
+
+        associated: dict[int, Observation] = {}
+        claimed = set()
+        for i, j in pairs:
+            track, o = self._tracks[j], obs[i]
+            z, R = (
+                (np.concatenate([o.neck_px, o.ankle_px]), self._R4)
+                if o.has_ankle
+                else (o.neck_px, self._R2)
+            )
+            claimed.add(i)
+            if track.filter.update(z, R, model):
+                track.updates += 1
+                track.last_seen_s = stamp_s
+                track.confirmed = track.confirmed or track.updates >= cfg.min_updates_to_confirm
+                associated[track.track_id] = o
+
+        for i, o in enumerate(obs):
+            if i in claimed or not o.has_ankle:
+                continue
+            track = self._start_track(o, stamp_s, robot)
+            if track is not None:
+                associated[track.track_id] = o
+
+        self._retire(stamp_s, robot)
+        self._states = [self._state(t, model, associated.get(t.track_id)) for t in self._tracks]
+        return self.tracks
+
+    # ------------------------------------------------------------------ steps
+    def _associate(
+        self,
+        obs: list[Observation],
+        expected: list[tuple[np.ndarray, np.ndarray] | None],
+    ) -> list[tuple[int, int]]:
+        cost = np.full((len(obs), len(expected)), np.inf)
+        q = self.config.gate_chi2_quantile
+        # Per track: the neck+ankle prediction and its neck-only marginal.
+        gates = [
+            None
+            if e is None
+            else (InnovationGate(e[0], e[1]), InnovationGate(e[0][:2], e[1][:2, :2]))
+            for e in expected
+        ]
+        for i, o in enumerate(obs):
+            z = np.concatenate([o.neck_px, o.ankle_px]) if o.has_ankle else o.neck_px
+            limit = gate_mahalanobis_sq(len(z), q)
+            for j, g in enumerate(gates):
+                if g is None:
+                    continue
+                d2, nll = (g[0] if o.has_ankle else g[1]).cost(z)
+                if d2 <= limit:
+                    cost[i, j] = nll
+        return global_nearest_neighbour(cost)
+
+    def _start_track(self, o: Observation, stamp_s: float, robot: Odometry) -> _Track | None:
+        cfg = self.config
+        init = initial_state_base(
+            self.camera, o.neck_px, o.ankle_px, self._neck_sigma_px, self._ankle_sigma_px, cfg
+        )
+        if init is None:
+            log.warning(
+                "no track from an impossible observation (neck %s, ankle %s)",
+                o.neck_px,
+                o.ankle_px,
+            )
+            return None
+        xyh, P3 = init
+        c, s = math.cos(robot.yaw_rad), math.sin(robot.yaw_rad)
+        rot = np.array([[c, -s], [s, c]])
+        mean = np.zeros(5)
+        mean[:2] = base_to_odom(xyh[:2], robot)
+        mean[4] = xyh[2]
+        cov = np.zeros((5, 5))
+        T = np.zeros((3, 3))
+        T[:2, :2] = rot
+        T[2, 2] = 1.0
+        P3 = T @ P3 @ T.T
+        idx = [0, 1, 4]
+        cov[np.ix_(idx, idx)] = P3
+        cov[2, 2] = cov[3, 3] = cfg.init_velocity_std_mps**2
+        track = _Track(next(self._ids), PersonFilter(mean, cov, cfg), stamp_s, stamp_s)
+        track.confirmed = track.updates >= cfg.min_updates_to_confirm
+        self._tracks.append(track)
+        return track
+
+    def _retire(self, stamp_s: float, robot: Odometry) -> None:
+        cfg = self.config
+        keep = []
+        for t in self._tracks:
+            unseen_s = stamp_s - t.last_seen_s
+            limit_s = cfg.max_unseen_s if t.confirmed else cfg.tentative_max_unseen_s
+            mean, P = t.filter.mean, t.filter.cov
+            range_m = math.hypot(mean[0] - robot.x_m, mean[1] - robot.y_m)
+            pos_std = math.sqrt(max(np.linalg.eigvalsh(P[:2, :2])[-1], 0.0))
+            max_std = cfg.max_position_std_m + cfg.max_position_std_per_range * range_m
+            if unseen_s > limit_s or pos_std > max_std or not np.isfinite(mean).all():
+                log.debug(
+                    "track %d retired (unseen %.2f s, std %.2f m)", t.track_id, unseen_s, pos_std
+                )
+                continue
+            keep.append(t)
+        self._tracks = keep
+
+    def _state(self, t: _Track, model: MeasurementModel, obs: Observation | None) -> TrackState:
+        zero = np.zeros((4, 4))
+        e = t.filter.expected_measurement(model, zero, True)
+        neck = neck_cov = ankle = ankle_cov = None
+        if e is not None:
+            zp, S = e
+            neck, neck_cov, ankle, ankle_cov = zp[:2], S[:2, :2], zp[2:], S[2:, 2:]
+        return TrackState(
+            track_id=t.track_id,
+            mean=t.filter.mean.copy(),
+            cov=t.filter.cov.copy(),
+            confirmed=t.confirmed,
+            last_seen_s=t.last_seen_s,
+            expected_neck_px=neck,
+            expected_neck_cov=neck_cov,
+            expected_ankle_px=ankle,
+            expected_ankle_cov=ankle_cov,
+            observation=obs,
+        )

@@ -1,0 +1,215 @@
+"""The person UKF and the multi-person tracker on hand-made observations."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from follow.camera import CameraModel, CameraPose
+from follow.config import TrackerConfig
+from follow.frames import odom_to_base
+from follow.types import Observation, Odometry
+from follow.ukf.direct import DirectBaseline
+from follow.ukf.models import MeasurementModel, process_noise
+from follow.ukf.person import ground_and_height, initial_state_base
+from follow.ukf.tracker import PeopleTracker
+
+FPS = 15.0
+
+
+@pytest.fixture
+def camera() -> CameraModel:
+    # The detector's resolution (1/3 of 1920x1080), HFOV 70 deg, 0.6 m over the floor.
+    return CameraModel.from_fov((640, 360), 70.0, CameraPose(height_m=0.6, pitch_rad=0.02))
+
+
+def observe(camera, robot, xy, neck_h, rng=None, neck_sigma=2.0, ankle_sigma=2.0, ankle=True):
+    """The neck/ankle observation of a person at `xy` (odom), with pixel noise."""
+    p = odom_to_base(np.asarray(xy, dtype=float), robot)
+    uv = camera.project(np.array([[p[0], p[1], neck_h], [p[0], p[1], 0.0]]))
+    if rng is not None:
+        uv = uv + rng.normal(0.0, [[neck_sigma] * 2, [ankle_sigma] * 2])
+    return Observation(uv[0], uv[1] if ankle else None)
+
+
+def test_measurement_model_round_trips_through_back_projection(camera):
+    robot = Odometry(1.5, -2.0, 0.7, 0.0)
+    model = MeasurementModel(camera, robot)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        rng_m, bearing = rng.uniform(2.5, 25.0), rng.uniform(-0.5, 0.5)
+        base_xy = rng_m * np.array([np.cos(bearing), np.sin(bearing)])
+        c, s = np.cos(robot.yaw_rad), np.sin(robot.yaw_rad)
+        odom_xy = np.array([robot.x_m + c * base_xy[0] - s * base_xy[1],
+                            robot.y_m + s * base_xy[0] + c * base_xy[1]])  # fmt: skip
+        h = rng.uniform(1.2, 1.65)
+        z = model.hx_neck_ankle(np.array([*odom_xy, 0.3, -0.2, h]))
+        np.testing.assert_allclose(model.hx_neck(np.array([*odom_xy, 0, 0, h])), z[:2])
+        xyh = ground_and_height(camera, z[:2], z[2:])
+        np.testing.assert_allclose(xyh, [*base_xy, h], atol=1e-6)
+
+
+def test_initial_state_sits_on_the_observation_and_reflects_range(camera):
+    cfg = TrackerConfig(default_neck_height_m=1.4)
+    near = observe(camera, Odometry.origin(), (4.0, 0.5), 1.4)
+    far = observe(camera, Odometry.origin(), (18.0, 0.5), 1.4)
+    mean_near, P_near = initial_state_base(camera, near.neck_px, near.ankle_px, 2.0, 3.0, cfg)
+    mean_far, P_far = initial_state_base(camera, far.neck_px, far.ankle_px, 2.0, 3.0, cfg)
+    np.testing.assert_allclose(mean_near, [4.0, 0.5, 1.4], atol=1e-6)
+    np.testing.assert_allclose(mean_far, [18.0, 0.5, 1.4], atol=1e-6)
+    # Far away the range is far less certain than near by (pixel noise grows with d^2).
+    assert P_far[0, 0] > 10 * P_near[0, 0]
+    assert np.all(np.linalg.eigvalsh(P_far) > 0)
+
+
+def test_process_noise_grows_with_the_time_step():
+    short, long = process_noise(1 / 15, 1.0, 0.01), process_noise(1.0, 1.0, 0.01)
+    assert long[0, 0] > 100 * short[0, 0]
+    assert long[2, 2] == pytest.approx(15 * short[2, 2])
+    np.testing.assert_allclose(long, long.T)
+
+
+@pytest.mark.parametrize("distance_m", [4.0, 9.0, 16.0])
+def test_ukf_converges_to_true_position_and_height(camera, distance_m):
+    rng = np.random.default_rng(int(distance_m))
+    # These observations have no gait: the ankle point is on the floor.
+    tracker = PeopleTracker(camera, TrackerConfig(walking_ankle_lift_m=0.0))
+    robot = Odometry.origin()
+    height, start, velocity = 1.55, np.array([distance_m, -1.0]), np.array([0.15, 0.15])
+    errors, height_errors, velocities = [], [], []
+    for k in range(150):
+        t = k / FPS
+        xy = start + velocity * t
+        states = tracker.update([observe(camera, robot, xy, height, rng)], t, robot)
+        if k >= 120:
+            errors.append(np.linalg.norm(states[0].position_m - xy))
+            height_errors.append(states[0].neck_height_m - height)
+            velocities.append(states[0].velocity_mps)
+    assert len(states) == 1 and states[0].confirmed
+    # Far less than one frame's own uncertainty (about 0.08 m per metre of range at 16 m).
+    assert np.mean(errors) < 0.035 * distance_m
+    assert abs(np.mean(height_errors)) < 0.04
+    s = states[0]
+    assert np.linalg.norm(np.mean(velocities, axis=0) - velocity) < 0.3
+    assert s.observation is not None
+    # The expected pixels are where the person is seen.
+    truth = observe(camera, robot, xy, height)
+    assert np.linalg.norm(s.expected_neck_px - truth.neck_px) < 3.0
+    assert np.linalg.norm(s.expected_ankle_px - truth.ankle_px) < 3.0
+
+
+def test_neck_only_updates_keep_a_track_alive(camera):
+    cfg = TrackerConfig()
+    tracker = PeopleTracker(camera, cfg)
+    rng = np.random.default_rng(3)
+    robot = Odometry.origin()
+    xy, height = np.array([5.0, 0.3]), 1.45
+    for k in range(20):
+        states = tracker.update([observe(camera, robot, xy, height, rng)], k / FPS, robot)
+    track_id = states[0].track_id
+    # Three times the longest unseen time with the neck only.
+    n_neck_only = int(3 * cfg.max_unseen_s * FPS)
+    for k in range(20, 20 + n_neck_only):
+        obs = observe(camera, robot, xy, height, rng, ankle=False)
+        states = tracker.update([obs], k / FPS, robot)
+    assert [s.track_id for s in states] == [track_id]
+    assert states[0].confirmed
+    assert np.linalg.norm(states[0].position_m - xy) < 0.3
+    # Without any observation the same track is dropped.
+    for k in range(20 + n_neck_only, 20 + n_neck_only + n_neck_only):
+        states = tracker.update([], k / FPS, robot)
+    assert states == []
+
+
+def test_a_turning_robot_does_not_move_a_static_person(camera):
+    rng = np.random.default_rng(4)
+    person, height = np.array([6.0, 0.5]), 1.5
+
+    def run(tell_tracker_the_pose: bool):
+        tracker = PeopleTracker(camera)
+        for k in range(90):
+            t = k / FPS
+            robot = Odometry(0.0, 0.0, 0.3 * np.sin(2.0 * t), t)  # turning back and forth
+            obs = observe(camera, robot, person, height, rng)
+            states = tracker.update([obs], t, robot if tell_tracker_the_pose else None)
+        return states
+
+    states = run(True)
+    assert len(states) == 1 and states[0].track_id == 1
+    assert np.linalg.norm(states[0].position_m - person) < 0.25
+    assert np.linalg.norm(states[0].velocity_mps) < 0.3
+    # The check has teeth: ignoring the robot's pose puts the person somewhere else.
+    blind = run(False)
+    assert max(np.linalg.norm(s.position_m - person) for s in blind) > 1.0
+
+
+def test_two_people_side_by_side_keep_their_ids(camera):
+    rng = np.random.default_rng(5)
+    tracker = PeopleTracker(camera)
+    robot = Odometry.origin()
+    a, b = np.array([7.0, 0.6]), np.array([7.5, -0.6])
+    ids = None
+    for k in range(60):
+        obs = [observe(camera, robot, a, 1.5, rng), observe(camera, robot, b, 1.35, rng)]
+        order = [1, 0] if k % 2 else [0, 1]  # the detector's order means nothing
+        states = tracker.update([obs[i] for i in order], k / FPS, robot)
+        by_obs = {id(s.observation): s.track_id for s in states}
+        now = (by_obs[id(obs[0])], by_obs[id(obs[1])])
+        ids = ids or now
+        assert now == ids
+    assert len(states) == 2 and ids[0] != ids[1]
+
+
+def test_timestamps_going_back_are_ignored_with_a_warning(camera, caplog):
+    tracker = PeopleTracker(camera)
+    robot = Odometry.origin()
+    for k in range(10):
+        before = tracker.update([observe(camera, robot, (6.0, 0.0), 1.4)], k / FPS, robot)
+    with caplog.at_level(logging.WARNING):
+        after = tracker.update([observe(camera, robot, (9.0, 2.0), 1.4)], 0.1, robot)
+    assert "goes back" in caplog.text
+    assert [s.track_id for s in after] == [s.track_id for s in before]
+    np.testing.assert_array_equal(after[0].mean, before[0].mean)
+    # And it carries on with the next good frame.
+    later = tracker.update([observe(camera, robot, (6.0, 0.0), 1.4)], 10 / FPS, robot)
+    assert later[0].observation is not None and later[0].last_seen_s == 10 / FPS
+
+
+def test_out_of_image_and_impossible_observations_are_rejected(camera, caplog):
+    tracker = PeopleTracker(camera)
+    outside = Observation(np.array([5000.0, -300.0]), np.array([5000.0, 100.0]))
+    above_horizon = Observation(np.array([320.0, 60.0]), np.array([320.0, 100.0]))
+    neck_below_ankle = Observation(np.array([320.0, 300.0]), np.array([320.0, 250.0]))
+    with caplog.at_level(logging.WARNING):
+        states = tracker.update([outside, above_horizon, neck_below_ankle], 0.0)
+    assert states == []
+    assert "outside the image" in caplog.text
+    assert "impossible observation" in caplog.text
+    states = tracker.update([observe(camera, Odometry.origin(), (5.0, 0.0), 1.4)], 0.1)
+    assert len(states) == 1
+
+
+def test_an_ankle_outside_the_image_is_dropped_but_the_neck_used(camera, caplog):
+    tracker = PeopleTracker(camera)
+    robot = Odometry.origin()
+    for k in range(5):
+        tracker.update([observe(camera, robot, (5.0, 0.0), 1.4)], k / FPS, robot)
+    good = observe(camera, robot, (5.0, 0.0), 1.4)
+    with caplog.at_level(logging.WARNING):
+        states = tracker.update([Observation(good.neck_px, np.array([320.0, 900.0]))], 0.4)
+    assert "ankle" in caplog.text
+    assert states[0].observation is not None and not states[0].observation.has_ankle
+
+
+def test_direct_baseline_back_projects_the_ankle(camera):
+    robot = Odometry(2.0, 1.0, 0.4, 0.0)
+    baseline = DirectBaseline(camera)
+    obs = [
+        observe(camera, robot, (9.0, 4.0), 1.5),
+        observe(camera, robot, (9.0, 4.0), 1.5, ankle=False),
+    ]
+    out = baseline.update(obs, 0.0, robot)
+    np.testing.assert_allclose(out[0], [9.0, 4.0], atol=1e-6)
+    assert out[1] is None
