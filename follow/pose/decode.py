@@ -36,14 +36,14 @@ REDUNDANT_LIMBS = frozenset({17, 18})
 
 @dataclass(frozen=True)
 class DecodeParams:
-    """Thresholds of the decoder (filled from PoseConfig)."""
+    """Thresholds of the decoder (the detector fills them from PoseConfig)."""
 
-    peak_threshold: float = 0.1
+    peak_threshold: float = 0.03
     paf_samples: int = 10
     paf_min_sample_score: float = 0.05
-    paf_min_sample_fraction: float = 0.8
+    paf_min_sample_fraction: float = 0.6
     min_keypoints_per_person: int = 3
-    min_person_mean_score: float = 0.2
+    min_person_mean_score: float = 0.1
 
 
 @dataclass(frozen=True)
