@@ -25,11 +25,25 @@ class ConfigError(ValueError):
 @dataclass(frozen=True)
 class PoseConfig:
     model: str = "human-pose-estimation-0001"
-    input_height_px: int = 256
+    # Network input height; the width follows the frame's aspect ratio (multiple of 8).
+    # 576 finds the ~50 px tall people of a 360p surveillance view (PETS 2009); for
+    # following at a few metres with a 480p camera, 256-368 is enough and 2-5x faster.
+    input_height_px: int = 576
     provider: str = "auto"  # auto | cpu | cuda | tensorrt | openvino
-    keypoint_min_confidence: float = 0.1
+    # An explicit model file (e.g. an INT8 ONNX from tools/quantize_pose.py); empty = `model`.
+    model_file: str = ""
+    cpu_threads: int = 0  # 0 = the runtime's default
+    warmup_runs: int = 1
+    keypoint_min_confidence: float = 0.05  # keypoints below this are not used as observations
     min_keypoints_per_person: int = 3
     border_margin_px: float = 4.0
+    # Decoding (heatmap cells are 8 network-input pixels).
+    # Low thresholds keep small, far people; the PAF check removes the spurious peaks.
+    heatmap_peak_threshold: float = 0.03
+    paf_samples: int = 10
+    paf_min_sample_score: float = 0.05
+    paf_min_sample_fraction: float = 0.6
+    min_person_mean_score: float = 0.1
 
 
 @dataclass(frozen=True)

@@ -3,14 +3,33 @@
 A model is looked up in `$FOLLOW_MODEL_DIR` first, then in the user cache
 (`$FOLLOW_CACHE_DIR`, else `~/.cache/follow/models`). Every file's hash is checked before
 use: a file whose hash does not match is refused, never loaded.
+
+`fetch(name)` downloads a model's official files into the user cache (progress bar,
+hash check; a file whose hash does not match is deleted and the fetch fails). Models
+with no official download (the ONNX conversions) say how to produce them.
+The command line: `follow models list | fetch [NAME...] | verify [NAME...]`.
 """
 
 from __future__ import annotations
 
+import argparse
 import hashlib
+import logging
 import os
+import tempfile
+import urllib.error
+import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+OMZ_STORAGE = "https://storage.openvinotoolkit.org/repositories/open_model_zoo/2021.4/models_bin/3"
+CCF_REPO_RAW = (
+    "https://raw.githubusercontent.com/koide3/ccf_person_identification/"
+    "33b55ae205fa84b12a22d36f408e2c1105c17870/data"
+)
+DOWNLOAD_TIMEOUT_S = 30.0
 
 
 class ModelError(RuntimeError):
@@ -30,13 +49,17 @@ class ModelSpec:
     description: str
     files: tuple[ModelFile, ...]
     licence: str
+    # For files with no official download: how a user produces them.
+    how_to_produce: str = ""
 
     @property
     def main_file(self) -> str:
         """The file (or, for multi-file weights, the folder) a loader is given."""
         first = self.files[0].relpath
-        return first if len(self.files) == 1 or first.endswith((".onnx", ".xml")) else str(
-            Path(first).parent
+        return (
+            first
+            if len(self.files) == 1 or first.endswith((".onnx", ".xml"))
+            else str(Path(first).parent)
         )
 
 
@@ -53,6 +76,10 @@ REGISTRY: dict[str, ModelSpec] = {
                 ),
             ),
             "Apache-2.0",
+            "Intel publishes this network only as an OpenVINO IR. Rebuild the ONNX from it: "
+            "`follow models fetch human-pose-estimation-0001-ir`, then `python "
+            "tools/ir_to_onnx.py <cache>/pose/human-pose-estimation-0001.xml -o model.onnx` "
+            "and give the file as [pose] model_file (its bytes differ from the pinned one).",
         ),
         ModelSpec(
             "human-pose-estimation-0001-ir",
@@ -61,10 +88,14 @@ REGISTRY: dict[str, ModelSpec] = {
                 ModelFile(
                     "pose/human-pose-estimation-0001.xml",
                     "581b082e749848fdfc6d4b4b70e8189c3c2bae1c2d59c6b2c1a026a5471754e3",
+                    f"{OMZ_STORAGE}/human-pose-estimation-0001/FP16-INT8/"
+                    "human-pose-estimation-0001.xml",
                 ),
                 ModelFile(
                     "pose/human-pose-estimation-0001.bin",
                     "df2a9f41f15c3a0c8a0c5a704650338a3cc5c7bb588f2bfc14ea7093fa37b446",
+                    f"{OMZ_STORAGE}/human-pose-estimation-0001/FP16-INT8/"
+                    "human-pose-estimation-0001.bin",
                 ),
             ),
             "Apache-2.0",
@@ -76,10 +107,12 @@ REGISTRY: dict[str, ModelSpec] = {
                 ModelFile(
                     "ccf/ccf10/conv_t1",
                     "71ef010dae17c74983a184a6be610d6d077968d1b0d39b2420ecd9fc8c4cf200",
+                    f"{CCF_REPO_RAW}/cnn_params_tiny/conv_t1",
                 ),
                 ModelFile(
                     "ccf/ccf10/conv_t2",
                     "59a6278dfec6f1221016ecde6714b246f997eeb6e6a671084ab733ee82ebcb07",
+                    f"{CCF_REPO_RAW}/cnn_params_tiny/conv_t2",
                 ),
             ),
             "BSD",
@@ -91,10 +124,12 @@ REGISTRY: dict[str, ModelSpec] = {
                 ModelFile(
                     "ccf/ccf25/conv_t1",
                     "4117dd0f71f47fbf90bd4b6e801a98694e822cb37275ef64f877162f2dc5a80b",
+                    f"{CCF_REPO_RAW}/cnn_params/conv_t1",
                 ),
                 ModelFile(
                     "ccf/ccf25/conv_t2",
                     "1f37e6f8818cfde2da51585b14cf9097d4caf391f087e363d957f80c69e1232c",
+                    f"{CCF_REPO_RAW}/cnn_params/conv_t2",
                 ),
             ),
             "BSD",
@@ -109,6 +144,9 @@ REGISTRY: dict[str, ModelSpec] = {
                 ),
             ),
             "Apache-2.0",
+            "Intel publishes this network as an OpenVINO IR (Open Model Zoo, "
+            "intel/person-reidentification-retail-0248); convert it with "
+            "tools/ir_to_onnx.py and give the file to the re-identification stage.",
         ),
     )
 }
@@ -162,3 +200,170 @@ def resolve(name: str, verify: bool = True) -> Path:
             return root / spec.main_file
     looked = ", ".join(str(d) for d in search_dirs())
     raise ModelError(f"model '{name}' not found (looked in: {looked}); set $FOLLOW_MODEL_DIR")
+
+
+@dataclass(frozen=True)
+class FileStatus:
+    """Where one model file was found and whether its hash matches."""
+
+    model: str
+    relpath: str
+    path: Path | None  # None when missing everywhere
+    ok: bool
+    detail: str  # "ok", "missing", or the hash mismatch
+
+
+def verify(name: str) -> list[FileStatus]:
+    """Each file of model `name`: the first copy found and whether its sha256 matches."""
+    spec = get_spec(name)
+    out = []
+    for f in spec.files:
+        found = next((d / f.relpath for d in search_dirs() if (d / f.relpath).exists()), None)
+        if found is None:
+            out.append(FileStatus(name, f.relpath, None, False, "missing"))
+            continue
+        actual = sha256_of(found)
+        if actual == f.sha256:
+            out.append(FileStatus(name, f.relpath, found, True, "ok"))
+        else:
+            out.append(FileStatus(name, f.relpath, found, False, f"sha256 {actual} != {f.sha256}"))
+    return out
+
+
+def fetch(name: str, source: str | None = None, force: bool = False) -> Path:
+    """Download model `name` into the user cache and return its main path.
+
+    `source` replaces the official location: a base URL or a local folder under which
+    each file sits at its registry path (a mirror). Files already in the cache with the
+    right hash are kept unless `force`. A download whose sha256 differs from the pinned
+    one is deleted and raises ModelError.
+    """
+    spec = get_spec(name)
+    root = cache_dir()
+    for f in spec.files:
+        target = root / f.relpath
+        if target.exists() and not force and sha256_of(target) == f.sha256:
+            log.info("%s: already in the cache", target)
+            continue
+        url = _source_url(f, source)
+        if url is None:
+            raise ModelError(
+                f"model '{name}': {f.relpath} has no official download. "
+                f"{spec.how_to_produce or 'Place the file under $FOLLOW_MODEL_DIR.'}"
+            )
+        _download(url, target, f.sha256)
+    return root / spec.main_file
+
+
+def _source_url(f: ModelFile, source: str | None) -> str | None:
+    if source is None:
+        return f.url or None
+    if "://" in source:
+        return source.rstrip("/") + "/" + f.relpath
+    return (Path(source).resolve() / f.relpath).as_uri()
+
+
+def _download(url: str, target: Path, sha256: str) -> None:
+    """Stream `url` to `target` via a temporary file, checking the hash on the way."""
+    from tqdm import tqdm
+
+    target.parent.mkdir(parents=True, exist_ok=True)
+    digest = hashlib.sha256()
+    fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".part")
+    tmp = Path(tmp_name)
+    try:
+        try:
+            response = urllib.request.urlopen(url, timeout=DOWNLOAD_TIMEOUT_S)
+        except (urllib.error.URLError, OSError) as exc:
+            raise ModelError(f"cannot download {url}: {getattr(exc, 'reason', exc)}") from None
+        with response, os.fdopen(fd, "wb") as out:
+            total = int(response.headers.get("Content-Length") or 0) or None
+            with tqdm(total=total, unit="B", unit_scale=True, desc=target.name) as bar:
+                for chunk in iter(lambda: response.read(1 << 16), b""):
+                    out.write(chunk)
+                    digest.update(chunk)
+                    bar.update(len(chunk))
+        actual = digest.hexdigest()
+        if actual != sha256:
+            raise ModelError(
+                f"download {url}: sha256 {actual} does not match the pinned {sha256}; "
+                "the file was not kept"
+            )
+        os.replace(tmp, target)
+        log.info("fetched %s", target)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("action", choices=("list", "fetch", "verify"), help="what to do")
+    parser.add_argument("names", nargs="*", help="model names (default: all)")
+    parser.add_argument(
+        "--from",
+        dest="source",
+        default=None,
+        help="fetch from this base URL or local folder (a mirror) instead of the official sites",
+    )
+    parser.add_argument("--force", action="store_true", help="fetch even if already cached")
+
+
+def main(args: argparse.Namespace) -> dict | int:
+    names = args.names or list(REGISTRY)
+    for n in names:
+        get_spec(n)
+    if args.action == "list":
+        rows = []
+        for n in names:
+            spec = REGISTRY[n]
+            status = verify(n)
+            rows.append(
+                {
+                    "name": n,
+                    "description": spec.description,
+                    "licence": spec.licence,
+                    "present": all(s.ok for s in status),
+                    "downloadable": all(f.url for f in spec.files),
+                    "files": [{"path": f.relpath, "url": f.url or None} for f in spec.files],
+                }
+            )
+        if not args.json:
+            for r in rows:
+                mark = "ok" if r["present"] else "--"
+                how = "download" if r["downloadable"] else "convert"
+                print(f"{mark}  {r['name']:38s} {how:8s} {r['description']}")
+        return {"models": rows}
+    if args.action == "fetch":
+        fetched, failed = [], {}
+        for n in names:
+            try:
+                fetched.append({"name": n, "path": str(fetch(n, args.source, args.force))})
+            except ModelError as exc:
+                failed[n] = str(exc)
+                print(f"{n}: {exc}")
+        result = {"fetched": fetched, "failed": failed}
+        if args.json:
+            import json
+
+            print(json.dumps(result))
+        return 1 if failed else 0
+    rows = [s for n in names for s in verify(n)]
+    if not args.json:
+        for s in rows:
+            print(f"{'ok' if s.ok else 'FAIL':4s}  {s.model:38s} {s.relpath:50s} {s.detail}")
+    bad = [s for s in rows if not s.ok]
+    result = {
+        "files": [
+            {"model": s.model, "path": str(s.path) if s.path else None, "ok": s.ok,
+             "detail": s.detail}
+            for s in rows
+        ],
+        "ok": not bad,
+    }  # fmt: skip
+    if args.json:
+        import json
+
+        print(json.dumps(result))
+    return 1 if bad else 0

@@ -1,0 +1,218 @@
+"""`follow eval pose`: skeleton detector recall and precision on PETS 2009 S2.L1.
+
+For each network input height, on evenly spaced frames of the sequence:
+- neck recall: ground-truth people (not more than half hidden behind nearer people)
+  matched one-to-one with a detected neck inside their box;
+- ankle recall: the same people whose matched detection also has an ankle point in the
+  lower fifth of the box;
+- precision: detections whose neck lies in some ground-truth box (hidden or not);
+- ms: median wall time of `PoseDetector.detect` per frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from tqdm import tqdm
+
+from follow.config import PoseConfig
+from follow.eval.pets import GtBox, PetsSequence, evenly_spaced_frames
+from follow.types import Observation
+
+log = logging.getLogger(__name__)
+
+DEFAULT_SIZES = (256, 368, 480, 576)
+DEFAULT_FRAMES = 60
+MAX_HIDDEN_FRACTION = 0.5
+ANKLE_ZONE_FRACTION = 0.2  # the lower fifth of the box
+NECK_EXPECTED_REL_Y = 0.15  # typical neck height in a box, from the top (for matching)
+
+
+@dataclass
+class Counts:
+    """Running totals for one input size."""
+
+    people: int = 0  # counted ground-truth people
+    neck_hits: int = 0
+    ankle_hits: int = 0
+    detections: int = 0  # observations (skeletons with a neck)
+    detections_in_boxes: int = 0
+
+    def add(self, other: Counts) -> None:
+        for f in dataclasses.fields(self):
+            setattr(self, f.name, getattr(self, f.name) + getattr(other, f.name))
+
+    def summary(self) -> dict:
+        return {
+            "neck_recall": self.neck_hits / self.people if self.people else float("nan"),
+            "ankle_recall": self.ankle_hits / self.people if self.people else float("nan"),
+            "precision": (
+                self.detections_in_boxes / self.detections if self.detections else float("nan")
+            ),
+            "people": self.people,
+            "detections": self.detections,
+        }
+
+
+def score_frame(
+    observations: list[Observation],
+    boxes: list[GtBox],
+    max_hidden_fraction: float = MAX_HIDDEN_FRACTION,
+) -> Counts:
+    """Match one frame's observations to its ground-truth boxes (same pixel frame).
+
+    Necks are assigned one-to-one to boxes containing them (closest to the box's typical
+    neck point first), so one detection never counts for two overlapping people.
+    """
+    counts = Counts(detections=len(observations))
+    counted = [b.hidden_fraction <= max_hidden_fraction for b in boxes]
+    counts.people = int(sum(counted))
+    counts.detections_in_boxes = sum(
+        any(b.contains(*o.neck_px) for b in boxes) for o in observations
+    )
+    if not observations or not boxes:
+        return counts
+    big = 1e9
+    cost = np.full((len(boxes), len(observations)), big)
+    for i, box in enumerate(boxes):
+        expected = np.array([box.xc, box.top + NECK_EXPECTED_REL_Y * box.h])
+        for j, obs in enumerate(observations):
+            if box.contains(*obs.neck_px):
+                cost[i, j] = np.linalg.norm((obs.neck_px - expected) / box.h)
+    rows, cols = linear_sum_assignment(cost)
+    for i, j in zip(rows, cols, strict=True):
+        if cost[i, j] >= big or not counted[i]:
+            continue
+        counts.neck_hits += 1
+        ankle = observations[j].ankle_px
+        box = boxes[i]
+        if ankle is not None and box.left <= ankle[0] <= box.right:
+            if box.bottom - ANKLE_ZONE_FRACTION * box.h <= ankle[1] <= box.bottom:
+                counts.ankle_hits += 1
+    return counts
+
+
+def evaluate_size(
+    sequence: PetsSequence,
+    frames: list[int],
+    config: PoseConfig,
+    model_path: Path | None = None,
+) -> dict:
+    """Metrics and median ms for one PoseConfig over the given frames."""
+    from follow.pose.detector import PoseDetector
+    from follow.pose.observations import skeletons_to_observations
+
+    detector = PoseDetector(config, model_path)
+    totals = Counts()
+    times_ms = []
+    input_size = None
+    for index, image in tqdm(
+        sequence.frames(frames),
+        total=len(frames),
+        desc=f"pose h={config.input_height_px}",
+        leave=False,
+    ):
+        skeletons = detector.detect(image)
+        times_ms.append(detector.last_timing_ms["total"])
+        size = (image.shape[1], image.shape[0])
+        observations = skeletons_to_observations(skeletons, size, config)
+        totals.add(score_frame(observations, sequence.boxes_video_px(index)))
+        if input_size is None:
+            from follow.pose.preprocess import plan_letterbox
+
+            input_size = list(plan_letterbox(size, config.input_height_px).input_size)
+    return {
+        "input": input_size,
+        **totals.summary(),
+        "ms": float(np.median(times_ms)),
+        "backend": detector.backend_name,
+    }
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--frames", type=int, default=DEFAULT_FRAMES, help="evenly spaced frames to use"
+    )
+    parser.add_argument(
+        "--sizes",
+        type=int,
+        nargs="+",
+        default=list(DEFAULT_SIZES),
+        help="network input heights in px (multiples of 8)",
+    )
+    parser.add_argument("--provider", default=None, help="override the pose provider")
+    parser.add_argument("--model-file", type=Path, default=None, help="a pose model file")
+    parser.add_argument(
+        "--data-dir",
+        type=Path,
+        default=None,
+        help="folder with View_001.avi and PETS2009-S2L1.xml "
+        "(default: $FOLLOW_DATA_DIR/pets2009_s2l1)",
+    )
+    parser.add_argument("--config", type=Path, default=None, help="a follow TOML config")
+    parser.add_argument("--plot", type=Path, default=None, help="write a PNG of the results")
+
+
+def data_dir(arg: Path | None) -> Path:
+    if arg is not None:
+        return arg
+    root = os.environ.get("FOLLOW_DATA_DIR")
+    if not root:
+        raise ValueError("PETS 2009 not found: give --data-dir or set $FOLLOW_DATA_DIR")
+    return Path(root) / "pets2009_s2l1"
+
+
+def main(args: argparse.Namespace) -> dict:
+    from follow.config import Config
+
+    base = Config.load(args.config).pose if args.config else PoseConfig()
+    if args.provider:
+        base = dataclasses.replace(base, provider=args.provider)
+    sequence = PetsSequence(data_dir(args.data_dir))
+    frames = evenly_spaced_frames(sequence.frame_count, args.frames)
+    results = []
+    for height in tqdm(args.sizes, desc="input sizes"):
+        config = dataclasses.replace(base, input_height_px=height)
+        results.append(evaluate_size(sequence, frames, config, args.model_file))
+    if not args.json:
+        print(f"PETS 2009 S2.L1, {len(frames)} frames, default height {base.input_height_px} px")
+        print(f"{'input':>10} {'neck rec':>9} {'ankle rec':>9} {'precision':>9} {'ms':>7}")
+        for r in results:
+            size = f"{r['input'][0]}x{r['input'][1]}"
+            print(
+                f"{size:>10} {r['neck_recall']:9.3f} {r['ankle_recall']:9.3f} "
+                f"{r['precision']:9.3f} {r['ms']:7.1f}"
+            )
+    if args.plot:
+        write_plot(results, args.plot)
+    return {"sizes": results, "frames": len(frames), "default_height": base.input_height_px}
+
+
+def write_plot(results: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    heights = [r["input"][1] for r in results]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for key in ("neck_recall", "ankle_recall", "precision"):
+        ax.plot(heights, [r[key] for r in results], marker="o", label=key.replace("_", " "))
+    ax.set_xlabel("network input height [px]")
+    ax.set_ylim(0, 1.02)
+    ax.grid(True, alpha=0.3)
+    ax2 = ax.twinx()
+    ax2.plot(heights, [r["ms"] for r in results], "k--", marker="x", label="ms / frame")
+    ax2.set_ylabel("median ms per frame")
+    ax.legend(loc="lower right")
+    ax.set_title("Pose detector on PETS 2009 S2.L1")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

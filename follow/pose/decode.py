@@ -1,0 +1,216 @@
+"""OpenPose decoding: heatmaps + part affinity fields -> multi-person skeletons.
+
+Steps: (1) keypoint candidates are the local maxima (3x3 non-maximum suppression) of
+each heatmap above a threshold, refined to sub-cell precision by a parabola through the
+peak and its neighbours; (2) every pair of candidates of a limb is scored by the line
+integral of the limb's PAF along the segment between them; (3) limbs are matched
+greedily by score and joined into persons; (4) persons with too few parts are dropped.
+
+All coordinates here are in heatmap cells (stride 8 of the network input).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from follow.types import NUM_KEYPOINTS
+
+# Limbs as (keypoint a, keypoint b) and the PAF channels (x, y) that point from a to b.
+# Ordered so that every limb after the first joins a keypoint already reached (tree from
+# the neck); the last two (shoulder-ear) are redundant links that only join existing
+# persons. This is the pairing the Lightweight OpenPose network family was trained with;
+# tests/test_pose_paf.py checks it against the network's output on real frames.
+LIMB_KEYPOINTS: tuple[tuple[int, int], ...] = (
+    (1, 2), (1, 5), (2, 3), (3, 4), (5, 6), (6, 7), (1, 8), (8, 9), (9, 10), (1, 11),
+    (11, 12), (12, 13), (1, 0), (0, 14), (14, 16), (0, 15), (15, 17), (2, 16), (5, 17),
+)  # fmt: skip
+LIMB_PAF_CHANNELS: tuple[tuple[int, int], ...] = (
+    (12, 13), (20, 21), (14, 15), (16, 17), (22, 23), (24, 25), (0, 1), (2, 3), (4, 5),
+    (6, 7), (8, 9), (10, 11), (28, 29), (30, 31), (34, 35), (32, 33), (36, 37), (18, 19),
+    (26, 27),
+)  # fmt: skip
+REDUNDANT_LIMBS = frozenset({17, 18})
+
+
+@dataclass(frozen=True)
+class DecodeParams:
+    """Thresholds of the decoder (the detector fills them from PoseConfig)."""
+
+    peak_threshold: float = 0.03
+    paf_samples: int = 10
+    paf_min_sample_score: float = 0.05
+    paf_min_sample_fraction: float = 0.6
+    min_keypoints_per_person: int = 3
+    min_person_mean_score: float = 0.1
+
+
+@dataclass(frozen=True)
+class DecodedPerson:
+    """One person in heatmap cells: (18, 2) coordinates (NaN where missing), (18,) peak
+    confidences (0 where missing) and the assembly score."""
+
+    keypoints_cells: np.ndarray
+    confidences: np.ndarray
+    score: float
+
+
+def find_peaks(heatmaps: np.ndarray, threshold: float) -> list[np.ndarray]:
+    """Per keypoint channel, an (n, 3) array of [x, y, value] local maxima above threshold.
+
+    A cell is a peak when it is >= its left/upper neighbours and > its right/lower ones
+    (so a flat top yields one peak). x, y are refined by a parabola fit in each axis.
+    """
+    maps = np.asarray(heatmaps[:NUM_KEYPOINTS], dtype=np.float32)
+    k, h, w = maps.shape
+    padded = np.full((k, h + 2, w + 2), -np.inf, dtype=np.float32)
+    padded[:, 1:-1, 1:-1] = maps
+    c = padded[:, 1:-1, 1:-1]
+    is_peak = c > threshold
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy == 0 and dx == 0:
+                continue
+            n = padded[:, 1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+            is_peak &= (c > n) if (dy, dx) > (0, 0) else (c >= n)
+    ch, ys, xs = np.nonzero(is_peak)
+    values = maps[ch, ys, xs]
+    left = padded[ch, ys + 1, xs]
+    right = padded[ch, ys + 1, xs + 2]
+    up = padded[ch, ys, xs + 1]
+    down = padded[ch, ys + 2, xs + 1]
+    fx = _parabola_offset(left, values, right)
+    fy = _parabola_offset(up, values, down)
+    peaks = np.stack([xs + fx, ys + fy, values], axis=1).astype(np.float64)
+    bounds = np.searchsorted(ch, np.arange(k + 1))
+    return [peaks[bounds[i] : bounds[i + 1]] for i in range(k)]
+
+
+def _parabola_offset(before: np.ndarray, centre: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """Sub-cell offset of the vertex of the parabola through three samples (0 at borders)."""
+    valid = np.isfinite(before) & np.isfinite(after)
+    b = np.where(valid, before, centre)
+    a = np.where(valid, after, centre)
+    denom = b - 2 * centre + a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        offset = np.where(denom < 0, 0.5 * (b - a) / denom, 0.0)
+    return np.clip(offset, -0.5, 0.5)
+
+
+def score_limb(
+    pafs: np.ndarray,
+    paf_channels: tuple[int, int],
+    starts: np.ndarray,
+    ends: np.ndarray,
+    params: DecodeParams,
+) -> np.ndarray:
+    """(n_starts, n_ends) PAF line-integral scores; -inf where the pair is not a limb.
+
+    The score is the mean projection of the PAF on the unit segment direction over
+    `paf_samples` points, minus a penalty for limbs longer than half the map height; a
+    pair is rejected when fewer than `paf_min_sample_fraction` samples agree.
+    """
+    h, w = pafs.shape[1:]
+    a = starts[:, None, :2]
+    vec = ends[None, :, :2] - a  # (na, nb, 2)
+    length = np.linalg.norm(vec, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        unit = np.where(length[..., None] > 1e-6, vec / length[..., None], 0.0)
+    t = np.linspace(0.0, 1.0, params.paf_samples)
+    pts = a[:, :, None, :] + t[None, None, :, None] * vec[:, :, None, :]  # (na, nb, n, 2)
+    xi = np.clip(np.rint(pts[..., 0]).astype(np.intp), 0, w - 1)
+    yi = np.clip(np.rint(pts[..., 1]).astype(np.intp), 0, h - 1)
+    field_x = pafs[paf_channels[0]][yi, xi]
+    field_y = pafs[paf_channels[1]][yi, xi]
+    dots = field_x * unit[..., 0:1] + field_y * unit[..., 1:2]  # (na, nb, n)
+    agree = (dots > params.paf_min_sample_score).mean(axis=-1)
+    with np.errstate(divide="ignore"):
+        length_penalty = np.minimum(0.5 * h / np.maximum(length, 1e-6) - 1.0, 0.0)
+    score = dots.mean(axis=-1) + length_penalty
+    ok = (agree >= params.paf_min_sample_fraction) & (score > 0) & (length > 1e-6)
+    return np.where(ok, score, -np.inf)
+
+
+def match_limb(scores: np.ndarray) -> list[tuple[int, int, float]]:
+    """Greedy one-to-one matching: best-scoring pairs first, each candidate used once."""
+    ia, ib = np.nonzero(np.isfinite(scores))
+    if ia.size == 0:
+        return []
+    order = np.argsort(-scores[ia, ib], kind="stable")
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    out = []
+    for k in order:
+        a, b = int(ia[k]), int(ib[k])
+        if a in used_a or b in used_b:
+            continue
+        used_a.add(a)
+        used_b.add(b)
+        out.append((a, b, float(scores[a, b])))
+    return out
+
+
+def decode(heatmaps: np.ndarray, pafs: np.ndarray, params: DecodeParams) -> list[DecodedPerson]:
+    """Skeletons from one image's (>=18, h, w) heatmaps and (38, h, w) PAFs."""
+    peaks = find_peaks(heatmaps, params.peak_threshold)
+    # Each person: slot per keypoint holding a candidate index (-1 = none), and a score.
+    slots: list[np.ndarray] = []
+    scores: list[float] = []
+    owner: dict[tuple[int, int], int] = {}  # (keypoint, candidate) -> person index
+    for limb, ((ka, kb), channels) in enumerate(
+        zip(LIMB_KEYPOINTS, LIMB_PAF_CHANNELS, strict=True)
+    ):
+        cand_a, cand_b = peaks[ka], peaks[kb]
+        if len(cand_a) == 0 or len(cand_b) == 0:
+            continue
+        limb_scores = score_limb(pafs, channels, cand_a, cand_b, params)
+        for a, b, s in match_limb(limb_scores):
+            pa, pb = owner.get((ka, a)), owner.get((kb, b))
+            if pa is not None and pb is None:
+                if slots[pa][kb] < 0:
+                    _assign(slots, scores, owner, pa, kb, b, cand_b[b, 2] + s)
+            elif pb is not None and pa is None:
+                if slots[pb][ka] < 0:
+                    _assign(slots, scores, owner, pb, ka, a, cand_a[a, 2] + s)
+            elif pa is None and pb is None:
+                if limb in REDUNDANT_LIMBS:
+                    continue
+                slots.append(np.full(NUM_KEYPOINTS, -1, dtype=np.intp))
+                scores.append(0.0)
+                p = len(slots) - 1
+                _assign(slots, scores, owner, p, ka, a, cand_a[a, 2])
+                _assign(slots, scores, owner, p, kb, b, cand_b[b, 2] + s)
+            elif pa != pb and not ((slots[pa] >= 0) & (slots[pb] >= 0)).any():
+                _merge(slots, scores, owner, pa, pb, s)
+    people = []
+    for p, slot in enumerate(slots):
+        present = slot >= 0
+        count = int(present.sum())
+        if count == 0 or count < params.min_keypoints_per_person:
+            continue
+        if scores[p] / count < params.min_person_mean_score:
+            continue
+        kps = np.full((NUM_KEYPOINTS, 2), np.nan)
+        conf = np.zeros(NUM_KEYPOINTS)
+        for k in np.nonzero(present)[0]:
+            kps[k] = peaks[k][slot[k], :2]
+            conf[k] = peaks[k][slot[k], 2]
+        people.append(DecodedPerson(kps, conf, float(scores[p])))
+    return people
+
+
+def _assign(slots, scores, owner, person: int, keypoint: int, cand: int, gain: float) -> None:
+    slots[person][keypoint] = cand
+    scores[person] += float(gain)
+    owner[(keypoint, cand)] = person
+
+
+def _merge(slots, scores, owner, keep: int, drop: int, link_score: float) -> None:
+    for k in np.nonzero(slots[drop] >= 0)[0]:
+        cand = int(slots[drop][k])
+        slots[keep][k] = cand
+        owner[(int(k), cand)] = keep
+    scores[keep] += scores[drop] + link_score
+    slots[drop][:] = -1
+    scores[drop] = 0.0

@@ -1,0 +1,97 @@
+"""Image -> network input, and network-output coordinates -> original-image pixels.
+
+The frame is resized to a fixed network input height; the width follows the aspect
+ratio and is then padded on the right up to a multiple of the network stride. Pixel
+coordinates follow the pixel-centre convention (pixel i covers [i - 0.5, i + 0.5]), so
+the mapping between resolutions is x_orig = (x_net + 0.5) / scale_x - 0.5.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from follow.types import InvalidInput
+
+NETWORK_STRIDE_PX = 8
+# Padding colour, raw BGR. The network subtracts 128 internally, so 128 pads with zeros.
+PAD_VALUE = 128.0
+
+
+@dataclass(frozen=True)
+class Letterbox:
+    """How an original image of `original_size` was placed in the network input."""
+
+    original_size: tuple[int, int]  # (width, height) of the frame
+    resized_size: tuple[int, int]  # (width, height) after resizing, before padding
+    input_size: tuple[int, int]  # (width, height) fed to the network (padded)
+
+    @property
+    def scale_xy(self) -> tuple[float, float]:
+        return (
+            self.resized_size[0] / self.original_size[0],
+            self.resized_size[1] / self.original_size[1],
+        )
+
+    def to_original(self, points_net_px: np.ndarray) -> np.ndarray:
+        """(..., 2) network-input pixel coordinates -> original-image pixels."""
+        sx, sy = self.scale_xy
+        pts = np.asarray(points_net_px, dtype=np.float64)
+        return np.stack([(pts[..., 0] + 0.5) / sx - 0.5, (pts[..., 1] + 0.5) / sy - 0.5], -1)
+
+    def to_network(self, points_px: np.ndarray) -> np.ndarray:
+        """(..., 2) original-image pixels -> network-input pixel coordinates."""
+        sx, sy = self.scale_xy
+        pts = np.asarray(points_px, dtype=np.float64)
+        return np.stack([(pts[..., 0] + 0.5) * sx - 0.5, (pts[..., 1] + 0.5) * sy - 0.5], -1)
+
+
+def heatmap_to_network_px(cells: np.ndarray, stride_px: int = NETWORK_STRIDE_PX) -> np.ndarray:
+    """(..., 2) heatmap cell coordinates -> network-input pixels.
+
+    Cell i covers input pixels [stride*i, stride*i + stride - 1]; its centre is at
+    stride*i + (stride - 1) / 2, the point the training labels were placed at.
+    """
+    return np.asarray(cells, dtype=np.float64) * stride_px + (stride_px - 1) / 2
+
+
+def plan_letterbox(
+    original_size: tuple[int, int], input_height_px: int, stride_px: int = NETWORK_STRIDE_PX
+) -> Letterbox:
+    """The resize/pad plan for a frame of `original_size` (width, height)."""
+    width, height = original_size
+    if input_height_px % stride_px:
+        raise ValueError(f"pose input height {input_height_px} px is not a multiple of {stride_px}")
+    resized_w = max(1, int(round(width * input_height_px / height)))
+    padded_w = -(-resized_w // stride_px) * stride_px
+    return Letterbox(original_size, (resized_w, input_height_px), (padded_w, input_height_px))
+
+
+def check_frame(image_bgr: np.ndarray) -> None:
+    """Raise InvalidInput naming the problem when `image_bgr` is not a usable BGR frame."""
+    if image_bgr is None:
+        raise InvalidInput("pose: frame is None (a failed capture or an unreadable file?)")
+    if not isinstance(image_bgr, np.ndarray):
+        raise InvalidInput(f"pose: frame must be a numpy array, got {type(image_bgr).__name__}")
+    if image_bgr.size == 0:
+        raise InvalidInput(f"pose: frame is empty (shape {image_bgr.shape})")
+    if image_bgr.ndim != 3 or image_bgr.shape[2] != 3:
+        raise InvalidInput(f"pose: frame must be HxWx3 BGR, got shape {image_bgr.shape}")
+    if image_bgr.dtype != np.uint8:
+        raise InvalidInput(f"pose: frame must be uint8, got dtype {image_bgr.dtype}")
+    if image_bgr.shape[0] < NETWORK_STRIDE_PX or image_bgr.shape[1] < NETWORK_STRIDE_PX:
+        raise InvalidInput(f"pose: frame too small ({image_bgr.shape[1]}x{image_bgr.shape[0]} px)")
+
+
+def prepare_input(image_bgr: np.ndarray, input_height_px: int) -> tuple[np.ndarray, Letterbox]:
+    """A float32 (1, 3, H, W) raw-BGR tensor for the network, and the plan to map back."""
+    check_frame(image_bgr)
+    height, width = image_bgr.shape[:2]
+    plan = plan_letterbox((width, height), input_height_px)
+    interpolation = cv2.INTER_AREA if plan.scale_xy[1] < 1 else cv2.INTER_LINEAR
+    resized = cv2.resize(image_bgr, plan.resized_size, interpolation=interpolation)
+    tensor = np.full((1, 3, plan.input_size[1], plan.input_size[0]), PAD_VALUE, np.float32)
+    tensor[0, :, :, : plan.resized_size[0]] = resized.transpose(2, 0, 1)
+    return tensor, plan

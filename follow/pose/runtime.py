@@ -1,0 +1,161 @@
+"""Inference back-ends for the pose network, chosen by the `provider` option.
+
+onnxruntime is the portable default (CPU everywhere, CUDA/TensorRT on GPU boards). The
+OpenVINO runtime is an optional fast CPU path; it also reads the official IR (.xml).
+A provider that is not available falls back to onnxruntime on the CPU with a warning
+that says what was asked for, what is missing and what runs instead.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+PROVIDERS = ("auto", "cpu", "cuda", "tensorrt", "openvino")
+HEATMAP_CHANNELS = 19
+PAF_CHANNELS = 38
+
+
+class PoseBackend(Protocol):
+    """Runs the network on a (1, 3, H, W) float32 tensor."""
+
+    name: str
+
+    def run(self, tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(heatmaps (19, H/8, W/8), pafs (38, H/8, W/8)) for the single image."""
+        ...
+
+
+def _split_outputs(outputs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Heatmaps and PAFs told apart by their channel counts (names differ between files)."""
+    by_channels = {o.shape[1]: o for o in outputs}
+    if HEATMAP_CHANNELS not in by_channels or PAF_CHANNELS not in by_channels:
+        shapes = [o.shape for o in outputs]
+        raise RuntimeError(
+            f"pose network outputs {shapes}: expected one with {HEATMAP_CHANNELS} "
+            f"(heatmaps) and one with {PAF_CHANNELS} channels (PAFs)"
+        )
+    return by_channels[HEATMAP_CHANNELS][0], by_channels[PAF_CHANNELS][0]
+
+
+class OrtBackend:
+    """onnxruntime session with the given execution providers (in priority order)."""
+
+    def __init__(self, model_path: Path, providers: list[str], cpu_threads: int = 0):
+        import onnxruntime as ort
+
+        options = ort.SessionOptions()
+        if cpu_threads > 0:
+            options.intra_op_num_threads = cpu_threads
+        options.log_severity_level = 3
+        self.session = ort.InferenceSession(str(model_path), options, providers=providers)
+        self.input_name = self.session.get_inputs()[0].name
+        active = self.session.get_providers()
+        if active[0] != providers[0]:
+            log.warning(
+                "pose: onnxruntime could not start %s (missing libraries or device?); "
+                "running on %s instead",
+                providers[0],
+                active[0],
+            )
+        self.name = f"onnxruntime:{active[0]}"
+
+    def run(self, tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return _split_outputs(self.session.run(None, {self.input_name: tensor}))
+
+
+class OpenVinoBackend:
+    """OpenVINO runtime on the CPU; reads ONNX or IR, one compiled model per input shape."""
+
+    def __init__(self, model_path: Path, cpu_threads: int = 0):
+        import openvino as ov
+
+        self._core = ov.Core()
+        self._model = self._core.read_model(str(model_path))
+        self._config = {"PERFORMANCE_HINT": "LATENCY"}
+        if cpu_threads > 0:
+            self._config["INFERENCE_NUM_THREADS"] = cpu_threads
+        self._compiled: dict[tuple[int, ...], object] = {}
+        self.name = "openvino:CPU"
+
+    def _request(self, shape: tuple[int, ...]):
+        if shape not in self._compiled:
+            model = self._model.clone()
+            model.reshape({model.inputs[0].any_name: list(shape)})
+            compiled = self._core.compile_model(model, "CPU", self._config)
+            self._compiled[shape] = compiled.create_infer_request()
+        return self._compiled[shape]
+
+    def run(self, tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        request = self._request(tuple(tensor.shape))
+        request.infer({0: tensor})
+        return _split_outputs([request.get_output_tensor(i).data.copy() for i in range(2)])
+
+
+def openvino_installed() -> bool:
+    try:
+        import openvino  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def ort_available_providers() -> list[str]:
+    import onnxruntime as ort
+
+    return list(ort.get_available_providers())
+
+
+def create_backend(provider: str, model_path: Path, cpu_threads: int = 0) -> PoseBackend:
+    """The back-end for `provider`, falling back to onnxruntime CPU with a clear warning."""
+    if provider not in PROVIDERS:
+        raise ValueError(f"pose provider '{provider}' unknown; choose one of {PROVIDERS}")
+    model_path = Path(model_path)
+    is_ir = model_path.suffix == ".xml"
+    available = ort_available_providers()
+    wanted = {
+        "cuda": ["CUDAExecutionProvider"],
+        "tensorrt": ["TensorrtExecutionProvider", "CUDAExecutionProvider"],
+    }
+    if provider == "auto":
+        for gpu in ("tensorrt", "cuda"):
+            if not is_ir and wanted[gpu][0] in available:
+                provider = gpu
+                break
+        else:
+            provider = "openvino" if openvino_installed() else "cpu"
+        log.info("pose: provider 'auto' chose '%s'", provider)
+    if provider == "openvino":
+        if openvino_installed():
+            return OpenVinoBackend(model_path, cpu_threads)
+        if not is_ir and "OpenVINOExecutionProvider" in available:
+            return OrtBackend(
+                model_path, ["OpenVINOExecutionProvider", "CPUExecutionProvider"], cpu_threads
+            )
+        _fallback_warning(provider, "the openvino package is not installed", available)
+    elif provider in wanted:
+        present = [p for p in wanted[provider] if p in available]
+        if present and not is_ir:
+            return OrtBackend(model_path, present + ["CPUExecutionProvider"], cpu_threads)
+        _fallback_warning(provider, f"onnxruntime here has no {wanted[provider][0]}", available)
+    if is_ir:
+        raise ValueError(
+            f"pose model {model_path} is an OpenVINO IR; onnxruntime cannot read it "
+            "(install openvino and use provider 'openvino', or give the ONNX file)"
+        )
+    return OrtBackend(model_path, ["CPUExecutionProvider"], cpu_threads)
+
+
+def _fallback_warning(provider: str, reason: str, available: list[str]) -> None:
+    log.warning(
+        "pose: provider '%s' is not available (%s; onnxruntime offers %s); "
+        "falling back to onnxruntime on the CPU",
+        provider,
+        reason,
+        ", ".join(available),
+    )

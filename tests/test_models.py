@@ -1,0 +1,119 @@
+"""Model registry: lookup, hash checks, fetching from a loopback mirror, the CLI."""
+
+from __future__ import annotations
+
+import functools
+import http.server
+import json
+import shutil
+import threading
+
+import pytest
+
+from follow import cli, models
+from follow.config import PoseConfig
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    """An empty user cache and no $FOLLOW_MODEL_DIR (request it after `mirror`)."""
+    monkeypatch.delenv("FOLLOW_MODEL_DIR", raising=False)
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+@pytest.fixture
+def mirror(tmp_path, model_path):
+    """A folder laid out like the model directory holding the real CCF weights."""
+    root = tmp_path / "mirror"
+    for rel in ("ccf/ccf10/conv_t1", "ccf/ccf10/conv_t2"):
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(model_path(rel), root / rel)
+    return root
+
+
+@pytest.fixture
+def http_server(mirror):
+    """Serve the mirror folder on 127.0.0.1 (never the internet)."""
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(mirror))
+    handler.log_message = lambda *a, **k: None
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{server.server_address[1]}"
+    server.shutdown()
+    server.server_close()
+
+
+def test_every_entry_has_a_download_or_a_recipe():
+    for spec in models.REGISTRY.values():
+        for f in spec.files:
+            assert len(f.sha256) == 64
+            assert f.url.startswith("https://") or spec.how_to_produce, spec.name
+
+
+def test_fetch_over_http_with_hash_check(http_server, cache):
+    path = models.fetch("ccf10", source=http_server)
+    assert path == cache / "ccf/ccf10"
+    assert models.resolve("ccf10") == path
+    assert all(s.ok for s in models.verify("ccf10"))
+
+
+def test_fetch_from_a_local_folder(mirror, cache):
+    models.fetch("ccf10", source=str(mirror))
+    assert (cache / "ccf/ccf10/conv_t2").read_bytes() == (mirror / "ccf/ccf10/conv_t2").read_bytes()
+
+
+def test_a_download_with_the_wrong_hash_is_refused_and_not_kept(mirror, http_server, cache):
+    with open(mirror / "ccf/ccf10/conv_t1", "ab") as fh:
+        fh.write(b"0.5\n")
+    with pytest.raises(models.ModelError, match="does not match the pinned"):
+        models.fetch("ccf10", source=http_server)
+    folder = cache / "ccf/ccf10"
+    assert not (folder / "conv_t1").exists()
+    assert not [p for p in folder.iterdir() if p.name.endswith(".part")]
+
+
+def test_unreachable_source_is_a_clear_error(cache):
+    with pytest.raises(models.ModelError, match="cannot download"):
+        models.fetch("ccf10", source="http://127.0.0.1:9")
+
+
+def test_model_without_official_download_explains_how_to_make_it(cache):
+    with pytest.raises(models.ModelError, match="ir_to_onnx"):
+        models.fetch("human-pose-estimation-0001")
+
+
+def test_a_model_file_with_the_wrong_hash_is_refused(tmp_path, monkeypatch):
+    bad = tmp_path / "models" / "pose" / "human-pose-estimation-0001.onnx"
+    bad.parent.mkdir(parents=True)
+    bad.write_bytes(b"not the network")
+    monkeypatch.setenv("FOLLOW_MODEL_DIR", str(tmp_path / "models"))
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path / "cache"))
+    with pytest.raises(models.ModelError, match="refusing to load"):
+        models.resolve("human-pose-estimation-0001")
+    from follow.pose.detector import PoseDetector
+
+    with pytest.raises(models.ModelError, match="sha256"):
+        PoseDetector(PoseConfig())
+    (status,) = models.verify("human-pose-estimation-0001")
+    assert not status.ok and "!=" in status.detail
+
+
+def test_cli_fetch_and_verify(http_server, cache, capsys):
+    assert cli.main(["models", "verify", "ccf10"]) == 1
+    assert cli.main(["models", "fetch", "ccf10", "--from", http_server]) == 0
+    capsys.readouterr()
+    assert cli.main(["models", "verify", "ccf10", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["ok"] and len(report["files"]) == 2
+    assert cli.main(["models", "list", "--json"]) == 0
+    listing = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    present = {m["name"]: m["present"] for m in listing["models"]}
+    assert present["ccf10"] and not present["ccf25"]
+
+
+def test_unknown_model_name(cache):
+    with pytest.raises(models.ModelError, match="unknown model 'nope'"):
+        models.fetch("nope")
+    assert cli.main(["models", "verify", "nope"]) == 1

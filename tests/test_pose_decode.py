@@ -1,0 +1,131 @@
+"""Decoding on synthetic heatmaps and PAFs whose true skeletons are known."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from follow.pose.decode import (
+    LIMB_KEYPOINTS,
+    LIMB_PAF_CHANNELS,
+    DecodeParams,
+    decode,
+    find_peaks,
+    match_limb,
+)
+
+H, W = 40, 60
+
+
+def gaussian(cx: float, cy: float, sigma: float = 1.0) -> np.ndarray:
+    y, x = np.mgrid[0:H, 0:W]
+    return np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * sigma**2))
+
+
+def person(x0: float, y0: float, size: float = 1.0) -> np.ndarray:
+    """An upright person's 18 keypoints in heatmap cells (NaN for missing face parts)."""
+    offsets = {
+        0: (0, -2), 1: (0, 0), 2: (-2, 0.2), 3: (-2.5, 3), 4: (-2.7, 6), 5: (2, 0.2),
+        6: (2.5, 3), 7: (2.7, 6), 8: (-1.2, 7), 9: (-1.3, 11), 10: (-1.4, 15),
+        11: (1.2, 7), 12: (1.3, 11), 13: (1.4, 15),
+    }  # fmt: skip
+    kps = np.full((18, 2), np.nan)
+    for k, (dx, dy) in offsets.items():
+        kps[k] = (x0 + dx * size, y0 + dy * size)
+    return kps
+
+
+def render(people: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Heatmaps (19, H, W) and PAFs (38, H, W) as the network is trained to output them."""
+    heatmaps = np.zeros((19, H, W), np.float32)
+    pafs = np.zeros((38, H, W), np.float32)
+    y, x = np.mgrid[0:H, 0:W]
+    for kps in people:
+        for k in range(18):
+            if np.isfinite(kps[k]).all():
+                heatmaps[k] = np.maximum(heatmaps[k], gaussian(*kps[k]))
+        for (ka, kb), (cx, cy) in zip(LIMB_KEYPOINTS, LIMB_PAF_CHANNELS, strict=True):
+            a, b = kps[ka], kps[kb]
+            if not (np.isfinite(a).all() and np.isfinite(b).all()):
+                continue
+            v = b - a
+            length = np.linalg.norm(v)
+            u = v / length
+            rel_x, rel_y = x - a[0], y - a[1]
+            along = rel_x * u[0] + rel_y * u[1]
+            across = np.abs(-rel_x * u[1] + rel_y * u[0])
+            on = (along >= -0.5) & (along <= length + 0.5) & (across <= 0.8)
+            pafs[cx][on] = u[0]
+            pafs[cy][on] = u[1]
+    return heatmaps, pafs
+
+
+def test_peaks_are_refined_below_one_cell():
+    heatmaps = np.zeros((19, H, W), np.float32)
+    heatmaps[1] = gaussian(10.3, 7.6, sigma=1.5)
+    heatmaps[4] = 0.9 * gaussian(40.8, 30.2, sigma=1.5)
+    peaks = find_peaks(heatmaps, 0.1)
+    assert len(peaks[1]) == 1 and len(peaks[4]) == 1
+    assert np.allclose(peaks[1][0, :2], (10.3, 7.6), atol=0.1)
+    assert np.allclose(peaks[4][0, :2], (40.8, 30.2), atol=0.1)
+    assert sum(len(p) for p in peaks) == 2
+
+
+def test_flat_top_gives_a_single_peak():
+    heatmaps = np.zeros((19, H, W), np.float32)
+    heatmaps[2, 10:12, 20:22] = 0.5
+    assert len(find_peaks(heatmaps, 0.1)[2]) == 1
+
+
+def test_two_people_side_by_side_are_separated():
+    truth = [person(15.2, 10.4), person(22.7, 12.1)]
+    heatmaps, pafs = render(truth)
+    found = decode(heatmaps, pafs, DecodeParams())
+    assert len(found) == 2
+    found.sort(key=lambda p: p.keypoints_cells[1, 0])
+    for p, kps in zip(found, truth, strict=True):
+        present = np.isfinite(kps).all(axis=1)
+        assert np.array_equal(np.isfinite(p.keypoints_cells).all(axis=1), present)
+        assert np.allclose(p.keypoints_cells[present], kps[present], atol=0.15)
+        assert np.all(p.confidences[present] > 0.75)
+        assert np.all(p.confidences[~present] == 0)
+
+
+def test_limbs_are_not_joined_across_people_without_paf_support():
+    truth = [person(15.0, 10.0), person(40.0, 10.0)]
+    heatmaps, pafs = render(truth)
+    # Remove the left person's neck->right-hip PAF: its hip chain must not jump across.
+    pafs[0:2] = np.where(np.arange(W)[None, None, :] < 28, 0.0, pafs[0:2])
+    found = decode(heatmaps, pafs, DecodeParams())
+    necks = sorted(p.keypoints_cells[1, 0] for p in found if np.isfinite(p.keypoints_cells[1, 0]))
+    assert np.allclose(necks, [15.0, 40.0], atol=0.15)
+    for p in found:
+        xs = p.keypoints_cells[:, 0][np.isfinite(p.keypoints_cells[:, 0])]
+        assert xs.max() - xs.min() < 10, "a person was assembled from parts of both"
+
+
+def test_persons_with_too_few_parts_are_dropped():
+    lone = np.full((18, 2), np.nan)
+    lone[1] = (30, 20)
+    lone[2] = (28, 20.2)  # neck + one shoulder: 2 parts
+    heatmaps, pafs = render([lone])
+    assert decode(heatmaps, pafs, DecodeParams(min_keypoints_per_person=3)) == []
+    assert len(decode(heatmaps, pafs, DecodeParams(min_keypoints_per_person=2))) == 1
+
+
+def test_empty_maps_give_no_people():
+    assert decode(np.zeros((19, H, W)), np.zeros((38, H, W)), DecodeParams()) == []
+
+
+def test_greedy_matching_uses_each_candidate_once():
+    scores = np.array([[0.9, 0.8], [0.85, -np.inf]])
+    assert match_limb(scores) == [(0, 0, 0.9)]
+    scores = np.array([[0.5, 0.8], [0.85, -np.inf]])
+    assert sorted(match_limb(scores)) == [(0, 1, 0.8), (1, 0, 0.85)]
+
+
+def test_ten_people_in_two_rows_decode_into_ten_skeletons():
+    count = 10
+    truth = [person(5 + 5.5 * i, 8 + (i % 2) * 14, size=0.8) for i in range(count)]
+    heatmaps, pafs = render(truth)
+    found = decode(heatmaps, pafs, DecodeParams())
+    assert len(found) == count

@@ -1,0 +1,48 @@
+"""Scoring rules of `follow eval pose` on hand-made frames."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from follow.eval.pets import GtBox
+from follow.eval.pose import score_frame
+from follow.types import Observation
+
+
+def box(pid, xc, yc, w=20.0, h=60.0, hidden=0.0):
+    return GtBox(pid, xc, yc, w, h, hidden)
+
+
+def test_one_neck_counts_for_one_person_only():
+    # Two overlapping boxes, one neck inside both: one hit, not two.
+    boxes = [box(1, 100, 100), box(2, 105, 102)]
+    obs = [Observation(np.array([102.0, 80.0]))]
+    c = score_frame(obs, boxes)
+    assert (c.people, c.neck_hits, c.detections, c.detections_in_boxes) == (2, 1, 1, 1)
+
+
+def test_ankle_must_be_in_the_lower_fifth_of_the_box():
+    boxes = [box(1, 100, 100), box(2, 200, 100)]  # bottoms at 130, lower fifth from 118
+    obs = [
+        Observation(np.array([100.0, 80.0]), ankle_px=np.array([101.0, 125.0])),
+        Observation(np.array([200.0, 80.0]), ankle_px=np.array([200.0, 110.0])),
+    ]
+    c = score_frame(obs, boxes)
+    assert (c.neck_hits, c.ankle_hits) == (2, 1)
+
+
+def test_hidden_people_are_neither_missed_nor_false():
+    boxes = [box(1, 100, 100, hidden=0.8), box(2, 300, 100)]
+    hidden_found = [Observation(np.array([100.0, 80.0]))]
+    c = score_frame(hidden_found, boxes)
+    assert (c.people, c.neck_hits, c.detections_in_boxes) == (1, 0, 1)
+    c = score_frame([], boxes)
+    assert (c.people, c.neck_hits) == (1, 0)
+
+
+def test_necks_outside_every_box_lower_precision():
+    boxes = [box(1, 100, 100)]
+    obs = [Observation(np.array([100.0, 80.0])), Observation(np.array([400.0, 80.0]))]
+    s = score_frame(obs, boxes)
+    assert (s.detections, s.detections_in_boxes) == (2, 1)
+    assert s.summary()["precision"] == 0.5 and s.summary()["neck_recall"] == 1.0

@@ -1,0 +1,74 @@
+"""Letterbox planning, exact coordinate mapping, frame validation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from follow.pose.preprocess import (
+    heatmap_to_network_px,
+    plan_letterbox,
+    prepare_input,
+)
+from follow.types import InvalidInput
+
+
+def test_width_follows_aspect_ratio_and_is_padded_to_stride():
+    plan = plan_letterbox((480, 360), 256)
+    assert plan.resized_size == (341, 256)
+    assert plan.input_size == (344, 256)
+    plan = plan_letterbox((1280, 720), 368)
+    assert plan.resized_size == (654, 368) and plan.input_size == (656, 368)
+
+
+def test_input_height_must_be_a_multiple_of_the_stride():
+    with pytest.raises(ValueError, match="multiple of 8"):
+        plan_letterbox((480, 360), 250)
+
+
+@given(
+    st.integers(16, 2000), st.integers(16, 2000), st.sampled_from([128, 256, 368, 480]),
+    st.floats(-0.5, 1999.5), st.floats(-0.5, 1999.5),
+)  # fmt: skip
+def test_mapping_to_network_and_back_is_exact(width, height, input_h, x, y):
+    plan = plan_letterbox((width, height), input_h)
+    pt = np.array([x, y])
+    assert np.allclose(plan.to_original(plan.to_network(pt)), pt, atol=1e-9)
+
+
+def test_pixel_centres_and_edges_map_consistently():
+    plan = plan_letterbox((480, 360), 240)  # exactly two thirds of the frame
+    assert plan.resized_size == (320, 240)
+    # Original pixel edges -0.5 and 479.5 are the network image's edges -0.5 and 319.5.
+    assert np.allclose(plan.to_network(np.array([[-0.5, -0.5], [479.5, 359.5]])),
+                       [[-0.5, -0.5], [319.5, 239.5]])  # fmt: skip
+    # A heatmap cell's centre is the centre of its 8x8 block of input pixels.
+    assert np.allclose(heatmap_to_network_px(np.array([0.0, 2.0])), [3.5, 19.5])
+
+
+def test_tensor_is_raw_bgr_with_neutral_padding():
+    image = np.zeros((360, 480, 3), np.uint8)
+    image[..., 0] = 200  # blue
+    tensor, plan = prepare_input(image, 256)
+    assert tensor.shape == (1, 3, 256, 344) and tensor.dtype == np.float32
+    assert np.all(tensor[0, 0, :, : plan.resized_size[0]] == 200)
+    assert np.all(tensor[0, 1:, :, : plan.resized_size[0]] == 0)
+    assert np.all(tensor[0, :, :, plan.resized_size[0] :] == 128)
+
+
+@pytest.mark.parametrize(
+    "frame, message",
+    [
+        (None, "None"),
+        (np.zeros((0, 0, 3), np.uint8), "empty"),
+        (np.zeros((360, 480), np.uint8), "HxWx3"),
+        (np.zeros((360, 480, 3), np.float32), "uint8"),
+        (np.zeros((4, 4, 3), np.uint8), "too small"),
+        (b"\xff\xd8 corrupt jpeg", "numpy array"),
+    ],
+)
+def test_bad_frames_are_rejected_with_a_clear_message(frame, message):
+    with pytest.raises(InvalidInput, match=message):
+        prepare_input(frame, 256)
