@@ -79,17 +79,14 @@ def find_peaks(heatmaps: np.ndarray, threshold: float) -> list[np.ndarray]:
                 is_max &= values >= neighbour
                 if (dy, dx) > (0, 0):  # right, or the row below
                     after |= neighbour == values
-    keep = is_max
+    # A peak is a local maximum; on a plateau, keep only the cell with no equal
+    # neighbour to its right or below.
+    keep = is_max & ~after
     ch, ys, xs, values = ch[keep], ys[keep], xs[keep], values[keep]
-    after = after[keep]
     left = padded[ch, ys + 1, xs]
     right = padded[ch, ys + 1, xs + 2]
     up = padded[ch, ys, xs + 1]
     down = padded[ch, ys + 2, xs + 1]
-    # Plateau tie-break: drop a cell with an equal neighbour after it (right/below).
-    keep = ~after
-    ch, ys, xs, values = ch[keep], ys[keep], xs[keep], values[keep]
-    left, right, up, down = left[keep], right[keep], up[keep], down[keep]
     fx = _parabola_offset(left, values, right)
     fy = _parabola_offset(up, values, down)
     peaks = np.stack([xs + fx, ys + fy, values], axis=1).astype(np.float64)
