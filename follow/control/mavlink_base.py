@@ -285,8 +285,11 @@ class MavlinkBase:
         now = self._clock()
         with self._lock:
             if kind == "HEARTBEAT":
-                if msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
-                    return  # a ground station or another companion, not the vehicle
+                if (
+                    msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID
+                    or msg.get_srcComponent() != mavlink.MAV_COMP_ID_AUTOPILOT1
+                ):
+                    return  # a ground station, companion or peripheral, not the autopilot
                 if self._target is None:
                     self._target = (msg.get_srcSystem(), msg.get_srcComponent())
                 if (msg.get_srcSystem(), msg.get_srcComponent()) != self._target:
