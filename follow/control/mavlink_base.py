@@ -11,6 +11,7 @@ or when the pilot has switched to another mode (we never switch back ourselves).
 
 from __future__ import annotations
 
+import atexit
 import enum
 import logging
 import math
@@ -94,6 +95,7 @@ class MavlinkBase:
         self._sender = threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)
         self._receiver.start()
         self._sender.start()
+        atexit.register(self.close)  # a zero command even if the caller forgets close()
         try:
             self._connect()
         except BaseException:
@@ -138,6 +140,7 @@ class MavlinkBase:
                 return
             was_connected = self._target is not None
             self._state = LinkState.CLOSED
+        atexit.unregister(self.close)
         if was_connected:
             for _ in range(3):
                 self._send_setpoint(VelocityCommand.stop(self._clock()))
