@@ -125,6 +125,7 @@ def bench(config: IdentifyConfig, people: int, repeats: int, with_reid: bool) ->
         "repeats": repeats,
         "crop_size_px": list(crop_size),
         "ccf_backend": extractor.backend,
+        "boost_compiled": classifier._kernel is not None,
         "goals_met": {
             "ccf10_ms_per_person": cpu["ccf"] <= GOAL_CCF10_MS_PER_PERSON,
             "boost_update_ms": cpu["update"] <= GOAL_BOOST_UPDATE_MS,
@@ -143,7 +144,8 @@ def main(args) -> dict:
     if not args.json:
         r = result
         print(f"CCF10 on {r['people_per_frame']} crops of {r['crop_size_px'][1]} px "
-              f"({r['ccf_backend']}), median CPU ms of {r['repeats']} repetitions, "
+              f"({r['ccf_backend']}), boosting {'numba' if r['boost_compiled'] else 'numpy'}, "
+              f"median CPU ms of {r['repeats']} repetitions, "
               f"load average {r['load_average_1min']:.1f} on {r['cpu_count']} CPUs")  # fmt: skip
         rows = [
             ("CCF10 features, ms per person", r["ccf10_ms_per_person"], GOAL_CCF10_MS_PER_PERSON),
