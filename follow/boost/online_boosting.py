@@ -18,7 +18,9 @@ chosen before this sample (its error updated with this sample), so the chain is 
 recurrence. Each selector's new best weak classifier and alpha are then chosen exactly.
 The Gaussians have a bounded memory (`gaussian_memory_samples`) and the error counts a
 forgetting factor (`selector_error_decay`), so that the classifier follows an appearance
-that changes. Everything random comes from one seeded generator.
+that changes. Everything random comes from one seeded generator. With numba installed,
+the learning step and the replacement run as the compiled loops of `kernels`, which
+give the same classifier.
 """
 
 from __future__ import annotations
