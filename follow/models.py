@@ -144,9 +144,10 @@ REGISTRY: dict[str, ModelSpec] = {
                 ),
             ),
             "Apache-2.0",
-            "Intel publishes this network as an OpenVINO IR (Open Model Zoo, "
-            "intel/person-reidentification-retail-0248); convert it with "
-            "tools/ir_to_onnx.py and give the file to the re-identification stage.",
+            "Intel publishes this network only as an OpenVINO IR (Open Model Zoo, "
+            "intel/person-reidentification-retail-0248, omz_downloader); an ONNX conversion "
+            "of it must be placed under $FOLLOW_MODEL_DIR/reid/. tools/ir_to_onnx.py "
+            "handles the layer types of the pose network and names any it does not.",
         ),
     )
 }

@@ -19,15 +19,15 @@ def test_follows_a_walker_at_the_set_distance_and_stops_when_it_stops():
     )
     summary = following.summarize(trace)
     steady = summary["steady_walking"]
-    assert steady["samples"] >= 20  # ~2 s of steady walking at 15 Hz
+    assert steady["samples"] >= 20  # ~2.5 s of steady walking at 15 Hz
     # Goal: within +-0.3 m in steady walking; the short run is still settling, so the
     # bound on the worst sample is a little looser than on the typical one.
     assert steady["median_abs_m"] < 0.2
     assert steady["p90_abs_m"] < 0.3
     assert steady["max_abs_m"] < 0.4
-    # The rover really moved ~4.5 m and never came closer than 1.2 m to the walker.
+    # The rover really moved ~4 m and never came closer than 1.2 m to the walker.
     robot = np.asarray(trace.robot_xy)
-    assert robot[-1, 0] > 3.5
+    assert robot[-1, 0] > 3.0
     assert summary["min_distance_m"] > 1.2
     # After the walker stopped, the command went to zero.
     assert trace.forward_mps[-1] == 0.0

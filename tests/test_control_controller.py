@@ -7,9 +7,9 @@ from hypothesis import strategies as st
 
 from follow.config import ConfigError, ControlConfig
 from follow.control.base import Base, NullBase
-from follow.control.controller import FollowingController
+from follow.control.controller import FollowingController, slew
 from follow.control.target import TargetMotion
-from follow.types import InvalidInput, VelocityCommand
+from follow.types import InvalidInput, Odometry, VelocityCommand
 
 CFG = ControlConfig()
 PERIOD = 1.0 / CFG.control_rate_hz
@@ -71,6 +71,21 @@ def test_acceleration_is_limited_when_starting():
     assert second.forward_mps == pytest.approx(2 * CFG.max_forward_accel_mps2 * PERIOD)
 
 
+@pytest.mark.parametrize(
+    "previous, wanted, expected",
+    [
+        (0.0, 1.0, 0.1),  # speeding up: rise limit
+        (0.5, 1.0, 0.6),
+        (1.0, 0.0, 0.8),  # braking: fall limit
+        (1.0, 0.95, 0.95),
+        (-0.05, 1.0, 0.075),  # 0.025 s to stop, then 0.075 s at the rise limit
+        (0.3, -1.0, 0.1),  # still braking
+    ],
+)
+def test_slew_brakes_before_reversing(previous, wanted, expected):
+    assert slew(previous, wanted, 1.0, 2.0, 0.1) == pytest.approx(expected)
+
+
 def test_loss_gives_zero_within_one_period_even_at_full_speed():
     c = FollowingController()
     moving = run(c, lambda t: target(5.0, 0.5, stamp=t), 3.0)
@@ -123,7 +138,7 @@ step = st.tuples(
 @settings(max_examples=100, deadline=None)
 @given(
     steps=st.lists(step, min_size=1, max_size=40),
-    backing=st.booleans(),
+    backing=st.booleans(),  # with backing off, commands change sign
     search=st.floats(0, 2),
 )
 def test_no_command_ever_exceeds_its_limits(steps, backing, search):
@@ -152,19 +167,27 @@ def test_no_command_ever_exceeds_its_limits(steps, backing, search):
             # starts from standstill one control period earlier.
             dt = c.period_s if prev is None else t - prev.stamp_s
             prev = prev or VelocityCommand.stop(t - dt)
-            if abs(cmd.forward_mps) > abs(prev.forward_mps) + 1e-9:
-                assert abs(cmd.forward_mps - prev.forward_mps) <= (
-                    cfg.max_forward_accel_mps2 * dt + 1e-9
-                )
-            assert abs(cmd.yaw_rate_radps - prev.yaw_rate_radps) <= (
-                cfg.max_yaw_accel_radps2 * dt + 1e-9
-            )
+            for now_v, before_v, rise, fall in (
+                (cmd.forward_mps, prev.forward_mps, cfg.max_forward_accel_mps2,
+                 cfg.max_forward_decel_mps2),
+                (cmd.yaw_rate_radps, prev.yaw_rate_radps, cfg.max_yaw_accel_radps2,
+                 cfg.max_yaw_accel_radps2),
+            ):  # fmt: skip
+                if now_v * before_v > 0 or before_v == 0:
+                    if abs(now_v) >= abs(before_v):
+                        assert abs(now_v) - abs(before_v) <= rise * dt + 1e-9
+                    else:
+                        assert abs(before_v) - abs(now_v) <= fall * dt + 1e-9
+                else:  # reached or crossed zero: braked all the way, then sped up
+                    assert abs(before_v) <= fall * dt + 1e-9
+                    assert abs(now_v) <= rise * dt + 1e-9
         prev = cmd
 
 
 def test_null_base_records_and_stops_on_close():
-    base = NullBase()
+    base = NullBase(clock=lambda: 7.0)
     assert isinstance(base, Base)
+    assert base.odometry() == Odometry(0.0, 0.0, 0.0, 7.0)
     base.send(VelocityCommand(0.5, 0.1, 1.0))
     assert base.healthy() and base.last_command.forward_mps == 0.5
     base.close()

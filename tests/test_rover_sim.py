@@ -161,3 +161,20 @@ def test_pilot_mode_switch_stops_the_rover(rover, companion):
         hb = companion.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=0.2)
         modes.add(hb.custom_mode if hb else None)
     assert mf.ROVER_MODE_HOLD in modes  # announced at once, not at the next 1 Hz beat
+
+
+def test_px4_flavour_needs_streaming_before_offboard_and_fails_safe_on_loss():
+    with SimRover(autopilot="px4") as rover:
+        c = Companion(rover)
+        assert c.heartbeat.autopilot == mavlink.MAV_AUTOPILOT_PX4
+        offboard = (1, mf.PX4_MAIN_MODE_OFFBOARD, 0)
+        assert c.command(mavlink.MAV_CMD_DO_SET_MODE, *offboard) == mavlink.MAV_RESULT_FAILED
+        for _ in range(10):
+            c.setpoint(mavlink.MAV_FRAME_BODY_NED, mf.TYPE_MASK_VELOCITY_ONLY)
+            time.sleep(0.02)
+        assert c.command(mavlink.MAV_CMD_DO_SET_MODE, *offboard) == mavlink.MAV_RESULT_ACCEPTED
+        assert rover.mode == rover.commanded_mode
+        # Setpoints stop: after PX4's offboard-loss timeout the vehicle leaves OFFBOARD.
+        assert wait_for(lambda: rover.mode != rover.commanded_mode, 1.6)
+        assert mf.px4_main_mode(rover.mode) == 4  # AUTO (loiter)
+        c.close()

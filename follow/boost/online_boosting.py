@@ -18,7 +18,9 @@ chosen before this sample (its error updated with this sample), so the chain is 
 recurrence. Each selector's new best weak classifier and alpha are then chosen exactly.
 The Gaussians have a bounded memory (`gaussian_memory_samples`) and the error counts a
 forgetting factor (`selector_error_decay`), so that the classifier follows an appearance
-that changes. Everything random comes from one seeded generator.
+that changes. Everything random comes from one seeded generator. With numba installed,
+the learning step and the replacement run as the compiled loops of `kernels`, which
+give the same classifier.
 """
 
 from __future__ import annotations
@@ -27,13 +29,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from follow.boost import kernels
+from follow.boost.kernels import MAX_IMPORTANCE, MIN_SELECTOR_ERROR
 from follow.boost.sample_bank import SampleBanks
 from follow.ccf.features import FeatureMaps, RectIndex
 from follow.config import IdentifyConfig
 from follow.types import InvalidInput
 
-MIN_SELECTOR_ERROR = 0.01  # keeps alpha finite (<= 2.3) for a flawless weak classifier
-MAX_IMPORTANCE = 1e3  # cap of lambda along the selector chain
 STOCK_SIZE = 512  # random weak-classifier parameters drawn at once
 NEG, POS = 0, 1
 
@@ -41,7 +43,14 @@ NEG, POS = 0, 1
 class OnlineBoostingClassifier:
     """Target (+1) versus others (-1) on `FeatureMaps`; confidence in [-1, 1]."""
 
-    def __init__(self, num_channels: int, config: IdentifyConfig, seed: int | None = None):
+    def __init__(
+        self,
+        num_channels: int,
+        config: IdentifyConfig,
+        seed: int | None = None,
+        compiled: bool | None = None,
+    ):
+        """`compiled`: learn with the numba loop (None: when numba is installed)."""
         if num_channels < 1:
             raise ValueError(f"online boosting needs at least one channel, got {num_channels}")
         if config.num_selectors < 1 or config.weak_classifiers_per_selector < 2:
@@ -78,6 +87,14 @@ class OnlineBoostingClassifier:
         self._inv_area = np.zeros((s, w))
         self._min_var = config.min_feature_std**2
         self._row_offsets = np.arange(s) * w
+        if compiled and kernels.learn_step is None:
+            raise ValueError("compiled online boosting needs the `numba` package")
+        use_kernel = kernels.learn_step is not None if compiled is None else compiled
+        self._kernel = kernels.learn_step if use_kernel else None
+        if self._kernel is not None:
+            kernels.warm_up()
+        self._hit = np.zeros(s * w, dtype=bool)
+        self._replaced = np.zeros(s, dtype=np.intp)
         self._reached = np.zeros(s, dtype=bool)  # selectors reached since the last replacement
         self._pending = False  # samples learnt since the last replacement
         self._draw(STOCK_SIZE)
@@ -219,6 +236,9 @@ class OnlineBoostingClassifier:
         self._learn(maps.integral, cls)
 
     def _learn(self, integral: np.ndarray, cls: int) -> None:
+        if self._kernel is not None:
+            self._learn_compiled(integral, cls)
+            return
         cfg = self.config
         x = self._features(integral[None])[0]
         # the class Gaussians: running mean and variance with a bounded memory
@@ -236,12 +256,7 @@ class OnlineBoostingClassifier:
             hit = ~hit
 
         # importance weight lambda along the selector chain (counts in decayed units)
-        self._decay_gain /= cfg.selector_error_decay
-        if self._decay_gain > 1e150:
-            self._correct /= self._decay_gain
-            self._wrong /= self._decay_gain
-            self._decay_gain = 1.0
-        gain = self._decay_gain
+        gain = self._advance_decay()
         chosen = self._row_offsets + self._lowest_error
         lams = _importance_chain(
             (self._correct.reshape(-1)[chosen] / gain).tolist(),
@@ -265,12 +280,66 @@ class OnlineBoostingClassifier:
         self._pending = True
         self.num_updates += 1
 
+    def _advance_decay(self) -> float:
+        """One step of forgetting for the error counts; returns the current gain."""
+        self._decay_gain /= self.config.selector_error_decay
+        if self._decay_gain > 1e150:
+            self._correct /= self._decay_gain
+            self._wrong /= self._decay_gain
+            self._decay_gain = 1.0
+        return self._decay_gain
+
+    def _learn_compiled(self, integral: np.ndarray, cls: int) -> None:
+        """`_learn` as one compiled loop (same arithmetic, same order)."""
+        gain = self._advance_decay()
+        cfg = self.config
+        s, w = self.channels.shape
+        self._all_known = self._kernel(
+            integral.reshape(-1), self._flat.reshape(4, -1), self._inv_area.reshape(-1), cls,
+            self.mean.reshape(2, -1), self.var.reshape(2, -1), self.count.reshape(2, -1),
+            float(cfg.gaussian_memory_samples), self._min_var,
+            self._correct.reshape(-1), self._wrong.reshape(-1), gain, s, w,
+            self._lowest_error, self.best, self.alpha, self._reached, self._hit,
+        )  # fmt: skip
+        self._pending = True
+        self.num_updates += 1
+
+    def _replace_worst_compiled(self) -> None:
+        """`_replace_worst` as one compiled loop (bank statistics summed sequentially)."""
+        s, w = self.channels.shape
+        if self._stock_next + s > len(self._stock[0]):
+            self._draw(STOCK_SIZE)
+        rand = self.rng.random(s)
+        bank = self.banks.data
+        replaced = self._replaced
+        n = kernels.replace_step(
+            self._correct.reshape(-1), self._wrong.reshape(-1), self._decay_gain, s, w, rand,
+            self.config.replace_probability, self.best, self._lowest_error, self._reached,
+            self._stock[2], self._stock[3], self._stock_next,
+            bank.reshape(2, bank.shape[1], -1), self.banks.sizes, self._flat.reshape(4, -1),
+            self._inv_area.reshape(-1), self.mean.reshape(2, -1), self.var.reshape(2, -1),
+            self.count.reshape(2, -1), float(self.config.gaussian_memory_samples), replaced,
+        )  # fmt: skip
+        if n:
+            take = slice(self._stock_next, self._stock_next + n)
+            self.rects.reshape(-1, 4)[replaced[:n]] = self._stock[0][take]
+            self.channels.reshape(-1)[replaced[:n]] = self._stock[1][take]
+            self._stock_next += n
+            if self.banks.sizes.min() == 0:
+                self._all_known = False
+        self._pending = False
+
     def _replace_worst(self) -> None:
         """Selectors reached by the last samples swap their worst weak classifier for a
         fresh one: each with probability `replace_probability`, always when no better
         than chance."""
         if not self._pending:
             return
+        if self._kernel is not None and self._map_size is not None and len(self.banks):
+            self._replace_worst_compiled()
+            return
+        if self._stock_next + len(self.best) > len(self._stock[0]):
+            self._draw(STOCK_SIZE)  # as the compiled loop does, to draw the same numbers
         err = self._wrong / (self._correct + self._wrong)
         worst = err.argmax(axis=1)
         replace = (self.rng.random(len(worst)) < self.config.replace_probability) | (self.best < 0)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import threading
+import time
+from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 from follow.types import Odometry, VelocityCommand
@@ -26,12 +29,14 @@ class Base(Protocol):
 
 
 class NullBase:
-    """No robot: records every command and reports a fixed pose (the origin by default)."""
+    """No robot: records every command and reports a fixed pose (the origin by default),
+    stamped with `clock()` when read, so that it is never stale."""
 
-    def __init__(self, pose: Odometry | None = None):
+    def __init__(self, pose: Odometry | None = None, clock: Callable[[], float] = time.monotonic):
         self._lock = threading.Lock()
+        self._clock = clock
         self.commands: list[VelocityCommand] = []
-        self.pose = pose
+        self.pose = pose or Odometry.origin()
         self.closed = False
 
     def send(self, cmd: VelocityCommand) -> None:
@@ -41,7 +46,7 @@ class NullBase:
             self.commands.append(cmd)
 
     def odometry(self) -> Odometry | None:
-        return self.pose
+        return dataclasses.replace(self.pose, stamp_s=self._clock())
 
     def healthy(self) -> bool:
         return not self.closed

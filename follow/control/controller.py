@@ -48,12 +48,19 @@ def check_control_config(config: ControlConfig) -> None:
 
 
 def slew(previous: float, wanted: float, rise_per_s: float, fall_per_s: float, dt_s: float):
-    """`wanted`, moved from `previous` by at most rise (away from zero) or fall (toward
-    zero) times dt."""
-    delta = wanted - previous
-    away_from_zero = abs(wanted) > abs(previous) and wanted * previous >= 0
-    step = (rise_per_s if away_from_zero else fall_per_s) * dt_s
-    return previous + float(np.clip(delta, -step, step))
+    """`wanted`, reached from `previous` within dt at most at `rise_per_s` while moving
+    away from zero and at most at `fall_per_s` while moving toward it (a sign change is
+    braking to zero first, then speeding up the other way)."""
+    if previous == 0.0 or (wanted * previous > 0 and abs(wanted) >= abs(previous)):
+        step = rise_per_s * dt_s  # speeding up
+        return previous + float(np.clip(wanted - previous, -step, step))
+    toward_zero = wanted if wanted * previous > 0 else 0.0
+    braking = fall_per_s * dt_s
+    reached = previous + float(np.clip(toward_zero - previous, -braking, braking))
+    if reached != 0.0 or wanted == 0.0:
+        return reached
+    left_s = dt_s - abs(previous) / fall_per_s  # time left after stopping
+    return float(np.clip(wanted, -rise_per_s * left_s, rise_per_s * left_s))
 
 
 class FollowingController:

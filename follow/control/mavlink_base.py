@@ -11,6 +11,7 @@ or when the pilot has switched to another mode (we never switch back ourselves).
 
 from __future__ import annotations
 
+import atexit
 import enum
 import logging
 import math
@@ -94,6 +95,7 @@ class MavlinkBase:
         self._sender = threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)
         self._receiver.start()
         self._sender.start()
+        atexit.register(self.close)  # a zero command even if the caller forgets close()
         try:
             self._connect()
         except BaseException:
@@ -138,6 +140,7 @@ class MavlinkBase:
                 return
             was_connected = self._target is not None
             self._state = LinkState.CLOSED
+        atexit.unregister(self.close)
         if was_connected:
             for _ in range(3):
                 self._send_setpoint(VelocityCommand.stop(self._clock()))
@@ -285,8 +288,11 @@ class MavlinkBase:
         now = self._clock()
         with self._lock:
             if kind == "HEARTBEAT":
-                if msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
-                    return  # a ground station or another companion, not the vehicle
+                if (
+                    msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID
+                    or msg.get_srcComponent() != mavlink.MAV_COMP_ID_AUTOPILOT1
+                ):
+                    return  # a ground station, companion or peripheral, not the autopilot
                 if self._target is None:
                     self._target = (msg.get_srcSystem(), msg.get_srcComponent())
                 if (msg.get_srcSystem(), msg.get_srcComponent()) != self._target:

@@ -37,6 +37,8 @@ def add_arguments(p) -> None:
     p.add_argument("--people", type=int, default=4, help="people per frame (default 4)")
     p.add_argument("--repeats", type=int, default=200, help="timed repetitions (default 200)")
     p.add_argument("--reid", action="store_true", help="also time the re-id embedding")
+    p.add_argument("--numpy-boosting", action="store_true",
+                   help="time the numpy boosting update even when numba is installed")  # fmt: skip
     p.add_argument("--config", help="TOML configuration ([identify] section used)")
 
 
@@ -62,7 +64,9 @@ def _timed(fn) -> np.ndarray:
     return np.array([time.thread_time() - cpu, time.perf_counter() - wall])
 
 
-def bench(config: IdentifyConfig, people: int, repeats: int, with_reid: bool) -> dict:
+def bench(
+    config: IdentifyConfig, people: int, repeats: int, with_reid: bool, numpy_boosting: bool = False
+) -> dict:
     from tqdm import tqdm
 
     from follow.boost.factory import build_extractor, build_reid
@@ -74,7 +78,9 @@ def bench(config: IdentifyConfig, people: int, repeats: int, with_reid: bool) ->
     extractor = build_extractor("ccf10", config)
     crop_size = extractor.crop_size
     maps = extractor.extract_crops(crops)
-    classifier = OnlineBoostingClassifier(extractor.num_channels, config)
+    classifier = OnlineBoostingClassifier(
+        extractor.num_channels, config, compiled=False if numpy_boosting else None
+    )
     for k in range(4 * config.sample_bank_size):  # warm: full banks, settled selectors
         classifier.update(maps[k % people], 1 if k % 2 else -1)
     reid = build_reid(config) if with_reid else None
@@ -125,6 +131,7 @@ def bench(config: IdentifyConfig, people: int, repeats: int, with_reid: bool) ->
         "repeats": repeats,
         "crop_size_px": list(crop_size),
         "ccf_backend": extractor.backend,
+        "boost_compiled": classifier._kernel is not None,
         "goals_met": {
             "ccf10_ms_per_person": cpu["ccf"] <= GOAL_CCF10_MS_PER_PERSON,
             "boost_update_ms": cpu["update"] <= GOAL_BOOST_UPDATE_MS,
@@ -139,11 +146,12 @@ def bench(config: IdentifyConfig, people: int, repeats: int, with_reid: bool) ->
 
 def main(args) -> dict:
     config = Config.load(args.config).identify if args.config else IdentifyConfig()
-    result = bench(config, args.people, args.repeats, args.reid)
+    result = bench(config, args.people, args.repeats, args.reid, args.numpy_boosting)
     if not args.json:
         r = result
         print(f"CCF10 on {r['people_per_frame']} crops of {r['crop_size_px'][1]} px "
-              f"({r['ccf_backend']}), median CPU ms of {r['repeats']} repetitions, "
+              f"({r['ccf_backend']}), boosting {'numba' if r['boost_compiled'] else 'numpy'}, "
+              f"median CPU ms of {r['repeats']} repetitions, "
               f"load average {r['load_average_1min']:.1f} on {r['cpu_count']} CPUs")  # fmt: skip
         rows = [
             ("CCF10 features, ms per person", r["ccf10_ms_per_person"], GOAL_CCF10_MS_PER_PERSON),

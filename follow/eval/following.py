@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm import tqdm
 
 from follow.config import Config, ControlConfig, MavlinkConfig
 from follow.control.controller import FollowingController
@@ -62,6 +63,7 @@ def run_following(
     control: ControlConfig = ControlConfig(),  # noqa: B008 (frozen)
     mavlink: MavlinkConfig | None = None,
     settings: RunSettings = RunSettings(),  # noqa: B008 (frozen)
+    progress: bool = False,
 ) -> RunTrace:
     """Follow `path` in real time through MavlinkBase + SimRover; the walker's script starts
     once the vehicle is in GUIDED."""
@@ -76,7 +78,10 @@ def run_following(
             period_s = controller.period_s
             t0 = time.monotonic()
             next_tick = t0
+            bar = tqdm(total=round(path.duration_s), unit="s", desc=name, disable=not progress)
             while (now := time.monotonic()) - t0 <= path.duration_s:
+                if int(now - t0) > bar.n:
+                    bar.update(int(now - t0) - bar.n)
                 t = now - t0
                 target = _estimate(path, t, now, base.odometry(), settings, rng)
                 trace.target_missing += target is None
@@ -85,6 +90,7 @@ def run_following(
                 _record(trace, path, t, rover, command, control, settings)
                 next_tick += period_s
                 time.sleep(max(0.0, next_tick - time.monotonic()))
+            bar.close()
     return trace
 
 
@@ -178,8 +184,9 @@ def main(args: argparse.Namespace) -> dict:
     traces = []
     for name in names:
         path = scenario(name, speed_mps=args.speed_mps, start_distance_m=start)
-        print(f"running '{name}' ({path.duration_s:.0f} s, real time) ...", flush=True)
-        traces.append(run_following(path, name, config.control, config.mavlink, settings))
+        traces.append(
+            run_following(path, name, config.control, config.mavlink, settings, progress=True)
+        )
     results = [summarize(t) for t in traces]
     steady_all = np.concatenate(
         [np.asarray(t.distance_error_m)[np.asarray(t.steady, dtype=bool)] for t in traces]

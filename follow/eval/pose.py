@@ -133,6 +133,7 @@ def evaluate_size(
         **totals.summary(),
         "ms": float(np.median(times_ms)),
         "backend": detector.backend_name,
+        "model": detector.model_path.name,
     }
 
 
@@ -148,6 +149,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="network input heights in px (multiples of 8)",
     )
     parser.add_argument("--provider", default=None, help="override the pose provider")
+    parser.add_argument(
+        "--precision", choices=("fp32", "int8"), default=None, help="override the pose precision"
+    )
     parser.add_argument("--model-file", type=Path, default=None, help="a pose model file")
     parser.add_argument(
         "--data-dir",
@@ -175,6 +179,8 @@ def main(args: argparse.Namespace) -> dict:
     base = Config.load(args.config).pose if args.config else PoseConfig()
     if args.provider:
         base = dataclasses.replace(base, provider=args.provider)
+    if args.precision:
+        base = dataclasses.replace(base, precision=args.precision)
     sequence = PetsSequence(data_dir(args.data_dir))
     frames = evenly_spaced_frames(sequence.frame_count, args.frames)
     results = []

@@ -59,23 +59,30 @@ class DecodedPerson:
 def find_peaks(heatmaps: np.ndarray, threshold: float) -> list[np.ndarray]:
     """Per keypoint channel, an (n, 3) array of [x, y, value] local maxima above threshold.
 
-    A cell is a peak when it is >= its left/upper neighbours and > its right/lower ones
-    (so a flat top yields one peak). x, y are refined by a parabola fit in each axis.
+    A cell is a peak when it equals the maximum of its 3x3 neighbourhood; on a flat top
+    only the cell with no equal neighbour to its right or below is kept, so a plateau
+    yields one peak. x, y are refined by a parabola fit in each axis.
     """
-    maps = np.asarray(heatmaps[:NUM_KEYPOINTS], dtype=np.float32)
+    maps = np.ascontiguousarray(heatmaps[:NUM_KEYPOINTS], dtype=np.float32)
     k, h, w = maps.shape
     padded = np.full((k, h + 2, w + 2), -np.inf, dtype=np.float32)
     padded[:, 1:-1, 1:-1] = maps
-    c = padded[:, 1:-1, 1:-1]
-    is_peak = c > threshold
+    # Only cells above the threshold can be peaks: compare those with their 8 neighbours.
+    ch, ys, xs = np.nonzero(maps > threshold)
+    values = maps[ch, ys, xs]
+    is_max = np.ones(values.shape, dtype=bool)
+    after = np.zeros(values.shape, dtype=bool)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
-            if dy == 0 and dx == 0:
-                continue
-            n = padded[:, 1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
-            is_peak &= (c > n) if (dy, dx) > (0, 0) else (c >= n)
-    ch, ys, xs = np.nonzero(is_peak)
-    values = maps[ch, ys, xs]
+            if dy or dx:
+                neighbour = padded[ch, ys + 1 + dy, xs + 1 + dx]
+                is_max &= values >= neighbour
+                if (dy, dx) > (0, 0):  # right, or the row below
+                    after |= neighbour == values
+    # A peak is a local maximum; on a plateau, keep only the cell with no equal
+    # neighbour to its right or below.
+    keep = is_max & ~after
+    ch, ys, xs, values = ch[keep], ys[keep], xs[keep], values[keep]
     left = padded[ch, ys + 1, xs]
     right = padded[ch, ys + 1, xs + 2]
     up = padded[ch, ys, xs + 1]
@@ -98,38 +105,49 @@ def _parabola_offset(before: np.ndarray, centre: np.ndarray, after: np.ndarray) 
     return np.clip(offset, -0.5, 0.5)
 
 
-def score_limb(
-    pafs: np.ndarray,
-    paf_channels: tuple[int, int],
-    starts: np.ndarray,
-    ends: np.ndarray,
-    params: DecodeParams,
-) -> np.ndarray:
-    """(n_starts, n_ends) PAF line-integral scores; -inf where the pair is not a limb.
+def score_limbs(
+    pafs: np.ndarray, peaks: list[np.ndarray], params: DecodeParams
+) -> list[np.ndarray]:
+    """For every limb, the (n_a, n_b) PAF line-integral scores of all candidate pairs;
+    -inf where the pair is not a limb. All limbs are sampled in one vectorised pass.
 
     The score is the mean projection of the PAF on the unit segment direction over
     `paf_samples` points, minus a penalty for limbs longer than half the map height; a
     pair is rejected when fewer than `paf_min_sample_fraction` samples agree.
     """
     h, w = pafs.shape[1:]
-    a = starts[:, None, :2]
-    vec = ends[None, :, :2] - a  # (na, nb, 2)
-    length = np.linalg.norm(vec, axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        unit = np.where(length[..., None] > 1e-6, vec / length[..., None], 0.0)
+    starts, ends, chan_x, chan_y, shapes = [], [], [], [], []
+    for (ka, kb), (cx, cy) in zip(LIMB_KEYPOINTS, LIMB_PAF_CHANNELS, strict=True):
+        na, nb = len(peaks[ka]), len(peaks[kb])
+        shapes.append((na, nb))
+        if na == 0 or nb == 0:
+            continue
+        starts.append(np.repeat(peaks[ka][:, :2], nb, axis=0))
+        ends.append(np.tile(peaks[kb][:, :2], (na, 1)))
+        chan_x.append(np.full(na * nb, cx, np.intp))
+        chan_y.append(np.full(na * nb, cy, np.intp))
+    if not starts:
+        return [np.full(shape, -np.inf) for shape in shapes]
+    a = np.concatenate(starts)
+    vec = np.concatenate(ends) - a  # (P, 2)
+    cx = np.concatenate(chan_x)[:, None]
+    cy = np.concatenate(chan_y)[:, None]
+    length = np.hypot(vec[:, 0], vec[:, 1])
+    safe = np.maximum(length, 1e-6)
+    ux, uy = vec[:, 0] / safe, vec[:, 1] / safe
     t = np.linspace(0.0, 1.0, params.paf_samples)
-    pts = a[:, :, None, :] + t[None, None, :, None] * vec[:, :, None, :]  # (na, nb, n, 2)
-    xi = np.clip(np.rint(pts[..., 0]).astype(np.intp), 0, w - 1)
-    yi = np.clip(np.rint(pts[..., 1]).astype(np.intp), 0, h - 1)
-    field_x = pafs[paf_channels[0]][yi, xi]
-    field_y = pafs[paf_channels[1]][yi, xi]
-    dots = field_x * unit[..., 0:1] + field_y * unit[..., 1:2]  # (na, nb, n)
-    agree = (dots > params.paf_min_sample_score).mean(axis=-1)
-    with np.errstate(divide="ignore"):
-        length_penalty = np.minimum(0.5 * h / np.maximum(length, 1e-6) - 1.0, 0.0)
-    score = dots.mean(axis=-1) + length_penalty
+    xi = np.clip(np.rint(a[:, 0:1] + t * vec[:, 0:1]).astype(np.intp), 0, w - 1)
+    yi = np.clip(np.rint(a[:, 1:2] + t * vec[:, 1:2]).astype(np.intp), 0, h - 1)
+    dots = pafs[cx, yi, xi] * ux[:, None] + pafs[cy, yi, xi] * uy[:, None]  # (P, n)
+    agree = (dots > params.paf_min_sample_score).mean(axis=1)
+    score = dots.mean(axis=1) + np.minimum(0.5 * h / safe - 1.0, 0.0)
     ok = (agree >= params.paf_min_sample_fraction) & (score > 0) & (length > 1e-6)
-    return np.where(ok, score, -np.inf)
+    flat = np.where(ok, score, -np.inf)
+    out, offset = [], 0
+    for na, nb in shapes:
+        out.append(flat[offset : offset + na * nb].reshape(na, nb))
+        offset += na * nb
+    return out
 
 
 def match_limb(scores: np.ndarray) -> list[tuple[int, int, float]]:
@@ -158,14 +176,10 @@ def decode(heatmaps: np.ndarray, pafs: np.ndarray, params: DecodeParams) -> list
     slots: list[np.ndarray] = []
     scores: list[float] = []
     owner: dict[tuple[int, int], int] = {}  # (keypoint, candidate) -> person index
-    for limb, ((ka, kb), channels) in enumerate(
-        zip(LIMB_KEYPOINTS, LIMB_PAF_CHANNELS, strict=True)
-    ):
+    all_scores = score_limbs(pafs, peaks, params)
+    for limb, (ka, kb) in enumerate(LIMB_KEYPOINTS):
         cand_a, cand_b = peaks[ka], peaks[kb]
-        if len(cand_a) == 0 or len(cand_b) == 0:
-            continue
-        limb_scores = score_limb(pafs, channels, cand_a, cand_b, params)
-        for a, b, s in match_limb(limb_scores):
+        for a, b, s in match_limb(all_scores[limb]):
             pa, pb = owner.get((ka, a)), owner.get((kb, b))
             if pa is not None and pb is None:
                 if slots[pa][kb] < 0:

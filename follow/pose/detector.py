@@ -38,6 +38,26 @@ def to_skeleton(person: DecodedPerson, plan: Letterbox) -> Skeleton:
     )
 
 
+def model_file_for(config: PoseConfig) -> Path:
+    """The network file a config asks for: an explicit file, the INT8 model in the
+    user cache, or the registry's (hash-checked) FP32 model."""
+    if config.model_file:
+        return Path(config.model_file)
+    if config.precision == "int8":
+        from follow.pose.quantize import default_int8_path
+
+        path = default_int8_path()
+        if not path.exists():
+            raise models.ModelError(
+                f"pose precision 'int8': {path} does not exist; make it with "
+                "`python tools/quantize_pose.py` (calibrates on PETS 2009 frames)"
+            )
+        return path
+    if config.precision != "fp32":
+        raise ValueError(f"pose precision '{config.precision}' unknown; choose fp32 or int8")
+    return models.resolve(config.model)
+
+
 class PoseDetector:
     """Lightweight OpenPose on onnxruntime (or OpenVINO), with our own decoding.
 
@@ -48,11 +68,7 @@ class PoseDetector:
     # PoseConfig is frozen, so one shared default instance is safe.
     def __init__(self, config: PoseConfig = PoseConfig(), model_path: Path | None = None):  # noqa: B008
         self.config = config
-        if model_path is None:
-            model_path = (
-                Path(config.model_file) if config.model_file else models.resolve(config.model)
-            )
-        self.model_path = Path(model_path)
+        self.model_path = Path(model_path) if model_path else model_file_for(config)
         if not self.model_path.exists():
             raise models.ModelError(f"pose model file {self.model_path} does not exist")
         self.backend = create_backend(config.provider, self.model_path, config.cpu_threads)

@@ -11,6 +11,10 @@ same type_mask combinations; everything else is ignored, silently, as ArduPilot 
 Motion is a unicycle with speed, turn-rate and acceleration limits; it stops when no
 setpoint arrives for 3 s, when disarmed and outside GUIDED. Faults: packet loss, latency,
 a mode switch by the pilot, a cut link. It runs in real time in a background thread.
+
+With `autopilot="px4"` it models a PX4 differential rover instead: OFFBOARD mode (refused
+unless setpoints already stream; left for AUTO.LOITER after 1 s without them), driving
+along the direction and length of the body velocity setpoint, ignoring yaw rate.
 """
 
 from __future__ import annotations
@@ -41,6 +45,13 @@ _ACCEPTED_FRAMES = (
 )  # fmt: skip
 _BODY_FRAMES = (mavlink.MAV_FRAME_BODY_NED, mavlink.MAV_FRAME_BODY_OFFSET_NED)
 _STREAMABLE = (mf.MSG_ID_ATTITUDE, mf.MSG_ID_LOCAL_POSITION_NED)
+_PX4_FRAMES = (mavlink.MAV_FRAME_LOCAL_NED, *_BODY_FRAMES)
+PX4_MAIN_MODE_MANUAL = 1
+PX4_MAIN_MODE_AUTO = 4
+PX4_SUB_MODE_LOITER = 3  # AUTO.LOITER: PX4's hold, also its offboard-loss failsafe
+PX4_MAIN_MODES = (PX4_MAIN_MODE_MANUAL, PX4_MAIN_MODE_AUTO, mf.PX4_MAIN_MODE_OFFBOARD)
+PX4_OFFBOARD_STREAM_S = 0.5  # setpoints must have been heard this recently to enter OFFBOARD
+PX4_OFFBOARD_LOSS_S = 1.0  # COM_OF_LOSS_T: no setpoint for this long leaves OFFBOARD
 
 
 @dataclass(frozen=True)
@@ -71,7 +82,8 @@ class SimRover:
         port: int = 0,
         *,
         armed: bool = True,
-        mode: int = mf.ROVER_MODE_MANUAL,
+        mode: int | None = None,
+        autopilot: str = "ardupilot",
         limits: RoverLimits = RoverLimits(),  # noqa: B008 (frozen)
         start_pose: Odometry | None = None,
         physics_rate_hz: float = 100.0,
@@ -79,6 +91,14 @@ class SimRover:
         system_id: int = 1,
         seed: int = 0,
     ):
+        if autopilot not in ("ardupilot", "px4"):
+            raise ValueError(
+                f"sim rover: autopilot must be 'ardupilot' or 'px4', got {autopilot!r}"
+            )
+        self.autopilot = autopilot
+        self._px4 = autopilot == "px4"
+        if mode is None:
+            mode = mf.px4_custom_mode(PX4_MAIN_MODE_MANUAL) if self._px4 else mf.ROVER_MODE_MANUAL
         self.limits = limits
         self._lock = threading.Lock()
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -103,7 +123,8 @@ class SimRover:
         self._speed = 0.0  # forward, m/s
         self._turn_rate = 0.0  # NED, rad/s
         self._target = _Target()
-        self._last_setpoint_s = -math.inf
+        self._last_setpoint_s = -math.inf  # last setpoint obeyed
+        self._last_setpoint_heard_s = -math.inf  # last one received, in any mode (PX4)
         self._intervals_s: dict[int, float] = {}
         self._next_stream_s: dict[int, float] = {}
         self._next_heartbeat_s = 0.0
@@ -244,7 +265,8 @@ class SimRover:
             )
         elif kind == "SET_POSITION_TARGET_LOCAL_NED" and msg.target_system == self._system_id:
             self.setpoint_log.append((now, msg.coordinate_frame, msg.type_mask))
-            if self._setpoint(msg):
+            self._last_setpoint_heard_s = now
+            if self._setpoint_px4(msg) if self._px4 else self._setpoint(msg):
                 self.setpoints_accepted += 1
                 self._last_setpoint_s = now
             else:
@@ -254,7 +276,10 @@ class SimRover:
         if msg.command == mavlink.MAV_CMD_DO_SET_MODE:
             if not int(msg.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
                 return mavlink.MAV_RESULT_UNSUPPORTED
-            ok = self._set_mode_locked(int(msg.param2))
+            mode = int(msg.param2)
+            if self._px4:  # param2 = main mode, param3 = sub mode
+                mode = mf.px4_custom_mode(int(msg.param2), int(msg.param3))
+            ok = self._set_mode_locked(mode)
             return mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED
         if msg.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             self.armed = msg.param1 == 1
@@ -270,14 +295,40 @@ class SimRover:
             return mavlink.MAV_RESULT_ACCEPTED
         return mavlink.MAV_RESULT_UNSUPPORTED
 
+    @property
+    def commanded_mode(self) -> int:
+        """The mode in which a companion drives the vehicle: GUIDED, or PX4 OFFBOARD."""
+        return mf.px4_custom_mode(mf.PX4_MAIN_MODE_OFFBOARD) if self._px4 else mf.ROVER_MODE_GUIDED
+
     def _set_mode_locked(self, mode: int) -> bool:
-        if mode not in mf.ROVER_MODES:
+        if self._px4:
+            if mf.px4_main_mode(mode) not in PX4_MAIN_MODES:
+                return False
+            # PX4 refuses OFFBOARD unless setpoints are already streaming.
+            heard_s = time.monotonic() - self._last_setpoint_heard_s
+            if mode == self.commanded_mode and heard_s > PX4_OFFBOARD_STREAM_S:
+                return False
+        elif mode not in mf.ROVER_MODES:
             return False
         if mode != self.mode:
             self.mode = mode
             self._target = _Target()  # a new mode starts from a standstill target
             self._last_setpoint_s = -math.inf
             self._next_heartbeat_s = 0.0  # announce the change at once
+        return True
+
+    def _setpoint_px4(self, msg) -> bool:
+        """A PX4 differential rover in OFFBOARD: it drives along the velocity setpoint
+        (direction and length) and ignores yaw and yaw rate."""
+        if self.mode != self.commanded_mode or msg.coordinate_frame not in _PX4_FRAMES:
+            return False
+        if not msg.type_mask & mf.MASK_POSITION_IGNORE or msg.type_mask & mf.MASK_VELOCITY_IGNORE:
+            return False  # only velocity setpoints are simulated
+        speed = min(math.hypot(msg.vx, msg.vy), self.limits.max_speed_mps)
+        heading = math.atan2(msg.vy, msg.vx)
+        if msg.coordinate_frame in _BODY_FRAMES:
+            heading += self._yaw
+        self._target = _Target(speed, 0.0, heading if speed > 0 else self._yaw)
         return True
 
     def _setpoint(self, msg) -> bool:
@@ -318,17 +369,21 @@ class SimRover:
 
     def _step(self, dt_s: float, now: float) -> None:
         lim = self.limits
-        driving = (
-            self.armed
-            and self.mode == mf.ROVER_MODE_GUIDED
-            and now - self._last_setpoint_s <= lim.guided_timeout_s
-        )
+        silent_s = now - self._last_setpoint_s
+        unheard_s = now - self._last_setpoint_heard_s
+        if self._px4 and self.mode == self.commanded_mode and unheard_s > PX4_OFFBOARD_LOSS_S:
+            self._set_mode_locked(mf.px4_custom_mode(PX4_MAIN_MODE_AUTO, PX4_SUB_MODE_LOITER))
+        driving = self.armed and self.mode == self.commanded_mode
+        driving = driving and silent_s <= lim.guided_timeout_s
         target = self._target if driving else _Target()
         turn = target.turn_rate_radps
         if target.heading_ned_rad is not None:
             turn = lim.heading_gain_per_s * float(wrap_angle(target.heading_ned_rad - self._yaw))
         turn = max(-lim.max_turn_rate_radps, min(lim.max_turn_rate_radps, turn))
-        self._speed += _towards(self._speed, target.speed_mps, lim.max_accel_mps2 * dt_s)
+        speed = target.speed_mps
+        if self._px4 and target.heading_ned_rad is not None:  # turn before driving off
+            speed *= max(0.0, math.cos(target.heading_ned_rad - self._yaw))
+        self._speed += _towards(self._speed, speed, lim.max_accel_mps2 * dt_s)
         self._turn_rate += _towards(self._turn_rate, turn, lim.max_turn_accel_radps2 * dt_s)
         self._north += self._speed * math.cos(self._yaw) * dt_s
         self._east += self._speed * math.sin(self._yaw) * dt_s
@@ -341,11 +396,12 @@ class SimRover:
             base_mode = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
             if self.armed:
                 base_mode |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-            if self.mode in (mf.ROVER_MODE_GUIDED, mf.ROVER_MODE_AUTO):
+            if self.mode in (self.commanded_mode, mf.ROVER_MODE_AUTO):
                 base_mode |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
             state = mavlink.MAV_STATE_ACTIVE if self.armed else mavlink.MAV_STATE_STANDBY
             hb = mavlink.MAVLink_heartbeat_message(
-                mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                mavlink.MAV_TYPE_GROUND_ROVER,
+                mavlink.MAV_AUTOPILOT_PX4 if self._px4 else mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
                 base_mode, self.mode, state, 3,
             )  # fmt: skip
             self._send(hb, now)

@@ -78,7 +78,7 @@ def scenario(name: str, speed_mps: float = 1.0, start_distance_m: float = 1.8) -
             Segment(1.0), Segment(4.0, speed_mps), Segment(3.0), Segment(4.0, speed_mps),
             Segment(3.0),
         ],
-        "short": [Segment(0.5), Segment(4.5, speed_mps), Segment(1.5)],
+        "short": [Segment(0.5), Segment(4.0, speed_mps), Segment(1.0)],
     }  # fmt: skip
     if name not in scripts:
         raise ValueError(f"unknown walker scenario {name!r}; known: {sorted(scripts)}")

@@ -1,0 +1,176 @@
+"""`follow bench pose`: the pose network's runtimes side by side on the same frames.
+
+Runtimes are interleaved frame by frame (rotating their order) so that load from other
+processes hits them alike; medians and the fast-path/reference ratio come from the same
+run. Measured: onnxruntime FP32 on the CPU; the project's fast CPU path (the INT8 model
+from tools/quantize_pose.py, on OpenVINO when installed, else on onnxruntime); the
+onnxruntime INT8 path on its own; the OpenVINO runtime on the official INT8 IR as the
+reference (skipped with a note when openvino is missing); and decoding time, also on
+"crowd" frames made of two PETS frames side by side (10+ people).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from follow import models
+from follow.config import PoseConfig
+from follow.eval.pets import PetsSequence, evenly_spaced_frames
+from follow.eval.pose import data_dir
+from follow.pose.decode import decode
+from follow.pose.detector import decode_params
+from follow.pose.preprocess import prepare_input
+from follow.pose.quantize import default_int8_path, quantize_pose_model
+from follow.pose.runtime import OpenVinoBackend, OrtBackend, openvino_installed
+
+log = logging.getLogger(__name__)
+
+DEFAULT_FRAMES = 15
+CALIBRATION_FRAMES = 16
+CALIBRATION_OFFSET = 5  # calibration frames sit between the evenly spaced eval frames
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="PETS frames to time")
+    parser.add_argument(
+        "--height",
+        type=int,
+        default=PoseConfig().input_height_px,
+        help="network input height in px (default: the pose config's)",
+    )
+    parser.add_argument("--int8-model", type=Path, default=None, help="INT8 ONNX to time")
+    parser.add_argument("--data-dir", type=Path, default=None, help="PETS 2009 folder")
+    parser.add_argument("--threads", type=int, default=0, help="CPU threads (0 = default)")
+
+
+def calibration_indices(frame_count: int, count: int = CALIBRATION_FRAMES) -> list[int]:
+    """PETS frames for INT8 calibration: between the evenly spaced frames the
+    evaluation and the benchmark use, so that calibration and test frames differ."""
+    return sorted(
+        {
+            min(i + CALIBRATION_OFFSET, frame_count - 1)
+            for i in evenly_spaced_frames(frame_count, count)
+        }
+    )
+
+
+def make_int8_model(
+    sequence: PetsSequence, height: int, path: Path | None = None, count: int = CALIBRATION_FRAMES
+) -> Path:
+    """Quantise the registry's FP32 pose model, calibrated on `count` PETS frames."""
+    frames = [img for _, img in sequence.frames(calibration_indices(sequence.frame_count, count))]
+    fp32 = models.resolve("human-pose-estimation-0001")
+    return quantize_pose_model(fp32, frames, height, path or default_int8_path())
+
+
+def ensure_int8_model(path: Path | None, sequence: PetsSequence, height: int) -> Path:
+    """The INT8 model, calibrated on PETS frames (not the timed ones) if not there yet."""
+    path = path or default_int8_path()
+    if path.exists():
+        return path
+    log.info("no INT8 pose model at %s: calibrating one on PETS frames", path)
+    return make_int8_model(sequence, height, path)
+
+
+def main(args: argparse.Namespace) -> dict:
+    sequence = PetsSequence(data_dir(args.data_dir))
+    indices = evenly_spaced_frames(sequence.frame_count, args.frames)
+    images = [img for _, img in sequence.frames(indices)]
+    tensors = [prepare_input(img, args.height)[0] for img in images]
+    fp32 = models.resolve("human-pose-estimation-0001")
+    int8 = ensure_int8_model(args.int8_model, sequence, args.height)
+    notes = []
+    runtimes = {
+        "ort_fp32": OrtBackend(fp32, ["CPUExecutionProvider"], args.threads),
+        "ort_int8": OrtBackend(int8, ["CPUExecutionProvider"], args.threads),
+    }
+    if openvino_installed():
+        runtimes["fast_path"] = OpenVinoBackend(int8, args.threads)
+        runtimes["reference_openvino_int8"] = OpenVinoBackend(
+            models.resolve("human-pose-estimation-0001-ir"), args.threads
+        )
+        fast_name = "openvino runtime on the INT8 ONNX"
+    else:
+        fast_name = "onnxruntime CPU on the INT8 ONNX"
+        notes.append("openvino is not installed: reference skipped, fast path = ort_int8")
+    for backend in runtimes.values():  # warm-up and per-shape compilation
+        backend.run(tensors[0])
+    times: dict[str, list[float]] = {k: [] for k in runtimes}
+    names = list(runtimes)
+    outputs = []
+    for n, tensor in enumerate(tqdm(tensors, desc="frames")):
+        order = names[n % len(names) :] + names[: n % len(names)]
+        for name in order:
+            t0 = time.perf_counter()
+            out = runtimes[name].run(tensor)
+            times[name].append((time.perf_counter() - t0) * 1e3)
+            if name == "ort_fp32":
+                outputs.append(out)
+    if "fast_path" not in runtimes:
+        times["fast_path"] = times["ort_int8"]
+    params = decode_params(PoseConfig())
+    decode_ms, people = _time_decode(outputs, params)
+    crowd = [
+        np.concatenate([images[i], images[(i + len(images) // 2) % len(images)]], axis=1)
+        for i in range(min(len(images), 6))
+    ]
+    crowd_out = [runtimes["fast_path" if "fast_path" in runtimes else "ort_int8"].run(
+        prepare_input(img, args.height)[0]) for img in crowd]  # fmt: skip
+    crowd_ms, crowd_people = _time_decode(crowd_out, params)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    reference = med.get("reference_openvino_int8")
+    result = {
+        "input": [int(tensors[0].shape[3]), int(tensors[0].shape[2])],
+        "frames": len(tensors),
+        "ort_fp32_ms": med["ort_fp32"],
+        "ort_int8_ms": med["ort_int8"],
+        "fast_path_ms": med["fast_path"],
+        "fast_path": fast_name,
+        "reference_openvino_int8_ms": reference,
+        "fast_path_over_reference": med["fast_path"] / reference if reference else None,
+        "ort_int8_over_reference": med["ort_int8"] / reference if reference else None,
+        "decode_ms": float(np.median(decode_ms)),
+        "decode_max_people": int(max(people)),
+        "decode_crowd_ms": float(np.median(crowd_ms)),
+        "decode_crowd_max_ms": float(np.max(crowd_ms)),
+        "decode_crowd_people": int(max(crowd_people)),
+        "notes": notes,
+    }
+    if not args.json:
+        print(f"pose network at {result['input'][0]}x{result['input'][1]}, "
+              f"{len(tensors)} PETS frames, medians (runtimes interleaved)")  # fmt: skip
+        for key in ("ort_fp32", "ort_int8", "fast_path", "reference_openvino_int8"):
+            if key in med:
+                print(f"  {key:26s} {med[key]:8.1f} ms")
+        if reference:
+            print(f"  fast path / reference      {result['fast_path_over_reference']:8.2f}"
+                  f"   ({fast_name})")  # fmt: skip
+        print(f"  decode                     {result['decode_ms']:8.2f} ms "
+              f"(up to {result['decode_max_people']} people)")  # fmt: skip
+        print(f"  decode, crowd frames       {result['decode_crowd_ms']:8.2f} ms "
+              f"(max {result['decode_crowd_max_ms']:.2f} ms, up to "
+              f"{result['decode_crowd_people']} people)")  # fmt: skip
+        for note in notes:
+            print(f"  note: {note}")
+    return result
+
+
+def _time_decode(outputs, params, repeats: int = 5) -> tuple[list[float], list[int]]:
+    """Per frame, the best of `repeats` decode times (decoding is deterministic, so the
+    fastest run is the one least disturbed by other processes), and the people found."""
+    times, counts = [], []
+    for heatmaps, pafs in outputs:
+        per = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            people = decode(heatmaps, pafs, params)
+            per.append((time.perf_counter() - t0) * 1e3)
+        times.append(float(np.min(per)))
+        counts.append(len(people))
+    return times, counts

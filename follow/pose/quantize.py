@@ -1,0 +1,83 @@
+"""INT8 static quantisation of the pose ONNX for onnxruntime, calibrated on real frames.
+
+The result is a QDQ model (per-channel INT8 weights, UINT8 activations) that
+onnxruntime's CPU provider runs with integer kernels, and that OpenVINO also runs in
+INT8. It is written to the user cache (or a given path), never into the repository.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from follow import models
+from follow.pose.preprocess import prepare_input
+
+log = logging.getLogger(__name__)
+
+INT8_FILE = "pose/human-pose-estimation-0001-int8.onnx"
+
+
+def default_int8_path() -> Path:
+    """Where the quantised pose model lives in the user cache."""
+    return models.cache_dir() / INT8_FILE
+
+
+class _FrameReader:
+    """onnxruntime CalibrationDataReader over preprocessed frames."""
+
+    def __init__(self, tensors: list[np.ndarray], input_name: str):
+        self._items = iter([{input_name: t} for t in tensors])
+
+    def get_next(self):
+        return next(self._items, None)
+
+
+def quantize_pose_model(
+    fp32_path: Path,
+    calibration_frames: Iterable[np.ndarray],
+    input_height_px: int,
+    output_path: Path | None = None,
+) -> Path:
+    """Write an INT8 QDQ copy of `fp32_path`, calibrated on BGR `calibration_frames`
+    preprocessed exactly as the detector does at `input_height_px`."""
+    import onnxruntime as ort
+    from onnxruntime.quantization import (
+        CalibrationMethod,
+        QuantFormat,
+        QuantType,
+        quantize_static,
+    )
+    from onnxruntime.quantization.shape_inference import quant_pre_process
+
+    output_path = Path(output_path) if output_path else default_int8_path()
+    output_path.parent.mkdir(parents=True, exist_ok=True)
+    tensors = [prepare_input(f, input_height_px)[0] for f in calibration_frames]
+    if not tensors:
+        raise ValueError("INT8 calibration needs at least one frame")
+    input_name = (
+        ort.InferenceSession(str(fp32_path), providers=["CPUExecutionProvider"])
+        .get_inputs()[0]
+        .name
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        prepared = Path(tmp) / "prepared.onnx"
+        quant_pre_process(str(fp32_path), str(prepared), skip_symbolic_shape=True)
+        quantize_static(
+            str(prepared),
+            str(output_path),
+            _FrameReader(tensors, input_name),
+            quant_format=QuantFormat.QDQ,
+            per_channel=True,
+            activation_type=QuantType.QUInt8,
+            weight_type=QuantType.QInt8,
+            # Min/max ranges: histogram methods need tens of GB at 768x576 inputs.
+            calibrate_method=CalibrationMethod.MinMax,
+            extra_options={"CalibTensorRangeSymmetric": False},
+        )
+    log.info("INT8 pose model written to %s (%d calibration frames)", output_path, len(tensors))
+    return output_path
