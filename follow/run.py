@@ -244,6 +244,8 @@ def replay(args, config: Config) -> dict:
                 h, w = frame.image.shape[:2]
                 camera = camera_for_frames(CameraModel.load(args.camera), w, h)
                 perception = build_perception(config, camera, detect=lambda f: current[0])
+                if args.target_id is not None:
+                    perception.identifier.select_target(args.target_id)
             current[0] = record.skeletons
             robot = record.robot or Odometry.origin(record.stamp_s)
             result = perception.process(Frame(frame.image, record.stamp_s), robot, index)
