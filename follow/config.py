@@ -37,15 +37,15 @@ class PoseConfig:
     cpu_threads: int = 0  # 0 = the runtime's default
     warmup_runs: int = 1
     keypoint_min_confidence: float = 0.05  # keypoints below this are not used as observations
-    min_keypoints_per_person: int = 3
+    min_keypoints_per_person: int = 2  # e.g. neck + one shoulder, joined by their PAF
     border_margin_px: float = 4.0
     # Decoding (heatmap cells are 8 network-input pixels).
     # Low thresholds keep small, far people; the PAF check removes the spurious peaks.
     heatmap_peak_threshold: float = 0.03
     paf_samples: int = 10
     paf_min_sample_score: float = 0.05
-    paf_min_sample_fraction: float = 0.6
-    min_person_mean_score: float = 0.1
+    paf_min_sample_fraction: float = 0.5
+    min_person_mean_score: float = 0.05
 
 
 @dataclass(frozen=True)

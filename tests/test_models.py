@@ -117,3 +117,13 @@ def test_unknown_model_name(cache):
     with pytest.raises(models.ModelError, match="unknown model 'nope'"):
         models.fetch("nope")
     assert cli.main(["models", "verify", "nope"]) == 1
+
+
+def test_fetching_everything_skips_models_without_a_download(cache, monkeypatch, capsys):
+    fetched = []
+    monkeypatch.setattr(models, "fetch", lambda n, *a: fetched.append(n) or cache / n)
+    assert cli.main(["models", "fetch", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert "human-pose-estimation-0001" in result["skipped"]
+    assert "human-pose-estimation-0001" not in fetched
+    assert {"human-pose-estimation-0001-ir", "ccf10", "ccf25"} <= set(fetched)

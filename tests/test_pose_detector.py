@@ -110,6 +110,11 @@ def test_openvino_request_without_openvino_falls_back(model_path, caplog, monkey
     assert any("openvino package is not installed" in r.getMessage() for r in caplog.records)
 
 
+def test_input_height_must_be_a_multiple_of_eight(model_path):
+    with pytest.raises(ValueError, match="multiple of 8, got 250"):
+        PoseDetector(PoseConfig(input_height_px=250, warmup_runs=0), model_path(ONNX))
+
+
 def test_unknown_provider_is_an_error(model_path):
     with pytest.raises(ValueError, match="provider 'gpu' unknown"):
         PoseDetector(PoseConfig(provider="gpu"), model_path(ONNX))

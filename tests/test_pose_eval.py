@@ -46,3 +46,19 @@ def test_necks_outside_every_box_lower_precision():
     s = score_frame(obs, boxes)
     assert (s.detections, s.detections_in_boxes) == (2, 1)
     assert s.summary()["precision"] == 0.5 and s.summary()["neck_recall"] == 1.0
+
+
+def test_eval_pose_command_prints_json(model_path, data_path, monkeypatch, capsys):
+    import json
+
+    from follow import cli
+
+    model_path("pose/human-pose-estimation-0001.onnx")
+    data_path("pets2009_s2l1/View_001.avi")
+    args = ["eval", "pose", "--frames", "2", "--sizes", "480", "--provider", "cpu", "--json"]
+    assert cli.main(args) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    (row,) = result["sizes"]
+    assert row["input"] == [640, 480] and result["frames"] == 2
+    assert 0.5 <= row["neck_recall"] <= 1.0 and 0.5 <= row["precision"] <= 1.0
+    assert row["ms"] > 0 and row["people"] >= 3

@@ -23,12 +23,27 @@ HEIGHT = 256
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_int8_model_is_quantised_and_close_to_fp32(model_path, data_path, tmp_path):
+_MADE: dict[str, Path] = {}
+
+
+@pytest.fixture
+def int8_model(model_path, data_path, tmp_path_factory):
+    """An INT8 model quantised once per test session (calibrated on two PETS frames)."""
+    if "model" not in _MADE:
+        fp32 = model_path("pose/human-pose-estimation-0001.onnx")
+        pets = PetsSequence(data_path("pets2009_s2l1/View_001.avi").parent)
+        target = tmp_path_factory.mktemp("int8") / "int8.onnx"
+        out = quantize_pose_model(fp32, [pets.read_frame(5), pets.read_frame(405)], HEIGHT, target)
+        assert out == target
+        _MADE["model"] = out
+    return _MADE["model"]
+
+
+def test_int8_model_is_quantised_and_close_to_fp32(int8_model, model_path, data_path):
     fp32 = model_path("pose/human-pose-estimation-0001.onnx")
     pets = PetsSequence(data_path("pets2009_s2l1/View_001.avi").parent)
-    out = quantize_pose_model(fp32, [pets.read_frame(5), pets.read_frame(405)], HEIGHT,
-                              tmp_path / "int8.onnx")  # fmt: skip
-    assert out == tmp_path / "int8.onnx" and out.stat().st_size < fp32.stat().st_size / 2
+    out = int8_model
+    assert out.stat().st_size < fp32.stat().st_size / 2
     ops = {n.op_type for n in onnx.load(str(out)).graph.node}
     assert {"QuantizeLinear", "DequantizeLinear"} <= ops
     tensor, _ = prepare_input(pets.read_frame(200), HEIGHT)
@@ -62,3 +77,22 @@ def test_tool_help_runs():
     result = subprocess.run([sys.executable, str(ROOT / "tools/quantize_pose.py"), "--help"],
                             capture_output=True, text=True, timeout=60)  # fmt: skip
     assert result.returncode == 0 and "--height" in result.stdout
+
+
+def test_bench_pose_reports_every_runtime(int8_model, capsys):
+    import json
+
+    from follow import cli
+
+    args = ["bench", "pose", "--frames", "2", "--height", str(HEIGHT), "--int8-model",
+            str(int8_model), "--json"]  # fmt: skip
+    assert cli.main(args) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for key in ("ort_fp32_ms", "fast_path_ms", "ort_int8_ms", "decode_ms"):
+        assert result[key] > 0, key
+    if result["reference_openvino_int8_ms"] is None:
+        assert result["notes"]
+    else:
+        ratio = result["fast_path_ms"] / result["reference_openvino_int8_ms"]
+        assert result["fast_path_over_reference"] == pytest.approx(ratio)
+    assert result["decode_crowd_people"] >= result["decode_max_people"] >= 1

@@ -1,7 +1,7 @@
 """`follow bench pose`: the pose network's runtimes side by side on the same frames.
 
-Runtimes are interleaved frame by frame (rotating their order) so that load from other
-processes hits them alike; medians and the fast-path/reference ratio come from the same
+Runtimes are interleaved frame by frame (in a fresh random order each frame) so that
+load from other processes, and any runtime's after-effects, hit them alike; medians and the fast-path/reference ratio come from the same
 run. Measured: onnxruntime FP32 on the CPU; the project's fast CPU path (the INT8 model
 from tools/quantize_pose.py, on OpenVINO when installed, else on onnxruntime); the
 onnxruntime INT8 path on its own; the OpenVINO runtime on the official INT8 IR as the
@@ -104,9 +104,9 @@ def main(args: argparse.Namespace) -> dict:
     times: dict[str, list[float]] = {k: [] for k in runtimes}
     names = list(runtimes)
     outputs = []
-    for n, tensor in enumerate(tqdm(tensors, desc="frames")):
-        order = names[n % len(names) :] + names[: n % len(names)]
-        for name in order:
+    rng = np.random.default_rng(0)
+    for tensor in tqdm(tensors, desc="frames"):
+        for name in rng.permutation(names):  # no runtime always follows the same one
             t0 = time.perf_counter()
             out = runtimes[name].run(tensor)
             times[name].append((time.perf_counter() - t0) * 1e3)

@@ -41,9 +41,9 @@ class DecodeParams:
     peak_threshold: float = 0.03
     paf_samples: int = 10
     paf_min_sample_score: float = 0.05
-    paf_min_sample_fraction: float = 0.6
-    min_keypoints_per_person: int = 3
-    min_person_mean_score: float = 0.1
+    paf_min_sample_fraction: float = 0.5
+    min_keypoints_per_person: int = 2
+    min_person_mean_score: float = 0.05
 
 
 @dataclass(frozen=True)

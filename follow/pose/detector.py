@@ -11,7 +11,12 @@ import numpy as np
 from follow import models
 from follow.config import PoseConfig
 from follow.pose.decode import DecodedPerson, DecodeParams, decode
-from follow.pose.preprocess import Letterbox, heatmap_to_network_px, prepare_input
+from follow.pose.preprocess import (
+    NETWORK_STRIDE_PX,
+    Letterbox,
+    heatmap_to_network_px,
+    prepare_input,
+)
 from follow.pose.runtime import create_backend
 from follow.types import Skeleton
 
@@ -68,6 +73,11 @@ class PoseDetector:
     # PoseConfig is frozen, so one shared default instance is safe.
     def __init__(self, config: PoseConfig = PoseConfig(), model_path: Path | None = None):  # noqa: B008
         self.config = config
+        if config.input_height_px <= 0 or config.input_height_px % NETWORK_STRIDE_PX:
+            raise ValueError(
+                f"pose input_height_px must be a positive multiple of {NETWORK_STRIDE_PX}, "
+                f"got {config.input_height_px}"
+            )
         self.model_path = Path(model_path) if model_path else model_file_for(config)
         if not self.model_path.exists():
             raise models.ModelError(f"pose model file {self.model_path} does not exist")

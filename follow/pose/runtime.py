@@ -53,6 +53,9 @@ class OrtBackend:
         if cpu_threads > 0:
             options.intra_op_num_threads = cpu_threads
         options.log_severity_level = 3
+        # Idle worker threads sleep instead of spinning: the other stages of the pipeline
+        # (and other runtimes in a benchmark) need the CPU between two frames.
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         self.session = ort.InferenceSession(str(model_path), options, providers=providers)
         self.input_name = self.session.get_inputs()[0].name
         active = self.session.get_providers()
