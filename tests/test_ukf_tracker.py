@@ -167,7 +167,7 @@ def test_timestamps_going_back_are_ignored_with_a_warning(camera, caplog):
     robot = Odometry.origin()
     for k in range(10):
         before = tracker.update([observe(camera, robot, (6.0, 0.0), 1.4)], k / FPS, robot)
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.WARNING, logger="follow.ukf"):
         after = tracker.update([observe(camera, robot, (9.0, 2.0), 1.4)], 0.1, robot)
     assert "goes back" in caplog.text
     assert [s.track_id for s in after] == [s.track_id for s in before]
@@ -182,7 +182,7 @@ def test_out_of_image_and_impossible_observations_are_rejected(camera, caplog):
     outside = Observation(np.array([5000.0, -300.0]), np.array([5000.0, 100.0]))
     above_horizon = Observation(np.array([320.0, 60.0]), np.array([320.0, 100.0]))
     neck_below_ankle = Observation(np.array([320.0, 300.0]), np.array([320.0, 250.0]))
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.WARNING, logger="follow.ukf"):
         states = tracker.update([outside, above_horizon, neck_below_ankle], 0.0)
     assert states == []
     assert "outside the image" in caplog.text
@@ -197,7 +197,7 @@ def test_an_ankle_outside_the_image_is_dropped_but_the_neck_used(camera, caplog)
     for k in range(5):
         tracker.update([observe(camera, robot, (5.0, 0.0), 1.4)], k / FPS, robot)
     good = observe(camera, robot, (5.0, 0.0), 1.4)
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.WARNING, logger="follow.ukf"):
         states = tracker.update([Observation(good.neck_px, np.array([320.0, 900.0]))], 0.4)
     assert "ankle" in caplog.text
     assert states[0].observation is not None and not states[0].observation.has_ankle
