@@ -213,3 +213,17 @@ def test_direct_baseline_back_projects_the_ankle(camera):
     out = baseline.update(obs, 0.0, robot)
     np.testing.assert_allclose(out[0], [9.0, 4.0], atol=1e-6)
     assert out[1] is None
+
+
+def test_a_duplicated_observation_does_not_start_a_second_track(camera):
+    tracker = PeopleTracker(camera)
+    robot = Odometry.origin()
+    rng = np.random.default_rng(6)
+    for k in range(10):
+        obs = observe(camera, robot, (7.0, 0.5), 1.45, rng)
+        states = tracker.update([obs, Observation(obs.neck_px + 0.5, obs.ankle_px - 0.5)], k / FPS)
+    assert [s.track_id for s in states] == [1]
+    # A second person well apart does get a track.
+    other = observe(camera, robot, (12.0, -2.0), 1.45)
+    states = tracker.update([observe(camera, robot, (7.0, 0.5), 1.45), other], 10 / FPS)
+    assert [s.track_id for s in states] == [1, 2]

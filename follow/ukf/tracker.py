@@ -123,7 +123,7 @@ class PeopleTracker:
             track.filter.predict(dt, Q)
 
         expected = [t.filter.expected_measurement(model, self._R4, True) for t in self._tracks]
-        pairs = self._associate(obs, expected)
+        pairs, in_some_gate = self._associate(obs, expected)
 
         associated: dict[int, Observation] = {}
         claimed = set()
@@ -141,12 +141,22 @@ class PeopleTracker:
                 track.confirmed = track.confirmed or track.updates >= cfg.min_updates_to_confirm
                 associated[track.track_id] = o
 
+        # An observation inside some track's gate (including tracks started just now) is
+        # that track's duplicate or a neighbour's, not a new person.
+        born: list[InnovationGate] = []
+        gate4 = gate_mahalanobis_sq(4, cfg.gate_chi2_quantile)
         for i, o in enumerate(obs):
-            if i in claimed or not o.has_ankle:
+            if i in claimed or in_some_gate[i] or not o.has_ankle:
+                continue
+            z = np.concatenate([o.neck_px, o.ankle_px])
+            if any(g.cost(z)[0] <= gate4 for g in born):
                 continue
             track = self._start_track(o, stamp_s, robot)
             if track is not None:
                 associated[track.track_id] = o
+                e = track.filter.expected_measurement(model, self._R4, True)
+                if e is not None:
+                    born.append(InnovationGate(*e))
 
         self._retire(stamp_s, robot)
         self._states = [self._state(t, model, associated.get(t.track_id)) for t in self._tracks]
@@ -157,7 +167,9 @@ class PeopleTracker:
         self,
         obs: list[Observation],
         expected: list[tuple[np.ndarray, np.ndarray] | None],
-    ) -> list[tuple[int, int]]:
+    ) -> tuple[list[tuple[int, int]], np.ndarray]:
+        """GNN pairs (observation, track), and for each observation whether it fell in
+        any track's gate."""
         cost = np.full((len(obs), len(expected)), np.inf)
         q = self.config.gate_chi2_quantile
         # Per track: the neck+ankle prediction and its neck-only marginal.
@@ -176,7 +188,7 @@ class PeopleTracker:
                 d2, nll = (g[0] if o.has_ankle else g[1]).cost(z)
                 if d2 <= limit:
                     cost[i, j] = nll
-        return global_nearest_neighbour(cost)
+        return global_nearest_neighbour(cost), np.isfinite(cost).any(axis=1)
 
     def _start_track(self, o: Observation, stamp_s: float, robot: Odometry) -> _Track | None:
         cfg = self.config
