@@ -198,9 +198,11 @@ def test_an_ankle_outside_the_image_is_dropped_but_the_neck_used(camera, caplog)
         tracker.update([observe(camera, robot, (5.0, 0.0), 1.4)], k / FPS, robot)
     good = observe(camera, robot, (5.0, 0.0), 1.4)
     with caplog.at_level(logging.WARNING, logger="follow.ukf"):
-        states = tracker.update([Observation(good.neck_px, np.array([320.0, 900.0]))], 0.4)
+        bad_ankle = Observation(good.neck_px, np.array([320.0, 900.0]))
+        states = tracker.update([bad_ankle], 0.4)
     assert "ankle" in caplog.text
-    assert states[0].observation is not None and not states[0].observation.has_ankle
+    assert states[0].observation is bad_ankle  # the caller's object, used neck-only
+    assert states[0].last_seen_s == 0.4
 
 
 def test_direct_baseline_back_projects_the_ankle(camera):

@@ -90,7 +90,15 @@ class PeopleTracker:
         stamp_s: float,
         robot: Odometry | None = None,
     ) -> list[TrackState]:
-        """Fold one frame's observations in; returns every live track for this frame."""
+        """Fold one frame's observations in; returns every live track (tentative and
+        confirmed) for this frame.
+
+        `observations` are in pixels of this tracker's camera; `robot` is the robot's pose
+        in `odom` at `stamp_s` (None: at the origin). Each returned track carries the
+        observation it took this frame (the caller's object, or None) and the neck/ankle
+        pixels its updated state projects to, with their covariance from the state's
+        uncertainty alone (no measurement noise), e.g. to cut an image region.
+        """
         if not math.isfinite(stamp_s):
             log.warning("ignoring a frame with a non-finite timestamp %r", stamp_s)
             return self.tracks
@@ -113,10 +121,14 @@ class PeopleTracker:
             cfg.full_gait_speed_mps,
         )
 
-        checked = [
-            check_observation(o, self.camera, cfg.max_outside_image_px) for o in observations
-        ]
-        obs = [o for o in checked if o is not None]
+        # The usable form of each observation, and the caller's object it came from.
+        obs: list[Observation] = []
+        given: list[Observation] = []
+        for original in observations:
+            usable = check_observation(original, self.camera, cfg.max_outside_image_px)
+            if usable is not None:
+                obs.append(usable)
+                given.append(original)
 
         Q = process_noise(dt, cfg.accel_noise_mps2, cfg.height_noise_mps)
         for track in self._tracks:
@@ -139,7 +151,7 @@ class PeopleTracker:
                 track.updates += 1
                 track.last_seen_s = stamp_s
                 track.confirmed = track.confirmed or track.updates >= cfg.min_updates_to_confirm
-                associated[track.track_id] = o
+                associated[track.track_id] = given[i]
 
         # An observation inside some track's gate (including tracks started just now) is
         # that track's duplicate or a neighbour's, not a new person.
@@ -153,7 +165,7 @@ class PeopleTracker:
                 continue
             track = self._start_track(o, stamp_s, robot)
             if track is not None:
-                associated[track.track_id] = o
+                associated[track.track_id] = given[i]
                 e = track.filter.expected_measurement(model, self._R4, True)
                 if e is not None:
                     born.append(InnovationGate(*e))
