@@ -54,6 +54,8 @@ class TrackerConfig:
     # Observations implying a neck outside this range cannot be a standing person.
     min_neck_height_m: float = 0.5
     max_neck_height_m: float = 2.5
+    # Sigma points nearer to the camera plane than this project as if at this depth.
+    min_projection_depth_m: float = 0.3
     # Unscented transform spread (filterpy's MerweScaledSigmaPoints).
     sigma_alpha: float = 1.0
     sigma_beta: float = 2.0

@@ -229,3 +229,23 @@ def test_a_duplicated_observation_does_not_start_a_second_track(camera):
     other = observe(camera, robot, (12.0, -2.0), 1.45)
     states = tracker.update([observe(camera, robot, (7.0, 0.5), 1.45), other], 10 / FPS)
     assert [s.track_id for s in states] == [1, 2]
+
+
+def test_a_nearby_person_keeps_the_id_through_an_occlusion():
+    # Close to the camera an unseen track's uncertainty soon reaches behind the camera
+    # plane; its expected pixels must stay usable so the person is picked up again.
+    camera = CameraModel.from_fov((640, 360), 70.0, CameraPose(height_m=0.6, pitch_rad=-0.05))
+    rng = np.random.default_rng(0)
+    robot = Odometry.origin()
+    tracker = PeopleTracker(camera)
+    seen = set()
+    for k in range(120):
+        t = k / FPS
+        xy = np.array([2.5 + 0.3 * np.sin(t), 0.2])
+        if 2.0 <= t < 3.6:  # hidden for 1.6 s
+            assert tracker.update([], t, robot) != []
+            continue
+        states = tracker.update([observe(camera, robot, xy, 1.4, rng)], t, robot)
+        seen.update(s.track_id for s in states)
+    assert seen == {1}
+    assert np.linalg.norm(states[0].position_m - xy) < 0.2

@@ -119,6 +119,7 @@ class PeopleTracker:
             cfg.ankle_height_m,
             cfg.walking_ankle_lift_m,
             cfg.full_gait_speed_mps,
+            cfg.min_projection_depth_m,
         )
 
         # The usable form of each observation, and the caller's object it came from.
