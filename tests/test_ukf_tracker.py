@@ -249,3 +249,16 @@ def test_a_nearby_person_keeps_the_id_through_an_occlusion():
         seen.update(s.track_id for s in states)
     assert seen == {1}
     assert np.linalg.norm(states[0].position_m - xy) < 0.2
+
+
+def test_measurement_model_gait_lift_and_near_clamp(camera):
+    model = MeasurementModel(camera, Odometry.origin(), 0.0, 0.025, 0.6, min_depth_m=0.3)
+    states = np.array([[5, 0, 0, 0, 1.4], [5, 0, 0.3, 0, 1.4], [5, 0, 0.0, -1.5, 1.4]], float)
+    np.testing.assert_allclose(model.ankle_heights_m(states), [0.0, 0.0125, 0.025])
+    # A walking person's ankles are expected higher in the image (smaller v).
+    assert model.neck_ankle(states)[2, 3] < model.neck_ankle(states)[0, 3]
+    # Behind the camera: finite pixels with the clamp, none without.
+    behind = np.array([[-2.0, 0.5, 0, 0, 1.4]])
+    assert np.isfinite(model.neck_ankle(behind)).all()
+    unclamped = MeasurementModel(camera, Odometry.origin(), min_depth_m=0.0)
+    assert np.isnan(unclamped.neck_ankle(behind)).all()
