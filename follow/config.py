@@ -57,6 +57,11 @@ class TrackerConfig:
     neck_noise_px: float = 3.0
     ankle_noise_px: float = 5.0
     detection_height_px: int = 360  # resolution the pixel noises above refer to
+    # How far the keypoints wander from the modelled points (posture, gait), in metres:
+    # it adds noise that grows in pixels as people come nearer.
+    neck_position_noise_m: float = 0.03
+    ankle_position_noise_m: float = 0.08  # the midpoint of both ankles
+    single_ankle_position_noise_m: float = 0.25  # one ankle alone: half a step off
     # Height of the ankle keypoint over the floor assumed by the measurement model when
     # standing, and its mean extra height over a gait cycle when walking at or above
     # full_gait_speed_mps (each ankle rises in its swing phase).
@@ -70,6 +75,8 @@ class TrackerConfig:
     # Observations implying a neck outside this range cannot be a standing person.
     min_neck_height_m: float = 0.5
     max_neck_height_m: float = 2.5
+    # Sigma points nearer to the camera plane than this project as if at this depth.
+    min_projection_depth_m: float = 0.3
     # Unscented transform spread (filterpy's MerweScaledSigmaPoints).
     sigma_alpha: float = 1.0
     sigma_beta: float = 2.0

@@ -8,6 +8,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
+from follow.config import TrackerConfig
 from follow.sim.people import Walker
 from follow.sim.skeletons import SyntheticDetector, observations_with_ids
 from follow.sim.world import SimCameraConfig, World, turning_robot
@@ -73,3 +74,32 @@ def test_identities_survive_a_crossing_seen_from_a_turning_robot():
     assert dominant(ids[1]["before"]) == dominant(ids[1]["after"])
     assert dominant(ids[2]["before"]) == dominant(ids[2]["after"])
     assert dominant(ids[1]["after"]) != dominant(ids[2]["after"])
+
+
+def count_tracks_for_a_near_walker(config: TrackerConfig) -> int:
+    walker = Walker(1, 1.75, [[3.0, -1.5], [6.0, 1.5], [3.5, 1.0], [3.0, -1.5]], 1.2)
+    world = World([walker], SimCameraConfig(), seed=3)
+    camera = world.camera_config.detection_camera()
+    detector = SyntheticDetector(camera, seed=4)
+    tracker = PeopleTracker(camera, config)
+    ids = set()
+    for frame in world.run(int(12 * world.camera_config.fps)):
+        observations, _ = observations_with_ids(detector.detect(frame))
+        ids.update(s.track_id for s in tracker.update(observations, frame.stamp_s, frame.odometry))
+    return len(ids)
+
+
+def test_a_near_walker_keeps_one_track_despite_the_gait():
+    # Near the camera the swinging, lifting ankles move many pixels; the measurement
+    # noise must allow for it or the walker falls out of its own gate again and again.
+    logging.disable(logging.WARNING)
+    try:
+        assert count_tracks_for_a_near_walker(TrackerConfig()) == 1
+        pixel_noise_only = TrackerConfig(
+            neck_position_noise_m=0.0,
+            ankle_position_noise_m=0.0,
+            single_ankle_position_noise_m=0.0,
+        )
+        assert count_tracks_for_a_near_walker(pixel_noise_only) > 1
+    finally:
+        logging.disable(logging.NOTSET)

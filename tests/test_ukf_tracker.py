@@ -167,7 +167,7 @@ def test_timestamps_going_back_are_ignored_with_a_warning(camera, caplog):
     robot = Odometry.origin()
     for k in range(10):
         before = tracker.update([observe(camera, robot, (6.0, 0.0), 1.4)], k / FPS, robot)
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.WARNING, logger="follow.ukf"):
         after = tracker.update([observe(camera, robot, (9.0, 2.0), 1.4)], 0.1, robot)
     assert "goes back" in caplog.text
     assert [s.track_id for s in after] == [s.track_id for s in before]
@@ -182,7 +182,7 @@ def test_out_of_image_and_impossible_observations_are_rejected(camera, caplog):
     outside = Observation(np.array([5000.0, -300.0]), np.array([5000.0, 100.0]))
     above_horizon = Observation(np.array([320.0, 60.0]), np.array([320.0, 100.0]))
     neck_below_ankle = Observation(np.array([320.0, 300.0]), np.array([320.0, 250.0]))
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.WARNING, logger="follow.ukf"):
         states = tracker.update([outside, above_horizon, neck_below_ankle], 0.0)
     assert states == []
     assert "outside the image" in caplog.text
@@ -197,10 +197,12 @@ def test_an_ankle_outside_the_image_is_dropped_but_the_neck_used(camera, caplog)
     for k in range(5):
         tracker.update([observe(camera, robot, (5.0, 0.0), 1.4)], k / FPS, robot)
     good = observe(camera, robot, (5.0, 0.0), 1.4)
-    with caplog.at_level(logging.WARNING):
-        states = tracker.update([Observation(good.neck_px, np.array([320.0, 900.0]))], 0.4)
+    with caplog.at_level(logging.WARNING, logger="follow.ukf"):
+        bad_ankle = Observation(good.neck_px, np.array([320.0, 900.0]))
+        states = tracker.update([bad_ankle], 0.4)
     assert "ankle" in caplog.text
-    assert states[0].observation is not None and not states[0].observation.has_ankle
+    assert states[0].observation is bad_ankle  # the caller's object, used neck-only
+    assert states[0].last_seen_s == 0.4
 
 
 def test_direct_baseline_back_projects_the_ankle(camera):
@@ -213,3 +215,50 @@ def test_direct_baseline_back_projects_the_ankle(camera):
     out = baseline.update(obs, 0.0, robot)
     np.testing.assert_allclose(out[0], [9.0, 4.0], atol=1e-6)
     assert out[1] is None
+
+
+def test_a_duplicated_observation_does_not_start_a_second_track(camera):
+    tracker = PeopleTracker(camera)
+    robot = Odometry.origin()
+    rng = np.random.default_rng(6)
+    for k in range(10):
+        obs = observe(camera, robot, (7.0, 0.5), 1.45, rng)
+        states = tracker.update([obs, Observation(obs.neck_px + 0.5, obs.ankle_px - 0.5)], k / FPS)
+    assert [s.track_id for s in states] == [1]
+    # A second person well apart does get a track.
+    other = observe(camera, robot, (12.0, -2.0), 1.45)
+    states = tracker.update([observe(camera, robot, (7.0, 0.5), 1.45), other], 10 / FPS)
+    assert [s.track_id for s in states] == [1, 2]
+
+
+def test_a_nearby_person_keeps_the_id_through_an_occlusion():
+    # Close to the camera an unseen track's uncertainty soon reaches behind the camera
+    # plane; its expected pixels must stay usable so the person is picked up again.
+    camera = CameraModel.from_fov((640, 360), 70.0, CameraPose(height_m=0.6, pitch_rad=-0.05))
+    rng = np.random.default_rng(0)
+    robot = Odometry.origin()
+    tracker = PeopleTracker(camera)
+    seen = set()
+    for k in range(120):
+        t = k / FPS
+        xy = np.array([2.5 + 0.3 * np.sin(t), 0.2])
+        if 2.0 <= t < 3.6:  # hidden for 1.6 s
+            assert tracker.update([], t, robot) != []
+            continue
+        states = tracker.update([observe(camera, robot, xy, 1.4, rng)], t, robot)
+        seen.update(s.track_id for s in states)
+    assert seen == {1}
+    assert np.linalg.norm(states[0].position_m - xy) < 0.2
+
+
+def test_measurement_model_gait_lift_and_near_clamp(camera):
+    model = MeasurementModel(camera, Odometry.origin(), 0.0, 0.025, 0.6, min_depth_m=0.3)
+    states = np.array([[5, 0, 0, 0, 1.4], [5, 0, 0.3, 0, 1.4], [5, 0, 0.0, -1.5, 1.4]], float)
+    np.testing.assert_allclose(model.ankle_heights_m(states), [0.0, 0.0125, 0.025])
+    # A walking person's ankles are expected higher in the image (smaller v).
+    assert model.neck_ankle(states)[2, 3] < model.neck_ankle(states)[0, 3]
+    # Behind the camera: finite pixels with the clamp, none without.
+    behind = np.array([[-2.0, 0.5, 0, 0, 1.4]])
+    assert np.isfinite(model.neck_ankle(behind)).all()
+    unclamped = MeasurementModel(camera, Odometry.origin(), min_depth_m=0.0)
+    assert np.isnan(unclamped.neck_ankle(behind)).all()

@@ -167,10 +167,16 @@ def main(args: argparse.Namespace) -> dict:
         raise ValueError("--duration-s must be > 0 and --people >= 1")
     tracker_config = Config.load(args.config).tracker if args.config else TrackerConfig()
     camera, noise = SimCameraConfig(), DetectorNoiseConfig()
-    logging.getLogger("follow.ukf").setLevel(logging.ERROR)
-    samples = simulate(
-        args.seed, args.duration_s, args.people, tracker_config, camera, noise, progress=True
-    )
+    # Dropped observations are part of the benchmark, not news.
+    tracker_log = logging.getLogger("follow.ukf")
+    level = tracker_log.level
+    tracker_log.setLevel(logging.ERROR)
+    try:
+        samples = simulate(
+            args.seed, args.duration_s, args.people, tracker_config, camera, noise, progress=True
+        )
+    finally:
+        tracker_log.setLevel(level)
     rows = binned(samples)
     if args.plot:
         plot(samples, args.plot)

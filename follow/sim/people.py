@@ -192,9 +192,10 @@ def random_walker(
     ox, oy, oyaw = origin
 
     def point():
-        # Uniform over the sector's area would put most people far; uniform in range
-        # gives every distance bin a fair share.
-        r = rng.uniform(*range_m)
+        # Uniform over the sector's area would put most people far, and walks between
+        # points uniform in range cross the middle most; log-uniform ranges give the near
+        # distances a fair share of the time.
+        r = math.exp(rng.uniform(math.log(range_m[0]), math.log(range_m[1])))
         b = oyaw + rng.uniform(*bearing_rad)
         return np.array([ox + r * math.cos(b), oy + r * math.sin(b)])
 

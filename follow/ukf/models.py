@@ -53,8 +53,13 @@ class MeasurementModel:
         ankle_height_m: float = 0.0,
         walking_ankle_lift_m: float = 0.0,
         full_gait_speed_mps: float = 0.6,
+        min_depth_m: float = 0.3,
     ):
+        """`min_depth_m`: points nearer to (or behind) the camera plane are projected as if
+        at this depth, so that the sigma points of an uncertain track near the robot still
+        give finite (if far-flung) pixels instead of none."""
         self.camera = camera
+        self.min_depth_m = float(min_depth_m)
         self.robot = robot
         self.ankle_height_m = float(ankle_height_m)
         self.walking_ankle_lift_m = float(walking_ankle_lift_m)
@@ -74,18 +79,27 @@ class MeasurementModel:
         ankle = np.column_stack([ground, self.ankle_heights_m(s)])
         return neck, ankle
 
+    def _project(self, points_base: np.ndarray) -> np.ndarray:
+        if self.min_depth_m > 0:
+            cam = self.camera
+            pc = cam.base_to_camera(points_base)
+            near = pc[:, 2] < self.min_depth_m
+            if near.any():
+                pc[near, 2] = self.min_depth_m
+                points_base = pc @ cam.rotation_base_from_cam.T + cam.position_base
+        return self.camera.project(points_base)
+
     def neck_ankle(self, states: np.ndarray) -> np.ndarray:
-        """(N, 4) pixels [neck_u, neck_v, ankle_u, ankle_v] for states (N, 5); NaN where a
-        point is behind the camera."""
+        """(N, 4) pixels [neck_u, neck_v, ankle_u, ankle_v] for states (N, 5)."""
         neck, ankle = self._points_base(states)
-        uv = self.camera.project(np.vstack([neck, ankle]))
+        uv = self._project(np.vstack([neck, ankle]))
         n = len(neck)
         return np.hstack([uv[:n], uv[n:]])
 
     def neck_only(self, states: np.ndarray) -> np.ndarray:
         """(N, 2) neck pixels for states (N, 5)."""
         neck, _ = self._points_base(states)
-        return self.camera.project(neck)
+        return self._project(neck)
 
     # Single-state versions, in the form filterpy's update calls them.
     def hx_neck_ankle(self, state: np.ndarray) -> np.ndarray:

@@ -20,8 +20,8 @@ import numpy as np
 
 from follow.camera import CameraModel
 from follow.config import TrackerConfig
-from follow.frames import base_to_odom
-from follow.types import Observation, Odometry, TrackState
+from follow.frames import base_to_odom, odom_to_base
+from follow.types import L_ANKLE, R_ANKLE, Observation, Odometry, TrackState
 from follow.ukf.association import InnovationGate, gate_mahalanobis_sq, global_nearest_neighbour
 from follow.ukf.models import MeasurementModel, process_noise
 from follow.ukf.person import PersonFilter, initial_state_base
@@ -63,6 +63,13 @@ def check_observation(
     return obs
 
 
+def _single_ankle(obs: Observation) -> bool:
+    """Whether the observation's ankle point is one ankle alone (known only when the
+    observation carries its skeleton)."""
+    sk = obs.skeleton
+    return sk is not None and obs.has_ankle and (sk.has(R_ANKLE) != sk.has(L_ANKLE))
+
+
 class PeopleTracker:
     """Tracks people from per-frame neck/ankle observations."""
 
@@ -75,8 +82,24 @@ class PeopleTracker:
         self._last_stamp_s: float | None = None
         neck_px, ankle_px = measurement_sigmas_px(camera, self.config)
         self._neck_sigma_px, self._ankle_sigma_px = neck_px, ankle_px
-        self._R4 = np.diag([neck_px**2] * 2 + [ankle_px**2] * 2)
-        self._R2 = self._R4[:2, :2].copy()
+        self._focal_px = float(np.sqrt(camera.K[0, 0] * camera.K[1, 1]))
+
+    def _measurement_cov(self, depth_m: float, single_ankle: bool = False) -> np.ndarray:
+        """R for a person at `depth_m` from the camera: the detector's pixel noise plus the
+        keypoints' own wander around the modelled points (gait, posture), which spans
+        more pixels the nearer the person is. One ankle alone strays farther from the
+        body than the midpoint of both."""
+        cfg = self.config
+        z = max(depth_m, cfg.min_projection_depth_m, 1e-3)
+        ankle_m = cfg.single_ankle_position_noise_m if single_ankle else cfg.ankle_position_noise_m
+        neck = self._neck_sigma_px**2 + (self._focal_px * cfg.neck_position_noise_m / z) ** 2
+        ankle = self._ankle_sigma_px**2 + (self._focal_px * ankle_m / z) ** 2
+        return np.diag([neck, neck, ankle, ankle])
+
+    def _depth_m(self, mean: np.ndarray, robot: Odometry) -> float:
+        """Depth in the camera of a state's ground point."""
+        ground = odom_to_base(mean[:2], robot)
+        return float(self.camera.base_to_camera(np.array([[ground[0], ground[1], 0.0]]))[0, 2])
 
     @property
     def tracks(self) -> list[TrackState]:
@@ -90,7 +113,15 @@ class PeopleTracker:
         stamp_s: float,
         robot: Odometry | None = None,
     ) -> list[TrackState]:
-        """Fold one frame's observations in; returns every live track for this frame."""
+        """Fold one frame's observations in; returns every live track (tentative and
+        confirmed) for this frame.
+
+        `observations` are in pixels of this tracker's camera; `robot` is the robot's pose
+        in `odom` at `stamp_s` (None: at the origin). Each returned track carries the
+        observation it took this frame (the caller's object, or None) and the neck/ankle
+        pixels its updated state projects to, with their covariance from the state's
+        uncertainty alone (no measurement noise), e.g. to cut an image region.
+        """
         if not math.isfinite(stamp_s):
             log.warning("ignoring a frame with a non-finite timestamp %r", stamp_s)
             return self.tracks
@@ -111,42 +142,61 @@ class PeopleTracker:
             cfg.ankle_height_m,
             cfg.walking_ankle_lift_m,
             cfg.full_gait_speed_mps,
+            cfg.min_projection_depth_m,
         )
 
-        checked = [
-            check_observation(o, self.camera, cfg.max_outside_image_px) for o in observations
-        ]
-        obs = [o for o in checked if o is not None]
+        # The usable form of each observation, and the caller's object it came from.
+        obs: list[Observation] = []
+        given: list[Observation] = []
+        for original in observations:
+            usable = check_observation(original, self.camera, cfg.max_outside_image_px)
+            if usable is not None:
+                obs.append(usable)
+                given.append(original)
 
         Q = process_noise(dt, cfg.accel_noise_mps2, cfg.height_noise_mps)
         for track in self._tracks:
             track.filter.predict(dt, Q)
 
-        expected = [t.filter.expected_measurement(model, self._R4, True) for t in self._tracks]
-        pairs = self._associate(obs, expected)
+        depths = [self._depth_m(t.filter.mean, robot) for t in self._tracks]
+        no_noise = np.zeros((4, 4))
+        expected = [t.filter.expected_measurement(model, no_noise, True) for t in self._tracks]
+        pairs, in_some_gate = self._associate(obs, expected, depths)
 
         associated: dict[int, Observation] = {}
         claimed = set()
         for i, j in pairs:
             track, o = self._tracks[j], obs[i]
+            R = self._measurement_cov(depths[j], _single_ankle(o))
             z, R = (
-                (np.concatenate([o.neck_px, o.ankle_px]), self._R4)
+                (np.concatenate([o.neck_px, o.ankle_px]), R)
                 if o.has_ankle
-                else (o.neck_px, self._R2)
+                else (o.neck_px, R[:2, :2])
             )
             claimed.add(i)
             if track.filter.update(z, R, model):
                 track.updates += 1
                 track.last_seen_s = stamp_s
                 track.confirmed = track.confirmed or track.updates >= cfg.min_updates_to_confirm
-                associated[track.track_id] = o
+                associated[track.track_id] = given[i]
 
+        # An observation inside some track's gate (including tracks started just now) is
+        # that track's duplicate or a neighbour's, not a new person.
+        born: list[InnovationGate] = []
+        gate4 = gate_mahalanobis_sq(4, cfg.gate_chi2_quantile)
         for i, o in enumerate(obs):
-            if i in claimed or not o.has_ankle:
+            if i in claimed or in_some_gate[i] or not o.has_ankle:
+                continue
+            z = np.concatenate([o.neck_px, o.ankle_px])
+            if any(g.cost(z)[0] <= gate4 for g in born):
                 continue
             track = self._start_track(o, stamp_s, robot)
             if track is not None:
-                associated[track.track_id] = o
+                associated[track.track_id] = given[i]
+                R4 = self._measurement_cov(self._depth_m(track.filter.mean, robot))
+                e = track.filter.expected_measurement(model, R4, True)
+                if e is not None:
+                    born.append(InnovationGate(*e))
 
         self._retire(stamp_s, robot)
         self._states = [self._state(t, model, associated.get(t.track_id)) for t in self._tracks]
@@ -157,31 +207,48 @@ class PeopleTracker:
         self,
         obs: list[Observation],
         expected: list[tuple[np.ndarray, np.ndarray] | None],
-    ) -> list[tuple[int, int]]:
+        depths_m: list[float],
+    ) -> tuple[list[tuple[int, int]], np.ndarray]:
+        """GNN pairs (observation, track), and for each observation whether it fell in
+        any track's gate. `expected` holds each track's predicted measurement and its
+        covariance without measurement noise."""
         cost = np.full((len(obs), len(expected)), np.inf)
         q = self.config.gate_chi2_quantile
-        # Per track: the neck+ankle prediction and its neck-only marginal.
-        gates = [
-            None
-            if e is None
-            else (InnovationGate(e[0], e[1]), InnovationGate(e[0][:2], e[1][:2, :2]))
-            for e in expected
-        ]
+        gates: dict[tuple[int, str], InnovationGate] = {}
+
+        def gate(j: int, kind: str) -> InnovationGate:
+            # One factorisation per track and kind of observation.
+            if (j, kind) not in gates:
+                zp, S0 = expected[j]
+                R = self._measurement_cov(depths_m[j], kind == "single")
+                k = 2 if kind == "neck" else 4
+                gates[j, kind] = InnovationGate(zp[:k], S0[:k, :k] + R[:k, :k])
+            return gates[j, kind]
+
         for i, o in enumerate(obs):
-            z = np.concatenate([o.neck_px, o.ankle_px]) if o.has_ankle else o.neck_px
+            if o.has_ankle:
+                z, kind = (
+                    np.concatenate([o.neck_px, o.ankle_px]),
+                    "single" if _single_ankle(o) else "both",
+                )
+            else:
+                z, kind = o.neck_px, "neck"
             limit = gate_mahalanobis_sq(len(z), q)
-            for j, g in enumerate(gates):
-                if g is None:
+            for j, e in enumerate(expected):
+                if e is None:
                     continue
-                d2, nll = (g[0] if o.has_ankle else g[1]).cost(z)
+                d2, nll = gate(j, kind).cost(z)
                 if d2 <= limit:
                     cost[i, j] = nll
-        return global_nearest_neighbour(cost)
+        return global_nearest_neighbour(cost), np.isfinite(cost).any(axis=1)
 
     def _start_track(self, o: Observation, stamp_s: float, robot: Odometry) -> _Track | None:
         cfg = self.config
+        ground = self.camera.ground_point(o.ankle_px)
+        depth_m = float("inf") if ground is None else self._depth_m(ground, Odometry.origin())
+        R = self._measurement_cov(depth_m, _single_ankle(o))
         init = initial_state_base(
-            self.camera, o.neck_px, o.ankle_px, self._neck_sigma_px, self._ankle_sigma_px, cfg
+            self.camera, o.neck_px, o.ankle_px, math.sqrt(R[0, 0]), math.sqrt(R[2, 2]), cfg
         )
         if init is None:
             log.warning(
