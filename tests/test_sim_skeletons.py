@@ -69,8 +69,8 @@ def test_ankles_are_lost_outside_the_image_and_near_its_border():
         neck_sigma_px=0.0, ankle_sigma_px=0.0, joint_sigma_px=0.0, miss_probability=0.0,
         ankle_border_margin_px=80.0,
     )  # fmt: skip
-    _, camera, near_border = one_frame([Walker(1, 1.7, [[2.6, 0.0]])], noise=margin)
-    _, _, plain = one_frame([Walker(1, 1.7, [[2.6, 0.0]])])
+    _, camera, near_border = one_frame([Walker(1, 1.7, [[2.1, 0.0]])], noise=margin)
+    _, _, plain = one_frame([Walker(1, 1.7, [[2.1, 0.0]])])
     ankle_v = plain[0].skeleton.keypoints_px[R_ANKLE, 1]
     assert camera.image_size[1] - 80 < ankle_v < camera.image_size[1]
     assert np.isnan(near_border[0].skeleton.keypoints_px[[R_ANKLE, L_ANKLE]]).all()

@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from follow.camera import CameraModel, CameraPose
+from follow.config import TrackerConfig
 from follow.types import InvalidInput, Observation, Odometry
 from follow.ukf.direct import DirectBaseline
 from follow.ukf.tracker import PeopleTracker
@@ -38,7 +39,9 @@ person = st.builds(
 
 def _person(distance_m, bearing_rad, neck_m, noise_px):
     xy = distance_m * np.array([np.cos(bearing_rad), np.sin(bearing_rad)])
-    uv = CAMERA.project(np.array([[*xy, neck_m], [*xy, 0.0]])) + noise_px
+    cfg = TrackerConfig()
+    ankle_z = cfg.ankle_height_m + cfg.ankle_height_per_neck_height * neck_m
+    uv = CAMERA.project(np.array([[*xy, neck_m], [*xy, ankle_z]])) + noise_px
     if not np.isfinite(uv).all():
         return Observation(np.array([320.0, 100.0]), np.array([320.0, 300.0]))
     return Observation(uv[0], uv[1])

@@ -28,7 +28,9 @@ def camera() -> CameraModel:
 def observe(camera, robot, xy, neck_h, rng=None, neck_sigma=2.0, ankle_sigma=2.0, ankle=True):
     """The neck/ankle observation of a person at `xy` (odom), with pixel noise."""
     p = odom_to_base(np.asarray(xy, dtype=float), robot)
-    uv = camera.project(np.array([[p[0], p[1], neck_h], [p[0], p[1], 0.0]]))
+    cfg = TrackerConfig()
+    ankle_z = cfg.ankle_height_m + cfg.ankle_height_per_neck_height * neck_h
+    uv = camera.project(np.array([[p[0], p[1], neck_h], [p[0], p[1], ankle_z]]))
     if rng is not None:
         uv = uv + rng.normal(0.0, [[neck_sigma] * 2, [ankle_sigma] * 2])
     return Observation(uv[0], uv[1] if ankle else None)
@@ -208,9 +210,10 @@ def test_an_ankle_outside_the_image_is_dropped_but_the_neck_used(camera, caplog)
 def test_direct_baseline_back_projects_the_ankle(camera):
     robot = Odometry(2.0, 1.0, 0.4, 0.0)
     baseline = DirectBaseline(camera)
+    neck_h = TrackerConfig().default_neck_height_m  # whose ankle height it assumes
     obs = [
-        observe(camera, robot, (9.0, 4.0), 1.5),
-        observe(camera, robot, (9.0, 4.0), 1.5, ankle=False),
+        observe(camera, robot, (9.0, 4.0), neck_h),
+        observe(camera, robot, (9.0, 4.0), neck_h, ankle=False),
     ]
     out = baseline.update(obs, 0.0, robot)
     np.testing.assert_allclose(out[0], [9.0, 4.0], atol=1e-6)

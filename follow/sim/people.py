@@ -29,16 +29,19 @@ _BODY_FRACTIONS = np.array([
     [0.010, 0.130, 0.485],   # l_wrist
     [0.000, -0.055, 0.530],  # r_hip
     [0.000, -0.055, 0.285],  # r_knee
-    [0.000, -0.055, 0.000],  # r_ankle
+    [0.000, -0.055, 0.039],  # r_ankle (malleolus; the shoe sole is added below)
     [0.000, 0.055, 0.530],   # l_hip
     [0.000, 0.055, 0.285],   # l_knee
-    [0.000, 0.055, 0.000],   # l_ankle
+    [0.000, 0.055, 0.039],   # l_ankle
     [0.025, -0.030, 0.945],  # r_eye
     [0.025, 0.030, 0.945],   # l_eye
     [0.000, -0.060, 0.935],  # r_ear
     [0.000, 0.060, 0.935],   # l_ear
 ])  # fmt: skip
 NECK_HEIGHT_PER_STATURE = 0.818
+# The ankle keypoint sits at the malleolus, 0.039 of stature over the sole on average
+# (Drillis and Contini's segment proportions), which is itself lifted by the shoe.
+SHOE_SOLE_M = 0.025
 
 
 @dataclass(frozen=True)
@@ -85,6 +88,8 @@ class Walker:
         start_s: float = 0.0,
         gait: GaitConfig | None = None,
         gait_phase: float = 0.0,
+        ankle_height_per_stature: float = 0.039,
+        shoe_sole_m: float = SHOE_SOLE_M,
     ):
         """`waypoints_m` (N, 2) in odom; the walker stands at waypoint 0 until `start_s`,
         walks leg i (waypoint i to i+1) at `speeds_mps[i]`, stops `pauses_s[i]` at
@@ -103,6 +108,8 @@ class Walker:
         self.stature_m = float(stature_m)
         self.gait = gait if gait is not None else GaitConfig()
         self._phase0 = float(gait_phase)
+        # Standing height of the ankle keypoint: the malleolus over the shoe sole.
+        self.ankle_height_m = ankle_height_per_stature * self.stature_m + shoe_sole_m
         # Timeline of pieces: (t0, t1, p0, velocity, walked_at_t0).
         self._t0, self._p0, self._v, self._d0 = [], [], [], []
         t, walked = float(start_s), 0.0
@@ -155,7 +162,7 @@ class Walker:
         stride = g.stride_per_stature * S
         phase = (pose.distance_walked_m / stride + self._phase0) % 1.0
         local = _BODY_FRACTIONS * S
-        local = local.copy()
+        local[[10, 13], 2] = self.ankle_height_m
         for ankle, knee, wrist, offset in ((10, 9, 7, 0.0), (13, 12, 4, 0.5)):
             fwd, lift = _foot_offsets(
                 (phase + offset) % 1.0, stride, g.stance_fraction, g.ankle_lift_m
@@ -217,4 +224,7 @@ def random_walker(
         np.array(pauses),
         gait=gait,
         gait_phase=rng.random(),
+        # people differ in proportions and shoes: the filter knows only the mean
+        ankle_height_per_stature=rng.uniform(0.035, 0.043),
+        shoe_sole_m=rng.uniform(0.015, 0.035),
     )

@@ -16,6 +16,7 @@ from follow.camera import CameraModel
 from follow.config import TrackerConfig
 from follow.frames import base_to_odom
 from follow.types import Observation, Odometry
+from follow.ukf.models import population_ankle_height_m
 from follow.ukf.tracker import check_observation
 
 log = logging.getLogger(__name__)
@@ -45,6 +46,6 @@ class DirectBaseline:
             if o is None or o.ankle_px is None:
                 out.append(None)
                 continue
-            p = self.camera.back_project_to_plane(o.ankle_px, self.config.ankle_height_m)
+            p = self.camera.back_project_to_plane(o.ankle_px, population_ankle_height_m(self.config))
             out.append(None if np.isnan(p).any() else base_to_odom(p[:2], robot))
         return out

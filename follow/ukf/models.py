@@ -43,6 +43,12 @@ def process_noise(dt_s: float, accel_noise_mps2: float, height_noise_mps: float)
     return Q
 
 
+def population_ankle_height_m(config) -> float:
+    """The standing ankle keypoint height of a person of the default neck height: what
+    a single observation, without a height estimate, is back-projected with."""
+    return config.ankle_height_m + config.ankle_height_per_neck_height * config.default_neck_height_m
+
+
 class MeasurementModel:
     """Projects states to the neck and ankle pixels for one camera pose and robot pose."""
 
@@ -54,6 +60,7 @@ class MeasurementModel:
         walking_ankle_lift_m: float = 0.0,
         full_gait_speed_mps: float = 0.6,
         min_depth_m: float = 0.3,
+        ankle_height_per_neck_height: float = 0.0,
     ):
         """`min_depth_m`: points nearer to (or behind) the camera plane are projected as if
         at this depth, so that the sigma points of an uncertain track near the robot still
@@ -62,15 +69,18 @@ class MeasurementModel:
         self.min_depth_m = float(min_depth_m)
         self.robot = robot
         self.ankle_height_m = float(ankle_height_m)
+        self.ankle_height_per_neck_height = float(ankle_height_per_neck_height)
         self.walking_ankle_lift_m = float(walking_ankle_lift_m)
         self.full_gait_speed_mps = max(float(full_gait_speed_mps), 1e-6)
 
     def ankle_heights_m(self, states: np.ndarray) -> np.ndarray:
-        """Expected ankle keypoint height (N,) of states (N, 5): the standing height plus
-        the gait's mean lift, in proportion to the speed up to a full walking gait."""
+        """Expected ankle keypoint height (N,) of states (N, 5): the standing height (a
+        constant plus a fraction of the neck height) plus the gait's mean lift, in
+        proportion to the speed up to a full walking gait."""
         speed = np.hypot(states[:, VX], states[:, VY])
         gait = np.minimum(speed / self.full_gait_speed_mps, 1.0)
-        return self.ankle_height_m + self.walking_ankle_lift_m * gait
+        standing = self.ankle_height_m + self.ankle_height_per_neck_height * states[:, H]
+        return standing + self.walking_ankle_lift_m * gait
 
     def _points_base(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         s = np.atleast_2d(states)

@@ -14,7 +14,12 @@ from filterpy.kalman import unscented_transform as filterpy_unscented_transform
 
 from follow.camera import CameraModel
 from follow.config import TrackerConfig
-from follow.ukf.models import STATE_DIM, MeasurementModel, constant_velocity
+from follow.ukf.models import (
+    STATE_DIM,
+    MeasurementModel,
+    constant_velocity,
+    population_ankle_height_m,
+)
 
 _MIN_EIGENVALUE = 1e-10
 
@@ -74,7 +79,15 @@ def initial_state_base(
     Returns None for a geometrically impossible observation.
     """
     z = np.concatenate([neck_px, ankle_px]).astype(np.float64)
-    xyh = ground_and_height(camera, z[:2], z[2:], config.ankle_height_m)
+
+    def solve(zz: np.ndarray) -> np.ndarray:
+        xyh = ground_and_height(camera, zz[:2], zz[2:], population_ankle_height_m(config))
+        if np.isfinite(xyh).all():  # the ankle's height follows the person's: refine once
+            ankle_m = config.ankle_height_m + config.ankle_height_per_neck_height * xyh[2]
+            xyh = ground_and_height(camera, zz[:2], zz[2:], ankle_m)
+        return xyh
+
+    xyh = solve(z)
     if not np.isfinite(xyh).all():
         return None
     if not (config.min_neck_height_m <= xyh[2] <= config.max_neck_height_m):
@@ -84,8 +97,7 @@ def initial_state_base(
     for i in range(4):
         dz = np.zeros(4)
         dz[i] = step_px
-        plus = ground_and_height(camera, (z + dz)[:2], (z + dz)[2:], config.ankle_height_m)
-        minus = ground_and_height(camera, (z - dz)[:2], (z - dz)[2:], config.ankle_height_m)
+        plus, minus = solve(z + dz), solve(z - dz)
         if not (np.isfinite(plus).all() and np.isfinite(minus).all()):
             return None
         J[:, i] = (plus - minus) / (2 * step_px)

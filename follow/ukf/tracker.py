@@ -143,6 +143,7 @@ class PeopleTracker:
             cfg.walking_ankle_lift_m,
             cfg.full_gait_speed_mps,
             cfg.min_projection_depth_m,
+            cfg.ankle_height_per_neck_height,
         )
 
         # The usable form of each observation, and the caller's object it came from.
