@@ -1,7 +1,8 @@
 """Image-space trackers that users would otherwise pick, run on the same skeletons as
 ours: norfair tracking the keypoints, and ByteTrack (supervision) on skeleton boxes.
-Each track's foot point (bottom centre of its box) is back-projected to the floor so
-that all methods are scored on the ground plane alike."""
+Each track's foot point (bottom centre of its box, i.e. at the ankle keypoints) is
+back-projected to the plane of the ankles, as our own tracker's are, so that all methods
+are scored on the ground plane alike."""
 
 from __future__ import annotations
 
@@ -29,10 +30,10 @@ def foot_point_px(box: np.ndarray) -> np.ndarray:
     return np.array([(box[0] + box[2]) / 2.0, box[3]])
 
 
-def _to_ground(camera: CameraModel, feet_px: list[np.ndarray]) -> np.ndarray:
+def _to_ground(camera: CameraModel, feet_px: list[np.ndarray], ankle_height_m: float) -> np.ndarray:
     if not feet_px:
         return np.empty((0, 2))
-    return camera.back_project_to_ground(np.array(feet_px))
+    return camera.back_project_to_plane(np.array(feet_px), ankle_height_m)[:, :2]
 
 
 class NorfairKeypointTracker:
@@ -40,11 +41,13 @@ class NorfairKeypointTracker:
     (the pose-tracking recipe from norfair's own OpenPose example)."""
 
     def __init__(self, camera: CameraModel, min_confidence: float = 0.1,
-                 keypoint_match_px: float | None = None, hit_counter_max: int = 15):  # fmt: skip
+                 keypoint_match_px: float | None = None, hit_counter_max: int = 15,
+                 ankle_height_m: float = 0.0):  # fmt: skip
         import norfair
 
         self._norfair = norfair
         self.camera = camera
+        self.ankle_height_m = ankle_height_m
         self.min_confidence = min_confidence
         match_px = keypoint_match_px or camera.image_size[1] / 18.0
 
@@ -87,17 +90,19 @@ class NorfairKeypointTracker:
             box = np.array([*pts.min(axis=0), *pts.max(axis=0)])
             ids.append(int(obj.id))
             feet.append(foot_point_px(box))
-        return ids, _to_ground(self.camera, feet)
+        return ids, _to_ground(self.camera, feet, self.ankle_height_m)
 
 
 class ByteTrackBoxTracker:
     """ByteTrack (supervision) on the boxes around each skeleton's keypoints."""
 
-    def __init__(self, camera: CameraModel, frame_rate_hz: float, min_confidence: float = 0.1):
+    def __init__(self, camera: CameraModel, frame_rate_hz: float, min_confidence: float = 0.1,
+                 ankle_height_m: float = 0.0):  # fmt: skip
         import supervision as sv
 
         self._sv = sv
         self.camera = camera
+        self.ankle_height_m = ankle_height_m
         self.min_confidence = min_confidence
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -125,4 +130,4 @@ class ByteTrackBoxTracker:
             tracked = self._tracker.update_with_detections(dets)
         ids = [int(i) for i in (tracked.tracker_id if tracked.tracker_id is not None else [])]
         feet = [foot_point_px(b) for b in tracked.xyxy]
-        return ids, _to_ground(self.camera, feet)
+        return ids, _to_ground(self.camera, feet, self.ankle_height_m)

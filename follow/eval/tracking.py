@@ -52,12 +52,17 @@ def run_methods(setup: PetsSetup, frames: list[int], skeletons, config: Config):
     """Per method, per frame: (hypothesis ids, positions in metres)."""
     from follow.eval.peers import ByteTrackBoxTracker, NorfairKeypointTracker
     from follow.pose.observations import skeletons_to_observations
+    from follow.ukf.direct import DirectBaseline
+    from follow.ukf.models import population_ankle_height_m
     from follow.ukf.tracker import PeopleTracker
 
     camera = setup.camera
+    ankle_m = population_ankle_height_m(config.tracker)  # the same geometry for everyone
+    min_conf = config.pose.keypoint_min_confidence
     ours = PeopleTracker(camera, config.tracker)
-    norfair = NorfairKeypointTracker(camera, config.pose.keypoint_min_confidence)
-    bytetrack = ByteTrackBoxTracker(camera, PETS_FPS, config.pose.keypoint_min_confidence)
+    direct = DirectBaseline(camera, config.tracker)
+    norfair = NorfairKeypointTracker(camera, min_conf, ankle_height_m=ankle_m)
+    bytetrack = ByteTrackBoxTracker(camera, PETS_FPS, min_conf, ankle_height_m=ankle_m)
     direct_ids = HungarianIds(gate_m=1.0)
     out: dict[str, list] = {m: [] for m in METHODS}
     for index in frames:
@@ -66,9 +71,8 @@ def run_methods(setup: PetsSetup, frames: list[int], skeletons, config: Config):
         tracks = [t for t in ours.update(observations, stamp) if t.confirmed]
         out["ours"].append(([t.track_id for t in tracks],
                             np.array([t.position_m for t in tracks]).reshape(-1, 2)))  # fmt: skip
-        feet = [o.ankle_px for o in observations if o.ankle_px is not None]
-        ground = camera.back_project_to_ground(np.array(feet)) if feet else np.empty((0, 2))
-        ground = ground[np.isfinite(ground).all(axis=1)]
+        points = [p for p in direct.update(observations, stamp) if p is not None]
+        ground = np.array(points).reshape(-1, 2)
         out["direct"].append((direct_ids.update(ground), ground))
         for name, tracker in (("norfair", norfair), ("bytetrack", bytetrack)):
             ids, pts = tracker.update(skeletons[index])
