@@ -30,8 +30,9 @@ class PoseConfig:
     # following at a few metres with a 480p camera, 256-368 is enough and 2-5x faster.
     input_height_px: int = 576
     provider: str = "auto"  # auto | cpu | cuda | tensorrt | openvino
-    # int8: the INT8 model made by tools/quantize_pose.py (user cache); the fast CPU path.
-    precision: str = "fp32"  # fp32 | int8
+    # int8: the INT8 model made by tools/quantize_pose.py (user cache), the fast CPU path;
+    # auto: that model when it has been made, else fp32.
+    precision: str = "auto"  # auto | fp32 | int8
     # An explicit model file (e.g. an INT8 ONNX from tools/quantize_pose.py); empty = `model`.
     model_file: str = ""
     cpu_threads: int = 0  # 0 = the runtime's default

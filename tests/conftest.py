@@ -27,6 +27,18 @@ def _asset(env_var: str, relpath: str) -> Path:
     pytest.skip(reason)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def isolated_cache(tmp_path_factory):
+    """Tests never read or write the user's model and evaluation cache."""
+    old = os.environ.get("FOLLOW_CACHE_DIR")
+    os.environ["FOLLOW_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache") / "models")
+    yield
+    if old is None:
+        os.environ.pop("FOLLOW_CACHE_DIR", None)
+    else:
+        os.environ["FOLLOW_CACHE_DIR"] = old
+
+
 @pytest.fixture
 def model_path():
     """Callable: relative path under $FOLLOW_MODEL_DIR -> Path (or skip/fail)."""

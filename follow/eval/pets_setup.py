@@ -44,7 +44,6 @@ class PetsSetup:
     @classmethod
     def load(cls, root: Path | None = None) -> PetsSetup:
         from calib.tsai import TsaiCamera
-
         from follow.eval.pets import VIDEO_IMAGE_SIZE, PetsSequence
 
         root = root or data_dir()
@@ -72,8 +71,11 @@ class PetsSetup:
 
 def _cache_path(pose_config: PoseConfig, frames: list[int]) -> Path:
     from follow.models import cache_dir
+    from follow.pose.detector import model_file_for
 
-    key = json.dumps({"pose": pose_config.__dict__, "frames": frames}, sort_keys=True)
+    model = model_file_for(pose_config)  # "auto" precision differs between machines
+    key = json.dumps({"pose": pose_config.__dict__, "frames": frames, "model": str(model),
+                      "model_bytes": model.stat().st_size}, sort_keys=True)  # fmt: skip
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]
     return cache_dir().parent / "eval" / f"pets_skeletons_{digest}.npz"
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -48,6 +49,13 @@ def model_file_for(config: PoseConfig) -> Path:
     user cache, or the registry's (hash-checked) FP32 model."""
     if config.model_file:
         return Path(config.model_file)
+    if config.precision == "auto":
+        from follow.pose.quantize import default_int8_path
+
+        if default_int8_path().exists():
+            return default_int8_path()
+        log.info("pose: no INT8 model in the cache (tools/quantize_pose.py makes one): FP32")
+        config = dataclasses.replace(config, precision="fp32")
     if config.precision == "int8":
         from follow.pose.quantize import default_int8_path
 
@@ -59,7 +67,9 @@ def model_file_for(config: PoseConfig) -> Path:
             )
         return path
     if config.precision != "fp32":
-        raise ValueError(f"pose precision '{config.precision}' unknown; choose fp32 or int8")
+        raise ValueError(
+            f"pose precision '{config.precision}' unknown; choose auto, fp32 or int8"
+        )
     return models.resolve(config.model)
 
 
