@@ -36,7 +36,7 @@ def test_malformed_ground_truth_is_reported(tmp_path):
     bad = tmp_path / "gt.xml"
     bad.write_text('<dataset><frame number="0"><objectlist><object id="1">'
                    '<box h="x" w="1" xc="1" yc="1"/></object></objectlist></frame></dataset>')  # fmt: skip
-    with pytest.raises(PetsError, match="bad box attributes"):
+    with pytest.raises(PetsError, match=r"frame 0, object '1': .*numeric xc, yc, w, h"):
         load_ground_truth(bad)
     with pytest.raises(PetsError, match="not found"):
         PetsSequence(tmp_path)

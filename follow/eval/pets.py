@@ -16,7 +16,6 @@ Typical use::
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -79,40 +78,16 @@ class GtBox:
 
 def load_ground_truth(xml_path: str | Path) -> dict[int, list[GtBox]]:
     """Frame number -> boxes (768x576 pixels) with their hidden fractions filled in."""
-    xml_path = Path(xml_path)
+    from calib.gt_boxes import BoxFileError, read_boxes
+
     try:
-        root = ET.parse(xml_path).getroot()
-    except OSError as exc:
-        raise PetsError(f"PETS ground truth {xml_path}: cannot read ({exc.strerror})") from None
-    except ET.ParseError as exc:
-        raise PetsError(f"PETS ground truth {xml_path}: not valid XML ({exc})") from None
+        boxes = read_boxes(xml_path)
+    except BoxFileError as exc:
+        raise PetsError(f"PETS ground truth: {exc}") from None
     frames: dict[int, list[GtBox]] = {}
-    for frame_el in root.iter("frame"):
-        number = int(frame_el.get("number"))
-        boxes = []
-        for obj in frame_el.iter("object"):
-            box_el = obj.find("box")
-            if box_el is None:
-                raise PetsError(f"{xml_path}: frame {number}, object without <box>")
-            try:
-                boxes.append(
-                    GtBox(
-                        int(obj.get("id")),
-                        float(box_el.get("xc")),
-                        float(box_el.get("yc")),
-                        float(box_el.get("w")),
-                        float(box_el.get("h")),
-                    )
-                )
-            except (TypeError, ValueError):
-                raise PetsError(
-                    f"{xml_path}: frame {number}, object {obj.get('id')}: bad box attributes "
-                    f"{dict(box_el.attrib)}"
-                ) from None
-        frames[number] = with_hidden_fractions(boxes)
-    if not frames:
-        raise PetsError(f"{xml_path}: no <frame> elements")
-    return frames
+    for b in boxes:
+        frames.setdefault(b.frame, []).append(GtBox(b.person_id, b.xc_px, b.yc_px, b.w_px, b.h_px))
+    return {number: with_hidden_fractions(frame) for number, frame in sorted(frames.items())}
 
 
 def with_hidden_fractions(boxes: list[GtBox], grid_px: float = 1.0) -> list[GtBox]:
