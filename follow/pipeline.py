@@ -18,8 +18,6 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from follow.capture import LatestSlot
 from follow.control.target import TargetMotion
 from follow.frames import odom_to_base, vector_odom_to_base
@@ -275,15 +273,3 @@ class ThreadedRunner:
     @property
     def dropped_frames(self) -> int:
         return self.frames.dropped
-
-
-def summarize_targets(results: Iterable[FrameResult]) -> dict:
-    """Counts of frames per state, for summaries."""
-    states: dict[str, int] = {}
-    for r in results:
-        states[r.target.status.value] = states.get(r.target.status.value, 0) + 1
-    return states
-
-
-def finite_or_none(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
