@@ -118,9 +118,8 @@ class IdentifyConfig:
     reid_confidence: float = 0.2
     reid_frames: int = 5
     reid_margin: float = 0.2  # re-identification: lead over every other track, each frame
-    # Learning is skipped where a crop shows more than one person: the target is not
-    # learnt while another person's box covers more than this fraction of its box, and a
-    # negative covering that much of the target's box is left out.
+    # Learning is skipped where the target's crop shows more than one person: no frame is
+    # learnt while another person's box covers more than this fraction of the target's.
     max_learning_overlap: float = 0.3
     seed: int = 0
     # Region of interest cut from a track's neck and ankle pixels.

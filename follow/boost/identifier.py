@@ -17,8 +17,7 @@ A track's appearance is cut from the observation associated with it in this fram
 track without one (occluded, missed) has no appearance and no confidence this frame.
 Nothing is learnt from a crop that shows two people: while another person's box (seen,
 or predicted by the tracker) covers more than `max_learning_overlap` of the target's
-box the frame is not learnt, and a negative covering that much of the target's box is
-left out. Learning during a crossing would teach the target's appearance as the other
+box the frame is not learnt (neither the target nor the others). Learning during a crossing would teach the target's appearance as the other
 person's and the other way round, which later makes the wrong person look like the target.
 """
 
@@ -218,10 +217,7 @@ class TargetIdentifier:
         ):
             return False
         positives = [appearances[self.target_id]]
-        negatives = [
-            a for i, a in appearances.items()
-            if i != self.target_id and covered_fraction(target_box, boxes[i]) <= limit
-        ]  # fmt: skip
+        negatives = [a for i, a in appearances.items() if i != self.target_id]
         self.model.learn(positives, negatives)
         return True
 
