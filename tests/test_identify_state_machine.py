@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -196,7 +198,11 @@ def test_initial_training_counts_only_frames_it_could_learn(identifier):
     assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 1
 
 
-def test_reidentification_needs_a_lead_over_every_other_track(identifier):
+def test_reidentification_needs_a_lead_over_every_other_track():
+    cfg = dataclasses.replace(CFG, reid_margin=0.2)
+    identifier = TargetIdentifier(
+        cfg, ChannelFeatureExtractor((cfg.crop_width_px, cfg.crop_height_px))
+    )
     rng = np.random.default_rng(7)
     target, other = Person(1, 2.0, 180, RED), Person(2, 3.5, 460, BLUE)
     run(identifier, [target, other], CFG.initial_training_frames + 3, rng)
