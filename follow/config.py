@@ -118,6 +118,10 @@ class IdentifyConfig:
     id_switch_confidence: float = -0.1
     reid_confidence: float = 0.2
     reid_frames: int = 5
+    reid_margin: float = 0.0  # re-identification: lead over every other track, each frame
+    # Learning is skipped where the target's crop shows more than one person: no frame is
+    # learnt while another person's box covers more than this fraction of the target's.
+    max_learning_overlap: float = 0.3
     seed: int = 0
     # Region of interest cut from a track's neck and ankle pixels.
     crop_height_px: int = 128  # every ROI is resized to this before feature extraction

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from follow.boost.identifier import TargetIdentifier
+from follow.boost.identifier import TargetIdentifier, covered_fraction
 from follow.ccf.channels import ChannelFeatureExtractor
 from follow.config import IdentifyConfig
 from follow.types import InvalidInput, Observation, Odometry, TargetStatus, TrackState
@@ -137,3 +139,81 @@ def test_bad_input_is_rejected(identifier):
         identifier.update(np.zeros((48, 64, 3), np.uint8), [], float("nan"))
     with pytest.raises(ValueError, match="reid_confidence"):
         TargetIdentifier(IdentifyConfig(reid_confidence=-0.5), ChannelFeatureExtractor())
+
+
+def _count_learning(identifier):
+    calls = []
+    learn = identifier.model.learn
+
+    def spy(positives, negatives):
+        calls.append(len(negatives))
+        learn(positives, negatives)
+
+    identifier.model.learn = spy
+    return calls
+
+
+def test_covered_fraction():
+    assert covered_fraction((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(0.5)
+    assert covered_fraction((0, 0, 10, 10), (20, 0, 30, 10)) == 0.0
+    assert covered_fraction((0, 0, 10, 10), (-5, -5, 20, 20)) == 1.0
+
+
+def test_nothing_is_learnt_while_another_person_covers_the_target(identifier):
+    rng = np.random.default_rng(5)
+    target, other = Person(1, 2.0, 180, RED), Person(2, 3.0, 460, BLUE)
+    run(identifier, [target, other], CFG.initial_training_frames, rng)
+    calls = _count_learning(identifier)
+    run(identifier, [target, other], 2, rng)
+    assert calls == [1, 1]  # apart: the target and one negative per frame
+
+    other.column_px = 230  # walks in front of the target: boxes 140 px wide, 50 px apart
+    crossing = run(identifier, [target, other], 4, rng)
+    assert len(calls) == 2
+    assert all(e.status == TargetStatus.TRACKING and e.target_id == 1 for e in crossing)
+
+    other.observed = False  # hidden behind the target: its predicted box still counts
+    image, tracks = frame([target, other], rng)
+    hidden = tracks[1]
+    tracks[1] = TrackState(
+        hidden.track_id, hidden.mean, hidden.cov, True, 0.0,
+        expected_neck_px=np.array([200.0, 120.0]), expected_ankle_px=np.array([200.0, 400.0]),
+    )  # fmt: skip
+    identifier.update(image, tracks, 10.0)
+    assert len(calls) == 2
+
+    other.observed, other.column_px = True, 460  # apart again: learning resumes
+    run(identifier, [target, other], 1, rng, t0=11.0)
+    assert calls[2:] == [1]
+
+
+def test_initial_training_counts_only_frames_it_could_learn(identifier):
+    rng = np.random.default_rng(6)
+    target, other = Person(1, 2.0, 180, RED), Person(2, 3.0, 220, BLUE)
+    ests = run(identifier, [target, other], CFG.initial_training_frames + 2, rng)
+    assert all(e.status == TargetStatus.INITIAL_TRAINING for e in ests)
+    other.column_px = 460
+    ests = run(identifier, [target, other], CFG.initial_training_frames, rng, t0=5.0)
+    assert ests[-2].status == TargetStatus.INITIAL_TRAINING
+    assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 1
+
+
+def test_reidentification_needs_a_lead_over_every_other_track():
+    cfg = dataclasses.replace(CFG, reid_margin=0.2)
+    identifier = TargetIdentifier(
+        cfg, ChannelFeatureExtractor((cfg.crop_width_px, cfg.crop_height_px))
+    )
+    rng = np.random.default_rng(7)
+    target, other = Person(1, 2.0, 180, RED), Person(2, 3.5, 460, BLUE)
+    run(identifier, [target, other], CFG.initial_training_frames + 3, rng)
+    run(identifier, [other], 2, rng, t0=3.0)  # the target leaves: re-identification
+    assert identifier.status == TargetStatus.REIDENTIFICATION
+
+    twin_a, twin_b = Person(5, 2.5, 120, RED), Person(6, 2.5, 320, RED)  # two look-alikes
+    ests = run(identifier, [twin_a, twin_b, other], 3 * CFG.reid_frames, rng, t0=4.0)
+    assert all(e.confidences[5] >= CFG.reid_confidence for e in ests)
+    assert all(e.confidences[6] >= CFG.reid_confidence for e in ests)
+    assert all(e.status == TargetStatus.REIDENTIFICATION and e.target_id is None for e in ests)
+
+    ests = run(identifier, [twin_b, other], CFG.reid_frames, rng, t0=8.0)  # one is left
+    assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 6

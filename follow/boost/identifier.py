@@ -10,11 +10,15 @@ initial -> initial training -> tracking <-> re-identification
   `id_switch_confidence`; below it, or when the target's track is lost, the identity is
   no longer trusted and the state becomes re-identification.
 - re-identification: nothing is learnt; a track whose confidence is at least
-  `reid_confidence` in `reid_frames` consecutive frames in which it is seen becomes the
-  target again.
+  `reid_confidence` and ahead of every other seen track's by `reid_margin`, in
+  `reid_frames` consecutive frames in which it is seen, becomes the target again.
 
 A track's appearance is cut from the observation associated with it in this frame; a
 track without one (occluded, missed) has no appearance and no confidence this frame.
+Nothing is learnt from a crop that shows two people: while another person's box (seen,
+or predicted by the tracker) covers more than `max_learning_overlap` of the target's
+box the frame is not learnt (neither the target nor the others). Learning during a crossing would teach the target's appearance as the other
+person's and the other way round, which later makes the wrong person look like the target.
 """
 
 from __future__ import annotations
@@ -55,6 +59,11 @@ class TargetIdentifier:
                 f"reid_confidence ({config.reid_confidence}) must not be below "
                 f"id_switch_confidence ({config.id_switch_confidence})"
             )
+        if config.reid_margin < 0.0 or not 0.0 <= config.max_learning_overlap <= 1.0:
+            raise ValueError(
+                f"reid_margin ({config.reid_margin}) must be >= 0 and max_learning_overlap "
+                f"({config.max_learning_overlap}) in [0, 1]"
+            )
         self.config = config
         self.model = AppearanceModel(config, extractor, reid)
         self._requested_id: int | None = None
@@ -93,12 +102,30 @@ class TargetIdentifier:
                 out[track.track_id] = roi
         return out
 
-    def _appearances(self, image_bgr, tracks) -> dict[int, Appearance]:
+    def person_boxes(
+        self, tracks: Sequence[TrackState], rois: dict, image_size: tuple[int, int]
+    ) -> dict:
+        """track id -> the box a person occupies: its ROI when seen, else the box of the
+        tracker's expected neck and ankle pixels (a person hidden behind another)."""
+        out = dict(rois)
+        for track in tracks:
+            if track.track_id in out or track.expected_neck_px is None:
+                continue
+            if track.expected_ankle_px is None:
+                continue
+            roi = roi_from_keypoints(
+                track.expected_neck_px, track.expected_ankle_px, image_size, self.config
+            )
+            if roi is not None:
+                out[track.track_id] = roi
+        return out
+
+    def _appearances(self, image_bgr, tracks) -> tuple[dict[int, Appearance], dict]:
         h, w = image_bgr.shape[:2]
         rois = self.rois(tracks, (w, h))
         ids = list(rois)
         described = self.model.describe(image_bgr, [rois[i] for i in ids])
-        return dict(zip(ids, described, strict=True))
+        return dict(zip(ids, described, strict=True)), self.person_boxes(tracks, rois, (w, h))
 
     # -------------------------------------------------------------------- per frame
     def update(
@@ -133,7 +160,7 @@ class TargetIdentifier:
             log.info("target track %d lost: re-identification", self.target_id)
             self._enter_reidentification()
 
-        appearances = self._appearances(image_bgr, tracks)
+        appearances, boxes = self._appearances(image_bgr, tracks)
         ids = list(appearances)
         scores = (
             self.model.confidence([appearances[i] for i in ids])
@@ -143,8 +170,7 @@ class TargetIdentifier:
         confidences = {i: float(c) for i, c in zip(ids, scores, strict=True)}
 
         if self.status == TargetStatus.INITIAL_TRAINING:
-            if self.target_id in appearances:
-                self._learn(appearances)
+            if self.target_id in appearances and self._learn(appearances, boxes):
                 self._training_frames += 1
                 if self._training_frames >= self.config.initial_training_frames:
                     log.info("target track %d learnt: tracking", self.target_id)
@@ -159,7 +185,7 @@ class TargetIdentifier:
                     )  # fmt: skip
                     self._enter_reidentification()
                 else:
-                    self._learn(appearances)
+                    self._learn(appearances, boxes)
         if self.status == TargetStatus.REIDENTIFICATION:
             self._reidentify(confidences)
         return TargetEstimate(self.status, self.target_id, confidences, stamp_s)
@@ -180,10 +206,20 @@ class TargetIdentifier:
                 best, best_distance = track.track_id, distance
         return best
 
-    def _learn(self, appearances: dict[int, Appearance]) -> None:
+    def _learn(self, appearances: dict[int, Appearance], boxes: dict) -> bool:
+        """Learn the frame unless the target's crop shows someone else; whether it did."""
+        target_box = boxes[self.target_id]
+        limit = self.config.max_learning_overlap
+        if any(
+            covered_fraction(target_box, box) > limit
+            for i, box in boxes.items()
+            if i != self.target_id
+        ):
+            return False
         positives = [appearances[self.target_id]]
         negatives = [a for i, a in appearances.items() if i != self.target_id]
         self.model.learn(positives, negatives)
+        return True
 
     def _enter_reidentification(self) -> None:
         self.status = TargetStatus.REIDENTIFICATION
@@ -192,7 +228,11 @@ class TargetIdentifier:
 
     def _reidentify(self, confidences: dict[int, float]) -> None:
         for track_id, confidence in confidences.items():
-            if confidence >= self.config.reid_confidence:
+            runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
+            if (
+                confidence >= self.config.reid_confidence
+                and confidence - runner_up >= self.config.reid_margin
+            ):
                 self._reid_streaks[track_id] = self._reid_streaks.get(track_id, 0) + 1
             else:
                 self._reid_streaks[track_id] = 0
@@ -205,6 +245,14 @@ class TargetIdentifier:
             self.status = TargetStatus.TRACKING
             self._reid_streaks = {}
             log.info("target re-identified as track %d", self.target_id)
+
+
+def covered_fraction(box, other) -> float:
+    """Fraction of `box`'s area (x0, y0, x1, y1) that `other` covers."""
+    w = min(box[2], other[2]) - max(box[0], other[0])
+    h = min(box[3], other[3]) - max(box[1], other[1])
+    area = (box[2] - box[0]) * (box[3] - box[1])
+    return max(0, w) * max(0, h) / area if area > 0 else 0.0
 
 
 def _hip_of(observation) -> np.ndarray | None:

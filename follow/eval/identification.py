@@ -7,6 +7,12 @@ later frame is then CT, CL, WT or WL (see `identification_metrics`). A person is
 visible when annotated and not more than half hidden behind someone nearer the camera;
 a named track is the target when its position lies within the match distance of the
 target's annotated position.
+
+By default each target is scored only until its last annotated frame: the ground truth
+gives a person who leaves the view and comes back a new id, so after a trajectory ends
+it cannot tell whether a person named later is the target returning (right) or someone
+else (wrong). `--whole-sequence` scores to the end anyway, counting any later naming as
+wrong tracking.
 """
 
 from __future__ import annotations
@@ -33,6 +39,10 @@ def add_arguments(p) -> None:
     p.add_argument("--max-targets", type=int, help="evaluate at most this many targets")
     p.add_argument("--match-distance-m", type=float, default=1.0)
     p.add_argument("--max-hidden-fraction", type=float, default=0.5)
+    p.add_argument("--whole-sequence", action="store_true",
+                   help="score every target to the end of the sequence, not only until its "
+                        "last annotated frame (people who return get new ids in the ground "
+                        "truth, so re-identifying them counts as wrong)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration")
     p.add_argument("--plot", help="write a PNG timeline of outcomes per target here")
     p.add_argument("--no-cache", action="store_true", help="run the pose network again")
@@ -67,8 +77,10 @@ def _track_near(tracks, position_m, max_distance_m: float, confirmed_only: bool)
 
 
 def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame, target_ids,
-             identifier_name: str, config: Config, match_m: float, max_hidden: float):  # fmt: skip
-    """Per target: the OutcomeTally over the frames after it was selected."""
+             identifier_name: str, config: Config, match_m: float, max_hidden: float,
+             whole_sequence: bool = False):  # fmt: skip
+    """Per target: the OutcomeTally over the frames after it was selected, up to its last
+    annotated frame (to the end with `whole_sequence`)."""
     from follow.boost.factory import build_identifier
 
     section = dataclasses.replace(config.identify, identifier=identifier_name)
@@ -81,7 +93,8 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
         identifier.model.describe = cache
         tally = OutcomeTally()
         selected = False
-        for position, (index, image) in enumerate(setup.sequence.frames(frames)):
+        last = last_annotated(gt_per_frame, target) if not whole_sequence else len(frames) - 1
+        for position, (index, image) in enumerate(setup.sequence.frames(frames[: last + 1])):
             tracks = tracks_per_frame[position]
             people = gt_per_frame[position]
             target_box = people.get(target)
@@ -106,6 +119,11 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
             tally.add(classify(visible, named, named_is_target), 1.0 / PETS_FPS)
         out[target] = tally
     return out
+
+
+def last_annotated(gt_per_frame, person_id: int) -> int:
+    """Position of the last frame in which the person is annotated (-1: never)."""
+    return max((i for i, people in enumerate(gt_per_frame) if person_id in people), default=-1)
 
 
 def plot(per_identifier: dict, path: str) -> None:
@@ -169,7 +187,8 @@ def main(args) -> dict:
     per_identifier, result = {}, {}
     for name in names:
         per_target = evaluate(setup, frames, tracks_per_frame, gt_per_frame, targets, name,
-                              config, args.match_distance_m, args.max_hidden_fraction)  # fmt: skip
+                              config, args.match_distance_m, args.max_hidden_fraction,
+                              whole_sequence=args.whole_sequence)  # fmt: skip
         per_identifier[name] = per_target
         total = OutcomeTally()
         for tally in per_target.values():
