@@ -23,7 +23,7 @@ import numpy as np
 
 from follow.config import Config
 from follow.eval.identification_metrics import OUTCOMES, OutcomeTally, classify
-from follow.eval.pets_setup import PETS_FPS, PetsSetup, pets_skeletons
+from follow.eval.pets_setup import PETS_FPS, PetsSetup, load_evaluation
 from follow.types import TargetStatus
 
 IDENTIFIERS = ("ccf10", "ccf10+reid", "reid")
@@ -159,11 +159,8 @@ def main(args) -> dict:
     from follow.pose.observations import skeletons_to_observations
     from follow.ukf.tracker import PeopleTracker
 
-    config = Config.load(args.config) if args.config else Config()
-    setup = PetsSetup.load()
-    n = setup.frame_count if args.frames is None else min(args.frames, setup.frame_count)
-    frames = list(range(n))
-    skeletons = pets_skeletons(setup, frames, config.pose, use_cache=not args.no_cache)
+    config, setup, frames, skeletons = load_evaluation(args)
+    n = len(frames)
     tracker = PeopleTracker(setup.camera, config.tracker)
     tracks_per_frame, gt_per_frame = [], []
     visible_frames: dict[int, int] = {}

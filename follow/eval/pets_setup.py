@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from follow.camera import CameraModel
-from follow.config import PoseConfig
+from follow.config import Config, PoseConfig
 from follow.types import Skeleton
 
 log = logging.getLogger(__name__)
@@ -67,6 +67,16 @@ class PetsSetup:
     @property
     def frame_count(self) -> int:
         return self.sequence.frame_count
+
+
+def load_evaluation(args) -> tuple[Config, PetsSetup, list[int], dict[int, list[Skeleton]]]:
+    """What every PETS evaluation starts from: the configuration (`--config`), the
+    sequence, its first `--frames` frame indices and their skeletons (`--no-cache`)."""
+    config = Config.load(args.config) if args.config else Config()
+    setup = PetsSetup.load()
+    n = setup.frame_count if args.frames is None else min(args.frames, setup.frame_count)
+    frames = list(range(n))
+    return config, setup, frames, pets_skeletons(setup, frames, config.pose, not args.no_cache)
 
 
 def _cache_path(pose_config: PoseConfig, frames: list[int]) -> Path:

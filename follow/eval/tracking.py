@@ -9,7 +9,7 @@ from scipy.optimize import linear_sum_assignment
 
 from follow.config import Config
 from follow.eval.mot import GroundPlaneMot
-from follow.eval.pets_setup import PETS_FPS, PetsSetup, pets_skeletons
+from follow.eval.pets_setup import PETS_FPS, PetsSetup, load_evaluation
 
 METHODS = ("ours", "direct", "norfair", "bytetrack")
 
@@ -115,11 +115,8 @@ def plot(results: dict, path: str) -> None:
 
 
 def main(args) -> dict:
-    config = Config.load(args.config) if args.config else Config()
-    setup = PetsSetup.load()
-    n = setup.frame_count if args.frames is None else min(args.frames, setup.frame_count)
-    frames = list(range(n))
-    skeletons = pets_skeletons(setup, frames, config.pose, use_cache=not args.no_cache)
+    config, setup, frames, skeletons = load_evaluation(args)
+    n = len(frames)
     results = score(setup, frames, run_methods(setup, frames, skeletons, config),
                     args.match_threshold_m)  # fmt: skip
     if args.plot:

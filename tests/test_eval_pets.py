@@ -1,0 +1,45 @@
+"""The PETS 2009 evaluations on a short stretch (60 frames, one pose run shared through
+the detection cache)."""
+
+import json
+
+import pytest
+
+from follow import cli
+
+FRAMES = "60"
+
+
+def _run(capsys, *args) -> dict:
+    capsys.readouterr()
+    assert cli.main(list(args)) == 0
+    return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+@pytest.fixture
+def pets(data_path, model_path):
+    data_path("pets2009_s2l1/View_001.avi")
+    model_path("pose/human-pose-estimation-0001.onnx")
+
+
+def test_tracking_evaluation_ranks_our_tracker_first(pets, capsys, tmp_path):
+    r = _run(capsys, "eval", "tracking", "--frames", FRAMES, "--plot",
+             str(tmp_path / "t.png"), "--json")  # fmt: skip
+    assert set(r) >= {"ours", "direct", "norfair", "bytetrack"}
+    ours = r["ours"]
+    assert ours["gt_objects"] > 250  # about 4.7 annotated people per frame
+    assert ours["mota"] > 0.6 and ours["idf1"] > 0.6
+    for other in ("direct", "norfair", "bytetrack"):
+        assert ours["mota"] > r[other]["mota"], (other, r)
+    assert (tmp_path / "t.png").stat().st_size > 10_000
+
+
+def test_identification_evaluation_accounts_for_every_frame(pets, capsys, tmp_path):
+    r = _run(capsys, "eval", "identification", "--frames", FRAMES, "--identifiers", "ccf10",
+             "--min-visible-s", "5", "--max-targets", "2", "--plot", str(tmp_path / "i.png"),
+             "--json")  # fmt: skip
+    assert len(r["targets"]) == 2
+    fractions = r["ccf10"]
+    assert sum(fractions[k] for k in ("ct", "cl", "wt", "wl")) == pytest.approx(1.0, abs=1e-3)
+    assert fractions["ct"] > 0.5  # the selected person is followed most of the time
+    assert (tmp_path / "i.png").stat().st_size > 5_000
