@@ -122,6 +122,14 @@ class IdentifyConfig:
     # Learning is skipped where the target's crop shows more than one person: no frame is
     # learnt while another person's box covers more than this fraction of the target's.
     max_learning_overlap: float = 0.3
+    # A low confidence means another person only where the tracker could have swapped
+    # them: when another track came within identity_risk_distance_m of the target on
+    # the floor, or the target's track went unseen for identity_risk_unseen_s, within
+    # identity_trust_s. Otherwise (a person turning round, say) the frame is only not
+    # learnt, and the tracker's identity is kept.
+    identity_trust_s: float = 1.5
+    identity_risk_distance_m: float = 1.0
+    identity_risk_unseen_s: float = 0.5
     seed: int = 0
     # Region of interest cut from a track's neck and ankle pixels.
     crop_height_px: int = 128  # every ROI is resized to this before feature extraction

@@ -22,12 +22,15 @@ class Person:
         self.track_id, self.x_m, self.column_px = track_id, x_m, column_px
         self.shirt, self.trousers, self.confirmed = shirt, trousers, confirmed
         self.observed = True
+        self.last_seen_s = 0.0
 
 
-def frame(people, rng):
+def frame(people, rng, stamp_s=0.0):
     image = rng.integers(90, 140, size=(IMAGE_SIZE[1], IMAGE_SIZE[0], 3), dtype=np.uint8)
     tracks = []
     for p in people:
+        if p.observed:
+            p.last_seen_s = stamp_s
         neck = np.array([p.column_px, 120.0])
         ankle = np.array([p.column_px, 400.0])
         x0, x1 = int(p.column_px - 45), int(p.column_px + 45)
@@ -39,7 +42,7 @@ def frame(people, rng):
         tracks.append(
             TrackState(
                 p.track_id, np.array([p.x_m, 0.0, 0.0, 0.0, 1.45]), np.eye(5) * 0.1,
-                p.confirmed, 0.0,
+                p.confirmed, p.last_seen_s,
                 observation=Observation(neck, ankle) if p.observed else None,
             )
         )  # fmt: skip
@@ -49,7 +52,7 @@ def frame(people, rng):
 def run(identifier, people, n, rng, t0=0.0):
     out = []
     for k in range(n):
-        image, tracks = frame(people, rng)
+        image, tracks = frame(people, rng, t0 + k / 10.0)
         out.append(identifier.update(image, tracks, t0 + k / 10.0))
     return out
 
@@ -88,13 +91,28 @@ def test_confidence_drop_triggers_reidentification(identifier):
     other = Person(2, 3.0, 460, BLUE)
     run(identifier, [target, other], CFG.initial_training_frames + 3, rng)
     assert identifier.status == TargetStatus.TRACKING
-    # the tracker swaps identities: track 1 now follows the other person
+    other.column_px, other.x_m = 240, 2.5  # the other walks past, close to the target
+    run(identifier, [target, other], 1, rng)
+    # and the tracker swaps identities: track 1 now follows the other person
     swapped = [Person(1, 2.0, 180, BLUE), Person(2, 3.0, 460, RED)]
     est = run(identifier, swapped, 1, rng)[0]
     assert est.confidences[1] < CFG.id_switch_confidence
     assert est.status == TargetStatus.REIDENTIFICATION and est.target_id is None
     ests = run(identifier, swapped, CFG.reid_frames, rng)
     assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 2
+
+
+def test_an_appearance_change_with_nobody_near_keeps_the_target(identifier):
+    rng = np.random.default_rng(4)
+    target = Person(1, 2.0, 180, RED)
+    other = Person(2, 4.0, 460, BLUE)  # 2 m behind and to the side: no swap possible
+    run(identifier, [target, other], CFG.initial_training_frames + 3, rng)
+    target.shirt = BLUE  # turns round, takes off a jacket: nobody else came near
+    ests = run(identifier, [target, other], 5, rng, t0=2.0)
+    assert all(e.confidences[1] < CFG.id_switch_confidence for e in ests)  # it looks new
+    assert all(e.status == TargetStatus.TRACKING and e.target_id == 1 for e in ests)
+    target.shirt = RED  # and nothing of the new look was learnt
+    assert run(identifier, [target, other], 1, rng, t0=3.0)[0].confidences[1] > 0.5
 
 
 def test_unobserved_tracks_have_no_appearance_and_do_not_break_tracking(identifier):

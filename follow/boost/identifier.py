@@ -78,6 +78,7 @@ class TargetIdentifier:
         self.model.reset()
         self.status = TargetStatus.INITIAL
         self.target_id: int | None = None
+        self._identity_risk_s = -math.inf  # when the tracker last could have swapped it
         self._training_frames = 0
         self._reid_streaks: dict[int, int] = {}
 
@@ -161,6 +162,8 @@ class TargetIdentifier:
             self._enter_reidentification()
 
         appearances, boxes = self._appearances(image_bgr, tracks)
+        if self.target_id is not None and self._identity_at_risk(by_id, stamp_s):
+            self._identity_risk_s = stamp_s
         ids = list(appearances)
         scores = (
             self.model.confidence([appearances[i] for i in ids])
@@ -177,7 +180,14 @@ class TargetIdentifier:
                     self.status = TargetStatus.TRACKING
         elif self.status == TargetStatus.TRACKING:
             if self.target_id in confidences:
-                if confidences[self.target_id] < self.config.id_switch_confidence:
+                low = confidences[self.target_id] < self.config.id_switch_confidence
+                trusted = stamp_s - self._identity_risk_s > self.config.identity_trust_s
+                if low and trusted:
+                    log.debug(
+                        "target track %d confidence %.2f is low, but nobody came near it: "
+                        "not learnt", self.target_id, confidences[self.target_id],
+                    )  # fmt: skip
+                elif low:
                     log.info(
                         "target track %d confidence %.2f below %.2f: re-identification",
                         self.target_id, confidences[self.target_id],
@@ -205,6 +215,16 @@ class TargetIdentifier:
             if x > 0.0 and distance <= best_distance:
                 best, best_distance = track.track_id, distance
         return best
+
+    def _identity_at_risk(self, by_id: dict, stamp_s: float) -> bool:
+        """Whether the tracker could be swapping the target with someone this frame: its
+        track has gone unseen for a while, or another track stands near it on the floor."""
+        target = by_id[self.target_id]
+        if stamp_s - target.last_seen_s > self.config.identity_risk_unseen_s:
+            return True
+        limit = self.config.identity_risk_distance_m
+        return any(float(np.linalg.norm(t.position_m - target.position_m)) <= limit
+                   for i, t in by_id.items() if i != self.target_id)  # fmt: skip
 
     def _learn(self, appearances: dict[int, Appearance], boxes: dict) -> bool:
         """Learn the frame unless the target's crop shows someone else; whether it did."""

@@ -70,6 +70,25 @@ def _ok(p: np.ndarray) -> bool:
     return bool(np.isfinite(p).all()) and bool(np.abs(p).max() < 1e5)
 
 
+TORSO_MIN_WIDTH_M = 0.3  # a body seen from the side is still about this wide
+
+
+def torso_quad(k: np.ndarray, px_per_m: float) -> np.ndarray:
+    """The torso as a quadrilateral between shoulders and hips, at least as wide as a
+    body's depth, so that a person seen from the side still shows their clothes."""
+    top = 0.5 * (k[R_SHOULDER] + k[L_SHOULDER])
+    bottom = 0.5 * (k[R_HIP] + k[L_HIP])
+    axis = bottom - top
+    length = float(np.hypot(*axis))
+    if length < 1e-6:
+        return np.int32([k[i] for i in (R_SHOULDER, L_SHOULDER, L_HIP, R_HIP)])
+    across = np.array([-axis[1], axis[0]]) / length
+    half_width = max(0.625 * abs(float((k[L_SHOULDER] - k[R_SHOULDER]) @ across)),
+                     0.5 * TORSO_MIN_WIDTH_M * px_per_m)  # fmt: skip
+    return np.int32([top - half_width * across, top + half_width * across,
+                     bottom + half_width * across, bottom - half_width * across])  # fmt: skip
+
+
 def draw_person(image: np.ndarray, view: PersonView) -> None:
     k, a, s = view.keypoints_px, view.appearance, view.px_per_m
     limb = max(1, int(0.11 * s))
@@ -82,9 +101,7 @@ def draw_person(image: np.ndarray, view: PersonView) -> None:
         seg(i, j, a.trousers_bgr)
     torso_ids = (R_SHOULDER, L_SHOULDER, L_HIP, R_HIP)
     if all(_ok(k[i]) for i in torso_ids):
-        quad = np.int32([k[i] for i in torso_ids])
-        centre = quad.mean(axis=0)
-        quad = np.int32(centre + 1.25 * (quad - centre))
+        quad = torso_quad(k, s)
         cv2.fillConvexPoly(image, quad, a.shirt_bgr, cv2.LINE_AA)
         if a.stripes_bgr is not None:
             top, bottom = quad[:, 1].min(), quad[:, 1].max()

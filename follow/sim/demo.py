@@ -34,7 +34,7 @@ TARGET_LOOK = Appearance((40, 40, 200), (90, 60, 30), (90, 130, 190), (30, 50, 9
 LOOKALIKE = Appearance((50, 45, 190), (200, 200, 200), (120, 160, 215), (20, 20, 20))
 DEMO_CAMERA = SimCameraConfig(
     height_m=0.9, pitch_rad=0.0, horizontal_fov_deg=70.0,
-    image_width_px=640, image_height_px=360, detection_scale=1.0, fps=15.0,
+    image_width_px=640, image_height_px=480, detection_scale=1.0, fps=15.0,
 )  # fmt: skip
 
 
