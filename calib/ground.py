@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from calib.chessboard import BoardNotFoundError, Detection, check_pattern_size, detect_chessboard
-from follow.camera import CameraModel, CameraPose
+from follow.camera import CameraPose
 
 OUTLIER_ROUNDS = 3
 OUTLIER_FACTOR = 4.0
@@ -177,12 +177,6 @@ def estimate_ground_pose(
         sharpness_px=detection.sharpness_px,
         pattern_size=(cols, rows),
     )
-
-
-def camera_for_result(
-    model: CameraModel, result: GroundPoseResult, yaw_rad: float, x_m: float, y_m: float
-) -> CameraModel:
-    return model.with_pose(result.pose(yaw_rad, x_m, y_m))
 
 
 def average_frames(frames: list[np.ndarray]) -> np.ndarray:
