@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from calib.chessboard import BoardNotFoundError, Detection, check_pattern_size, detect_chessboard
-from follow.camera import CameraModel, CameraPose
+from follow.camera import CameraPose
 
 OUTLIER_ROUNDS = 3
 OUTLIER_FACTOR = 4.0
@@ -43,6 +43,7 @@ class GroundPoseResult:
     outlier_corners: int  # corners left out: the detector misplaced them
     corners_px: np.ndarray  # (N, 2) detected corners
     sharpness_px: float
+    pattern_size: tuple[int, int]
 
     @property
     def board_distance_m(self) -> float:
@@ -52,10 +53,22 @@ class GroundPoseResult:
         return CameraPose(self.height_m, self.pitch_rad, self.roll_rad, yaw_rad, x_m, y_m)
 
     def pose_from_board_in_base(
-        self, board_centre_base_m: tuple[float, float], board_yaw_base_rad: float
+        self,
+        board_centre_base_m: tuple[float, float],
+        board_yaw_base_rad: float,
+        prior_yaw_rad: float = 0.0,
     ) -> CameraPose:
-        """The full pose when the board's centre and row direction in `base` are known."""
-        dyaw = board_yaw_base_rad - self.board_yaw_level_rad
+        """The full pose when the board's centre and row direction in `base` are known.
+
+        A row's direction is only known up to a half turn (the detector may start at either
+        end; on a square pattern rows and columns may swap, a quarter turn): of the camera
+        yaws this allows, the one nearest `prior_yaw_rad` is taken.
+        """
+        cols, rows = self.pattern_size
+        step = math.pi / 2 if cols == rows else math.pi
+        raw = board_yaw_base_rad - self.board_yaw_level_rad
+        k = round((prior_yaw_rad - raw) / step)
+        dyaw = raw + k * step
         c, s = math.cos(dyaw), math.sin(dyaw)
         rotated = np.array([[c, -s], [s, c]]) @ self.board_centre_level_m
         offset = np.asarray(board_centre_base_m, dtype=np.float64) - rotated
@@ -162,13 +175,8 @@ def estimate_ground_pose(
         outlier_corners=int((~inliers).sum()),
         corners_px=corners,
         sharpness_px=detection.sharpness_px,
+        pattern_size=(cols, rows),
     )
-
-
-def camera_for_result(
-    model: CameraModel, result: GroundPoseResult, yaw_rad: float, x_m: float, y_m: float
-) -> CameraModel:
-    return model.with_pose(result.pose(yaw_rad, x_m, y_m))
 
 
 def average_frames(frames: list[np.ndarray]) -> np.ndarray:

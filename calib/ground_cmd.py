@@ -48,8 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--board-in-base", type=float, nargs=3, metavar=("X_M", "Y_M", "YAW_DEG"),
-        help="where the board lies in `base` (its inner-corner centre and the direction of "
-        "its first detected row): also sets the camera's yaw and x/y offsets",
+        help="where the board lies in `base`: its inner-corner centre and the direction of its "
+        "rows (the side with COLS corners; either way along it): also sets the camera's yaw "
+        "(the one nearest the file's) and x/y offsets",
     )  # fmt: skip
 
 
@@ -71,7 +72,8 @@ def main(args: argparse.Namespace) -> dict:
     result = estimate_ground_pose(image, seen.K, seen.dist, args.pattern, args.square_size_m)
     if args.board_in_base is not None:
         bx, by, byaw_deg = args.board_in_base
-        pose = result.pose_from_board_in_base((bx, by), math.radians(byaw_deg))
+        prior = camera.pose.yaw_rad
+        pose = result.pose_from_board_in_base((bx, by), math.radians(byaw_deg), prior)
     else:
         old = camera.pose
         pose = result.pose(old.yaw_rad, old.x_m, old.y_m)

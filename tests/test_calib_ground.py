@@ -77,13 +77,13 @@ def test_board_in_base_gives_yaw_and_offsets():
     result = estimate_ground_pose(image, cam.K, cam.dist, (7, 5), 0.1)
     c, s = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
     centre_base = np.array([1.6, 0.2]) + np.array([[c, -s], [s, c]]) @ board.centre_m
-    # The detected corner order may start at either end: give the detected row direction.
-    row_yaw = math.radians(30.0) + (
-        0.0 if abs(result.board_yaw_level_rad - math.radians(20.0)) < 1 else math.pi
-    )
-    pose = result.pose_from_board_in_base(tuple(centre_base), row_yaw)
-    assert math.degrees(pose.yaw_rad) == pytest.approx(10.0, abs=0.3)
-    assert (pose.x_m, pose.y_m) == pytest.approx((0.2, -0.1), abs=0.02)
+    # The rows' direction is given either way along them; the yaw nearest the prior wins.
+    for row_yaw_deg in (30.0, 210.0):
+        pose = result.pose_from_board_in_base(tuple(centre_base), math.radians(row_yaw_deg))
+        assert math.degrees(pose.yaw_rad) == pytest.approx(10.0, abs=0.3)
+        assert (pose.x_m, pose.y_m) == pytest.approx((0.2, -0.1), abs=0.02)
+    pose = result.pose_from_board_in_base(tuple(centre_base), math.radians(30.0), math.pi)
+    assert abs(math.degrees(pose.yaw_rad)) == pytest.approx(170.0, abs=0.3)
 
 
 def test_no_board_is_a_clear_error():

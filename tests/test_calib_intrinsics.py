@@ -107,3 +107,23 @@ def test_intrinsics_command_rejects_a_bad_pattern(capsys):
     with pytest.raises(SystemExit):
         cli.main(["intrinsics", "x", "--pattern", "9by6", "--square-size-m", "0.03"])
     assert "must look like 9x6" in capsys.readouterr().err
+
+
+def test_intrinsics_command_on_a_video_drops_repeated_frames(views, tmp_path, capsys):
+    video = tmp_path / "board.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (640, 480))
+    assert writer.isOpened()
+    for _, image in views[:5]:
+        for _ in range(2):  # the camera lingers: each pose twice
+            writer.write(cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    argv = ["intrinsics", str(video), "--every", "1", "--pattern", "9x6", "--square-size-m",
+            "0.03", "-o", str(tmp_path / "cam.json"), "--json"]  # fmt: skip
+    assert cli.main(argv) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["views_used"] == 5
+    duplicates = [r for r in result["rejected"] if r["reason"].startswith("near-duplicate")]
+    assert [r["view"] for r in duplicates] == [f"frame {i}" for i in (1, 3, 5, 7, 9)]
+    assert CameraModel.load(tmp_path / "cam.json").K[0, 0] == pytest.approx(
+        TRUE_CAMERA.K[0, 0], rel=0.02
+    )
