@@ -154,38 +154,22 @@ def test_ground_command_without_board_fails_cleanly(board_scene, capsys):
     _, folder = board_scene
     blank = folder / "blank.png"
     cv2.imwrite(str(blank), np.full((120, 160), 100, np.uint8))
-    rc = cli.main(
-        [
-            "ground",
-            str(blank),
-            "--camera",
-            str(folder / "cam.yaml"),
-            "--pattern",
-            "7x5",
-            "--square-size-m",
-            "0.1",
-        ]  # fmt: skip
-    )
+    rc = ground_command(blank, folder)
     assert rc == 2
     assert "no 7x5 chessboard" in capsys.readouterr().err
+
+
+def ground_command(image, folder):
+    """`follow-calib ground` on one image with the scene's camera and board."""
+    return cli.main(["ground", str(image), "--camera", str(folder / "cam.yaml"),
+                     "--pattern", "7x5", "--square-size-m", "0.1"])  # fmt: skip
 
 
 def test_ground_command_names_a_broken_image(board_scene, capsys):
     _, folder = board_scene
     broken = folder / "broken.png"
     broken.write_bytes(b"\x89PNG not really")
-    rc = cli.main(
-        [
-            "ground",
-            str(broken),
-            "--camera",
-            str(folder / "cam.yaml"),
-            "--pattern",
-            "7x5",
-            "--square-size-m",
-            "0.1",
-        ]  # fmt: skip
-    )
+    rc = ground_command(broken, folder)
     assert rc == 2
     err = capsys.readouterr().err
     assert "broken.png" in err and "not a readable image" in err

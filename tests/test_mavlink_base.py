@@ -5,6 +5,7 @@ import time
 
 import pytest
 from pymavlink import mavutil
+from waiting import wait_for
 
 from follow.config import ConfigError, MavlinkConfig
 from follow.control import mavlink_frames as mf
@@ -14,15 +15,6 @@ from follow.sim.rover import RoverLimits, SimRover
 from follow.types import Odometry, VelocityCommand
 
 FAST = dict(heartbeat_timeout_s=0.6, connect_timeout_s=2.0, odometry_timeout_s=0.3)
-
-
-def wait_for(predicate, timeout_s=2.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def drive(base, forward, yaw_rate, seconds, period_s=0.05):

@@ -5,21 +5,13 @@ import time
 
 import pytest
 from pymavlink import mavutil
+from waiting import wait_for
 
 from follow.control import mavlink_frames as mf
 from follow.sim.rover import RoverLimits, SimRover
 from follow.types import Odometry
 
 mavlink = mavutil.mavlink
-
-
-def wait_for(predicate, timeout_s=2.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 class Companion:
