@@ -55,13 +55,10 @@ def main(args: argparse.Namespace) -> dict:
     camera = CameraModel.load(args.camera)
     frame = _frame(args.source, args.frame)
     h, w = frame.shape[:2]
-    cw, ch = camera.image_size
-    if abs(w / h - cw / ch) > 0.01:
-        raise ImageInputError(
-            f"frame is {w}x{h} but the camera file {args.camera} is for {cw}x{ch} "
-            "(another aspect ratio)"
-        )
-    seen = camera if (w, h) == camera.image_size else camera.scaled(w, h)
+    try:
+        seen = camera.for_image_size(w, h)
+    except ValueError as exc:
+        raise ImageInputError(f"frame of {args.source} against {args.camera}: {exc}") from None
     p = camera.pose
     lines = [
         f"{args.camera.name}: height {p.height_m:.2f} m  pitch {math.degrees(p.pitch_rad):.1f} "
@@ -81,7 +78,7 @@ def main(args: argparse.Namespace) -> dict:
     out = {
         "overlay": str(args.output),
         "frame_size": [w, h],
-        "camera_scaled_from": [cw, ch] if (w, h) != (cw, ch) else None,
+        "camera_scaled_from": None if seen is camera else list(camera.image_size),
         "visible_ground_m": None if extent is None else [float(v) for v in extent],
         "horizon_row_at_centre_px": horizon_v,
     }

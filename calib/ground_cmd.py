@@ -61,14 +61,10 @@ def main(args: argparse.Namespace) -> dict:
     frames = read_grey_frames(args.inputs, limit=args.frames)
     image = average_frames([f for _, f in frames])
     h, w = image.shape
-    if (w, h) != camera.image_size:
-        cw, ch = camera.image_size
-        if abs(w / h - cw / ch) > 0.01:
-            raise ImageInputError(
-                f"image is {w}x{h} but the camera file {args.camera} is for {cw}x{ch} "
-                "(another aspect ratio): calibrate the intrinsics at this resolution"
-            )
-    seen = camera if (w, h) == camera.image_size else camera.scaled(w, h)
+    try:
+        seen = camera.for_image_size(w, h)
+    except ValueError as exc:
+        raise ImageInputError(f"image against the camera file {args.camera}: {exc}") from None
     result = estimate_ground_pose(image, seen.K, seen.dist, args.pattern, args.square_size_m)
     if args.board_in_base is not None:
         bx, by, byaw_deg = args.board_in_base

@@ -28,7 +28,7 @@ MIN_DEPTH_M = 0.05
 def _camera_for(image: np.ndarray, camera: CameraModel) -> CameraModel:
     """The camera scaled to the image's size (a resized frame of the same view)."""
     h, w = image.shape[:2]
-    return camera if (w, h) == camera.image_size else camera.scaled(w, h)
+    return camera.for_image_size(w, h)
 
 
 def _draw_segments(image, segments, colour, thickness) -> None:

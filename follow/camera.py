@@ -129,6 +129,19 @@ class CameraModel:
         K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
         return CameraModel(K, self.dist.copy(), (int(width), int(height)), self.pose)
 
+    def for_image_size(self, width: int, height: int) -> CameraModel:
+        """This camera for frames of `width` x `height`: itself, or scaled to a resized
+        frame of the same view. Another aspect ratio is another camera mode: ValueError."""
+        if (int(width), int(height)) == self.image_size:
+            return self
+        cw, ch = self.image_size
+        if abs(width / height - cw / ch) > 0.01:
+            raise ValueError(
+                f"camera is for {cw}x{ch} images, not {width}x{height} (another aspect "
+                "ratio): calibrate this camera mode"
+            )
+        return self.scaled(width, height)
+
     def with_pose(self, pose: CameraPose) -> CameraModel:
         return CameraModel(self.K.copy(), self.dist.copy(), self.image_size, pose)
 

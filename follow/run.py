@@ -88,16 +88,10 @@ def open_base(config: Config):
 
 def camera_for_frames(camera: CameraModel, width: int, height: int) -> CameraModel:
     """The camera scaled to the frames' size; a different aspect ratio is an error."""
-    if camera.image_size == (width, height):
-        return camera
-    cw, ch = camera.image_size
-    if abs(cw / ch - width / height) > 0.01 * (width / height):
-        raise ValueError(
-            f"camera file is for {cw}x{ch} images but the source gives {width}x{height} "
-            "(a different aspect ratio): calibrate this camera mode"
-        )
-    log.info("scaling the camera model from %dx%d to %dx%d", cw, ch, width, height)
-    return camera.scaled(width, height)
+    scaled = camera.for_image_size(width, height)
+    if scaled is not camera:
+        log.info("scaling the camera model from %dx%d to %dx%d", *camera.image_size, width, height)
+    return scaled
 
 
 class Outputs:

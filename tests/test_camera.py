@@ -131,3 +131,12 @@ def test_back_projection_is_in_front_or_nan(u, v, pitch):
         forward = np.array([math.cos(cam.pose.yaw_rad), math.sin(cam.pose.yaw_rad)])
         assert rel @ forward > 0
         np.testing.assert_allclose(cam.project(np.append(g, 0.0)), [u, v], atol=1e-4)
+
+
+def test_camera_for_another_image_size():
+    cam = make_camera()
+    assert cam.for_image_size(640, 360) is cam
+    half = cam.for_image_size(320, 180)
+    np.testing.assert_allclose(half.K, cam.scaled(320, 180).K)
+    with pytest.raises(ValueError, match="another aspect ratio"):
+        cam.for_image_size(640, 480)
