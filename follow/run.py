@@ -97,14 +97,21 @@ def camera_for_frames(camera: CameraModel, width: int, height: int) -> CameraMod
 class Outputs:
     """Annotated video, annotated frame files and the JSON-lines log."""
 
-    def __init__(self, args, header: dict, fps: float):
-        self.video_path = args.output_video
-        self.frames_dir = Path(args.frames_dir) if args.frames_dir else None
+    def __init__(
+        self,
+        header: dict,
+        fps: float,
+        video_path: str | Path | None = None,
+        frames_dir: str | Path | None = None,
+        log_path: str | Path | None = None,
+    ):
+        self.video_path = str(video_path) if video_path else None
+        self.frames_dir = Path(frames_dir) if frames_dir else None
         if self.frames_dir:
             self.frames_dir.mkdir(parents=True, exist_ok=True)
         self.fps = fps
         self._writer = None
-        self.log = RunLogWriter(args.log, header) if args.log else None
+        self.log = RunLogWriter(log_path, header) if log_path else None
 
     def write(self, frame: Frame, result: FrameResult, command: VelocityCommand | None) -> None:
         if self.log is not None:
@@ -160,7 +167,7 @@ def main(args) -> dict:
 
     header = {"source": args.source, "camera": str(args.camera), "config": args.config,
               "image_size": [width, height]}  # fmt: skip
-    outputs = Outputs(args, header, source.fps)
+    outputs = Outputs(header, source.fps, args.output_video, args.frames_dir, args.log)
     base = open_base(config)
     from follow.control.controller import FollowingController
 

@@ -164,9 +164,10 @@ def run_demo(
     from follow.control.controller import FollowingController
     from follow.control.mavlink_base import MavlinkBase
     from follow.pipeline import Perception, target_motion
-    from follow.runlog import RunLogWriter
+    from follow.pose.observations import skeletons_to_observations
+    from follow.run import Outputs
     from follow.sim.rover import SimRover
-    from follow.sim.skeletons import SyntheticDetector, neck_ankle_observation
+    from follow.sim.skeletons import SyntheticDetector
 
     config = config or Config()
     ident_name = choose_identifier(identifier)
@@ -186,9 +187,8 @@ def run_demo(
     def detect(frame: Frame):
         return [d.skeleton for d in detector.detect(current["world"])]
 
-    def to_observations(skeletons):
-        obs = (neck_ankle_observation(s, config.pose.keypoint_min_confidence) for s in skeletons)
-        return [o for o in obs if o is not None]
+    def to_observations(skeletons):  # as `follow run` does with the pose network's
+        return skeletons_to_observations(skeletons, camera.image_size, config.pose)
 
     perception = Perception(detect, to_observations, PeopleTracker(camera, config.tracker),
                             build_identifier(config.identify))  # fmt: skip
@@ -196,12 +196,15 @@ def run_demo(
     score = DemoScore(config.control.following_distance_m, world.dt_s)
     trajectory = {"robot": [], "people": {w.person_id: [] for w in walkers}, "outcome": []}
     output = Path(output) if output else None
-    writer = None
-    runlog = None
+    outputs = None
     if output:
         output.mkdir(parents=True, exist_ok=True)
-        runlog = RunLogWriter(output / "demo.jsonl", {"source": "simulation", "seed": seed,
-                                                      "identifier": ident_name})  # fmt: skip
+        outputs = Outputs(
+            {"source": "simulation", "seed": seed, "identifier": ident_name},
+            DEMO_CAMERA.fps,
+            video_path=output / "demo.mp4" if write_video else None,
+            log_path=output / "demo.jsonl",
+        )
     n_frames = int(round(seconds * DEMO_CAMERA.fps))
     timing = []
     with SimRover(seed=seed) as rover:
@@ -222,8 +225,9 @@ def run_demo(
                     odom = Odometry(reported.x_m, reported.y_m, reported.yaw_rad, wf.stamp_s)
                 image = render_scene(camera.image_size, horizon,
                                      person_views(wf, wf.robot, camera, looks), seed=seed)  # fmt: skip
+                frame = Frame(image, wf.stamp_s)
                 started = time.perf_counter()
-                result = perception.process(Frame(image, wf.stamp_s), odom, k)
+                result = perception.process(frame, odom, k)
                 motion = target_motion(result, odom) if reported is not None else None
                 command = controller.update(motion, wf.stamp_s)
                 base.send(command)
@@ -233,16 +237,10 @@ def run_demo(
                 for p in wf.people:
                     trajectory["people"][p.person_id].append(tuple(p.position_m))
                 trajectory["outcome"].append(score.timeline[-1] if score.timeline else "lost")
-                if runlog is not None:
-                    runlog.write_frame(k, wf.stamp_s, odom, result.skeletons, result.tracks,
-                                       result.target, command, result.timing_ms)  # fmt: skip
-                if output and write_video:
-                    writer = _write_video_frame(writer, output / "demo.mp4", image, result,
-                                                command, odom, DEMO_CAMERA.fps)  # fmt: skip
-    if writer is not None:
-        writer.release()
-    if runlog is not None:
-        runlog.close()
+                if outputs is not None:
+                    outputs.write(frame, result, command)
+    if outputs is not None:
+        outputs.close()
     summary = {
         **score.summary(),
         "identifier": ident_name,
@@ -255,23 +253,6 @@ def run_demo(
                                                        "demo.jsonl")  # fmt: skip
                               if (output / n).exists()]
     return summary
-
-
-def _write_video_frame(writer, path: Path, image, result, command, odom, fps: float):
-    import cv2
-
-    from follow.render import annotate, top_down
-
-    picture = annotate(image, result.skeletons, result.tracks, result.target, command)
-    canvas = np.hstack([picture, top_down(result.tracks, result.target.target_id, odom,
-                                          size_px=picture.shape[0])])  # fmt: skip
-    if writer is None:
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps,
-                                 (canvas.shape[1], canvas.shape[0]))  # fmt: skip
-        if not writer.isOpened():
-            raise OSError(f"cannot write video {path}")
-    writer.write(canvas)
-    return writer
 
 
 def plot_top_down(trajectory: dict, path: Path) -> None:

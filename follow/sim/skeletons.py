@@ -15,6 +15,7 @@ import numpy as np
 
 from follow.camera import CameraModel
 from follow.frames import odom_to_base
+from follow.pose.observations import ankle_point
 from follow.sim.world import WorldFrame
 from follow.types import L_ANKLE, NECK, NUM_KEYPOINTS, R_ANKLE, Observation, Odometry, Skeleton
 
@@ -118,8 +119,7 @@ def neck_ankle_observation(skeleton: Skeleton, min_confidence: float = 0.0) -> O
     of both ankles when both are seen, else the one seen."""
     if not skeleton.has(NECK, min_confidence):
         return None
-    ankles = [skeleton.keypoints_px[i] for i in _ANKLES if skeleton.has(i, min_confidence)]
-    ankle = np.mean(ankles, axis=0) if ankles else None
+    ankle = ankle_point(skeleton, min_confidence)
     return Observation(skeleton.keypoints_px[NECK], ankle, skeleton=skeleton)
 
 
