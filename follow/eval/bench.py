@@ -36,20 +36,16 @@ def _median(values) -> float | None:
 def main(args) -> dict:
     from tqdm import tqdm
 
-    from follow.boost.factory import build_identifier
     from follow.control.controller import FollowingController
-    from follow.pipeline import FrameResult, target_motion
+    from follow.pipeline import target_motion
     from follow.pose.detector import PoseDetector
-    from follow.pose.observations import skeletons_to_observations
-    from follow.types import Odometry
-    from follow.ukf.tracker import PeopleTracker
+    from follow.run import build_perception
+    from follow.types import Frame, Odometry
 
     config = Config.load(args.config) if args.config else Config()
     setup = PetsSetup.load()
-    camera = setup.camera
     detector = PoseDetector(config.pose)
-    tracker = PeopleTracker(camera, config.tracker)
-    identifier = build_identifier(config.identify)
+    perception = build_perception(config, setup.camera, lambda frame: detector.detect(frame.image))
     controller = FollowingController(config.control)
     total = min(args.warmup + args.frames, setup.frame_count)
     times: dict[str, list[float]] = {k: [] for k in (
@@ -58,40 +54,34 @@ def main(args) -> dict:
     per_track, per_person = [], []
     selected = False
     for index in tqdm(range(total), desc="bench", unit="frame", disable=args.json):
+        stamp = index / PETS_FPS
+        robot = Odometry.origin(stamp)
         t0 = time.perf_counter()
         image = setup.sequence.read_frame(index)
         t1 = time.perf_counter()
-        skeletons = detector.detect(image)
+        result = perception.process(Frame(image, stamp), robot, index)
         t2 = time.perf_counter()
-        stamp = index / PETS_FPS
-        observations = skeletons_to_observations(skeletons, camera.image_size, config.pose)
-        tracks = tracker.update(observations, stamp)
+        controller.update(target_motion(result, robot), stamp)
         t3 = time.perf_counter()
-        if not selected:
-            confirmed = [t for t in tracks if t.confirmed]
+        if not selected:  # learn someone, so that the identifier's update is timed too
+            confirmed = [t for t in result.tracks if t.confirmed]
             if confirmed:
-                identifier.select_target(confirmed[0].track_id)
+                perception.identifier.select_target(confirmed[0].track_id)
                 selected = True
-        estimate = identifier.update(image, tracks, stamp)
-        t4 = time.perf_counter()
-        result = FrameResult(index, stamp, Odometry.origin(stamp), skeletons, tracks, estimate)
-        controller.update(target_motion(result, Odometry.origin(stamp)), stamp)
-        t5 = time.perf_counter()
         if index < args.warmup:
             continue
-        split = detector.last_timing_ms
-        for key, value in (("capture", t1 - t0), ("pose", t2 - t1), ("tracker", t3 - t2),
-                           ("identify", t4 - t3), ("control", t5 - t4),
-                           ("end_to_end", t5 - t0)):  # fmt: skip
-            times[key].append(1e3 * value)
-        for key in ("preprocess", "inference", "decode"):
-            if key in split:
-                times[key].append(split[key])
-        if tracks:
-            per_track.append(1e3 * (t3 - t2) / len(tracks))
-        observed = sum(t.observation is not None for t in tracks)
+        stage_ms = result.timing_ms
+        for key, value_ms in (("capture", 1e3 * (t1 - t0)), ("control", 1e3 * (t3 - t2)),
+                              ("end_to_end", 1e3 * (t3 - t0)),
+                              *((k, stage_ms[k]) for k in ("pose", "tracker", "identify")),
+                              *((k, v) for k, v in detector.last_timing_ms.items()
+                                if k in ("preprocess", "inference", "decode"))):  # fmt: skip
+            times[key].append(value_ms)
+        if result.tracks:
+            per_track.append(stage_ms["tracker"] / len(result.tracks))
+        observed = sum(t.observation is not None for t in result.tracks)
         if observed:
-            per_person.append(1e3 * (t4 - t3) / observed)
+            per_person.append(stage_ms["identify"] / observed)
     e2e = _median(times["end_to_end"])
     result = {
         "frames": len(times["end_to_end"]),
