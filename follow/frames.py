@@ -9,9 +9,7 @@ from follow.types import Odometry
 
 def odom_to_base(points_xy: np.ndarray, robot: Odometry) -> np.ndarray:
     """Ground points (..., 2) given in `odom` expressed in the robot's `base` frame."""
-    c, s = np.cos(robot.yaw_rad), np.sin(robot.yaw_rad)
-    d = np.asarray(points_xy, dtype=np.float64) - (robot.x_m, robot.y_m)
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+    return vector_odom_to_base(np.asarray(points_xy, dtype=np.float64) - (robot.x_m, robot.y_m), robot)
 
 
 def base_to_odom(points_xy: np.ndarray, robot: Odometry) -> np.ndarray:

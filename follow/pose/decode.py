@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from follow.config import PoseConfig
 from follow.types import NUM_KEYPOINTS
 
 # Limbs as (keypoint a, keypoint b) and the PAF channels (x, y) that point from a to b.
@@ -36,14 +37,15 @@ REDUNDANT_LIMBS = frozenset({17, 18})
 
 @dataclass(frozen=True)
 class DecodeParams:
-    """Thresholds of the decoder (the detector fills them from PoseConfig)."""
+    """Thresholds of the decoder (the detector fills them from PoseConfig, whose
+    defaults are these)."""
 
-    peak_threshold: float = 0.03
-    paf_samples: int = 10
-    paf_min_sample_score: float = 0.05
-    paf_min_sample_fraction: float = 0.5
-    min_keypoints_per_person: int = 2
-    min_person_mean_score: float = 0.05
+    peak_threshold: float = PoseConfig.heatmap_peak_threshold
+    paf_samples: int = PoseConfig.paf_samples
+    paf_min_sample_score: float = PoseConfig.paf_min_sample_score
+    paf_min_sample_fraction: float = PoseConfig.paf_min_sample_fraction
+    min_keypoints_per_person: int = PoseConfig.min_keypoints_per_person
+    min_person_mean_score: float = PoseConfig.min_person_mean_score
 
 
 @dataclass(frozen=True)
