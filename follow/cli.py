@@ -20,6 +20,7 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("eval", "localization"): ("follow.eval.localization", "ground-plane error vs distance (simulation)"),
     ("eval", "pose"): ("follow.eval.pose", "skeleton detector recall/precision on PETS 2009"),
     ("eval", "crops"): ("follow.eval.crops", "target identification on real person crops"),
+    ("eval", "ankle-height"): ("follow.eval.ankle_height", "ankle keypoint height over the annotated ground point (PETS 2009)"),
     ("eval", "tracking"): ("follow.eval.tracking", "CLEAR MOT / IDF1 on PETS 2009 against other trackers"),
     ("eval", "following"): ("follow.eval.following", "closed-loop following over the simulated MAVLink rover"),
     ("eval", "identification"): ("follow.eval.identification", "CT/CL/WT/WL on PETS 2009"),

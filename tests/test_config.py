@@ -12,6 +12,18 @@ def test_defaults_and_toml_override(tmp_path):
     assert cfg.control == Config().control
 
 
+def test_a_file_over_a_base_keeps_the_base_where_it_is_silent(tmp_path):
+    base_file, over_file = tmp_path / "base.toml", tmp_path / "over.toml"
+    base_file.write_text("[tracker]\nankle_height_m = 0.15\nmax_unseen_s = 3\n")
+    over_file.write_text("[tracker]\nmax_unseen_s = 1.5\n[pose]\ninput_height_px = 368\n")
+    cfg = Config.load(over_file, base=Config.load(base_file))
+    assert cfg.tracker.ankle_height_m == 0.15  # from the base
+    assert cfg.tracker.max_unseen_s == 1.5  # the file wins
+    assert cfg.pose.input_height_px == 368
+    assert cfg.control == Config().control
+    assert Config.load(over_file).tracker.ankle_height_m == Config().tracker.ankle_height_m
+
+
 @pytest.mark.parametrize(
     "text,match",
     [

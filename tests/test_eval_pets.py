@@ -34,6 +34,30 @@ def test_tracking_evaluation_ranks_our_tracker_first(pets, capsys, tmp_path):
     assert (tmp_path / "t.png").stat().st_size > 10_000
 
 
+def test_scoring_can_leave_out_the_first_frames(pets, capsys):
+    whole = _run(capsys, "eval", "tracking", "--frames", FRAMES, "--json")
+    later = _run(capsys, "eval", "tracking", "--frames", FRAMES, "--score-from-frame", "30",
+                 "--json")  # fmt: skip
+    assert 0 < later["ours"]["gt_objects"] < whole["ours"]["gt_objects"]
+    assert cli.main(["eval", "tracking", "--frames", FRAMES, "--score-from-frame", "60"]) == 2
+    assert "--score-from-frame 60 is outside 0..59" in capsys.readouterr().err
+
+
+def test_the_shipped_pets_ankle_height_matches_a_fit_on_the_data(pets, capsys, tmp_path):
+    from follow.config import Config
+    from follow.eval.pets_setup import PETS_SETTINGS
+
+    r = _run(capsys, "eval", "ankle-height", "--frames", FRAMES, "--plot",
+             str(tmp_path / "a.png"), "--json")  # fmt: skip
+    assert r["samples"] > 150
+    # The detector's ankle points lie well over the annotated ground point (box bottom).
+    assert 0.15 < r["median_m"] < 0.35
+    assert r["ankle_height_m"] == pytest.approx(
+        Config.load(PETS_SETTINGS).tracker.ankle_height_m, abs=0.03
+    )
+    assert (tmp_path / "a.png").stat().st_size > 5_000
+
+
 def test_identification_evaluation_accounts_for_every_frame(pets, capsys, tmp_path):
     r = _run(capsys, "eval", "identification", "--frames", FRAMES, "--identifiers", "ccf10",
              "--min-visible-s", "5", "--max-targets", "2", "--plot", str(tmp_path / "i.png"),

@@ -42,8 +42,9 @@ def test_necks_fall_in_ground_truth_boxes(detector, pets, index):
     boxes = pets.boxes_video_px(index)
     visible = [b for b in boxes if b.hidden_fraction <= 0.5]
     necks = [s.keypoints_px[NECK] for s in skeletons if s.has(NECK)]
-    # Count: about one skeleton per visible person.
-    assert len(visible) - 2 <= len(skeletons) <= len(boxes) + 1
+    # Count: about one skeleton with a neck (what the tracker uses) per visible person;
+    # neckless fragments (a lone limb of a half-hidden person) are ignored downstream.
+    assert len(visible) - 2 <= len(necks) <= len(boxes) + 1
     found = 0
     for box in visible:
         inside = [n for n in necks if box.contains(*n)]

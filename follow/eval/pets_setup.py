@@ -20,6 +20,8 @@ log = logging.getLogger(__name__)
 
 PETS_DIR = "pets2009_s2l1"
 PETS_FPS = 7.0
+# The measurement-model settings fitted to this sequence (see the file's comments).
+PETS_SETTINGS = Path(__file__).with_name("pets2009.toml")
 
 
 def data_dir() -> Path:
@@ -70,9 +72,12 @@ class PetsSetup:
 
 
 def load_evaluation(args) -> tuple[Config, PetsSetup, list[int], dict[int, list[Skeleton]]]:
-    """What every PETS evaluation starts from: the configuration (`--config`), the
-    sequence, its first `--frames` frame indices and their skeletons (`--no-cache`)."""
-    config = Config.load(args.config) if args.config else Config()
+    """What every PETS evaluation starts from: the configuration (the PETS settings in
+    `pets2009.toml`, then `--config` over them), the sequence, its first `--frames`
+    frame indices and their skeletons (`--no-cache`)."""
+    config = Config.load(PETS_SETTINGS)
+    if args.config:
+        config = Config.load(args.config, base=config)
     setup = PetsSetup.load()
     n = setup.frame_count if args.frames is None else min(args.frames, setup.frame_count)
     frames = list(range(n))

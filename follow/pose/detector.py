@@ -19,6 +19,7 @@ from follow.pose.preprocess import (
     prepare_input,
 )
 from follow.pose.runtime import create_backend
+from follow.pose.stages import STAGE_CHOICES, initial_stage_file
 from follow.types import Skeleton
 
 log = logging.getLogger(__name__)
@@ -44,9 +45,23 @@ def to_skeleton(person: DecodedPerson, plan: Letterbox) -> Skeleton:
     )
 
 
-def model_file_for(config: PoseConfig) -> Path:
-    """The network file a config asks for: an explicit file, the INT8 model in the
-    user cache, or the registry's (hash-checked) FP32 model."""
+def model_file_for(config: PoseConfig, model_path: Path | None = None) -> Path:
+    """The network file to run: `model_path`, else the one the config asks for (an
+    explicit file, the INT8 model in the user cache, or the registry's hash-checked FP32
+    model); cut after its initial stage when `network_stages` is 1."""
+    if config.network_stages not in STAGE_CHOICES:
+        raise ValueError(
+            f"pose network_stages must be one of {STAGE_CHOICES}, got {config.network_stages}"
+        )
+    source = Path(model_path) if model_path else _source_model_file(config)
+    if not source.exists():
+        raise models.ModelError(f"pose model file {source} does not exist")
+    if config.network_stages == 1:
+        return initial_stage_file(source)
+    return source
+
+
+def _source_model_file(config: PoseConfig) -> Path:
     if config.model_file:
         return Path(config.model_file)
     if config.precision == "auto":
@@ -88,9 +103,7 @@ class PoseDetector:
                 f"pose input_height_px must be a positive multiple of {NETWORK_STRIDE_PX}, "
                 f"got {config.input_height_px}"
             )
-        self.model_path = Path(model_path) if model_path else model_file_for(config)
-        if not self.model_path.exists():
-            raise models.ModelError(f"pose model file {self.model_path} does not exist")
+        self.model_path = model_file_for(config, model_path)
         self.backend = create_backend(config.provider, self.model_path, config.cpu_threads)
         self.params = decode_params(config)
         self.last_timing_ms: dict[str, float] = {}
