@@ -39,7 +39,7 @@ def test_scoring_can_leave_out_the_first_frames(pets, capsys):
     later = _run(capsys, "eval", "tracking", "--frames", FRAMES, "--score-from-frame", "30",
                  "--json")  # fmt: skip
     assert 0 < later["ours"]["gt_objects"] < whole["ours"]["gt_objects"]
-    assert cli.main(["eval", "tracking", "--frames", FRAMES, "--score-from-frame", "60"]) == 2
+    assert cli.main(["eval", "tracking", "--frames", FRAMES, "--score-from-frame", "60"]) != 0
     assert "--score-from-frame 60 is outside 0..59" in capsys.readouterr().err
 
 
