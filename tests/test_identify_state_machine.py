@@ -235,3 +235,26 @@ def test_reidentification_needs_a_lead_over_every_other_track():
 
     ests = run(identifier, [twin_b, other], CFG.reid_frames, rng, t0=8.0)  # one is left
     assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 6
+
+
+def test_reidentification_names_only_a_track_the_target_could_have_walked_to(identifier):
+    rng = np.random.default_rng(3)
+    target, other = Person(1, 2.0, 180, RED), Person(2, 3.5, 460, BLUE)
+    run(identifier, [target, other], CFG.initial_training_frames + 3, rng)
+    assert identifier.status == TargetStatus.TRACKING
+    lost_at_s = 0.1 * (CFG.initial_training_frames + 2)
+    # The target vanishes; a look-alike stands 9 m away, too far to have walked there.
+    far_twin = Person(8, 11.0, 300, RED)
+    ests = run(identifier, [far_twin, other], 3 * CFG.reid_frames, rng, t0=lost_at_s + 0.1)
+    assert all(e.confidences[8] >= CFG.reid_confidence for e in ests)  # it looks right
+    assert all(e.status == TargetStatus.REIDENTIFICATION for e in ests)
+    # Once enough time has passed for the target to have walked that far, it qualifies.
+    walk_s = (9.0 - CFG.reid_reach_m) / CFG.reid_reach_speed_mps
+    ests = run(identifier, [far_twin, other], CFG.reid_frames, rng, t0=lost_at_s + walk_s + 0.2)
+    assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 8
+
+
+def test_reach_parameters_must_not_be_negative():
+    with pytest.raises(ValueError, match="reid_reach_m"):
+        TargetIdentifier(dataclasses.replace(CFG, reid_reach_speed_mps=-1.0),
+                         ChannelFeatureExtractor((CFG.crop_width_px, CFG.crop_height_px)))  # fmt: skip

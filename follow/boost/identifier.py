@@ -11,7 +11,9 @@ initial -> initial training -> tracking <-> re-identification
   no longer trusted and the state becomes re-identification.
 - re-identification: nothing is learnt; a track whose confidence is at least
   `reid_confidence` and ahead of every other seen track's by `reid_margin`, in
-  `reid_frames` consecutive frames in which it is seen, becomes the target again.
+  `reid_frames` consecutive frames in which it is seen, and that stands where the target
+  could have walked since it was last seen (`reid_reach_m` + `reid_reach_speed_mps` per
+  second), becomes the target again.
 
 A track's appearance is cut from the observation associated with it in this frame; a
 track without one (occluded, missed) has no appearance and no confidence this frame.
@@ -59,6 +61,8 @@ class TargetIdentifier:
                 f"reid_confidence ({config.reid_confidence}) must not be below "
                 f"id_switch_confidence ({config.id_switch_confidence})"
             )
+        if config.reid_reach_m < 0.0 or config.reid_reach_speed_mps < 0.0:
+            raise ValueError("reid_reach_m and reid_reach_speed_mps must be >= 0")
         if config.reid_margin < 0.0 or not 0.0 <= config.max_learning_overlap <= 1.0:
             raise ValueError(
                 f"reid_margin ({config.reid_margin}) must be >= 0 and max_learning_overlap "
@@ -81,6 +85,8 @@ class TargetIdentifier:
         self._identity_risk_s = -math.inf  # when the tracker last could have swapped it
         self._training_frames = 0
         self._reid_streaks: dict[int, int] = {}
+        self._last_target_position_m: np.ndarray | None = None  # odom frame
+        self._last_target_s = -math.inf
 
     def select_target(self, track_id: int) -> None:
         """Follow this track id: learning starts afresh on the next frame it is present."""
@@ -161,6 +167,9 @@ class TargetIdentifier:
             log.info("target track %d lost: re-identification", self.target_id)
             self._enter_reidentification()
 
+        if self.target_id is not None:
+            self._last_target_position_m = by_id[self.target_id].position_m.copy()
+            self._last_target_s = stamp_s
         appearances, boxes = self._appearances(image_bgr, tracks)
         if self.target_id is not None and self._identity_at_risk(by_id, stamp_s):
             self._identity_risk_s = stamp_s
@@ -197,7 +206,7 @@ class TargetIdentifier:
                 else:
                     self._learn(appearances, boxes)
         if self.status == TargetStatus.REIDENTIFICATION:
-            self._reidentify(confidences)
+            self._reidentify(confidences, by_id, stamp_s)
         return TargetEstimate(self.status, self.target_id, confidences, stamp_s)
 
     # ----------------------------------------------------------------------- states
@@ -246,12 +255,22 @@ class TargetIdentifier:
         self.target_id = None
         self._reid_streaks = {}
 
-    def _reidentify(self, confidences: dict[int, float]) -> None:
+    def _reachable(self, track: TrackState, stamp_s: float) -> bool:
+        """Whether the target could have walked to `track` since it was last seen."""
+        if self._last_target_position_m is None:
+            return True
+        reach_m = self.config.reid_reach_m + self.config.reid_reach_speed_mps * max(
+            0.0, stamp_s - self._last_target_s
+        )
+        return float(np.linalg.norm(track.position_m - self._last_target_position_m)) <= reach_m
+
+    def _reidentify(self, confidences: dict[int, float], by_id: dict, stamp_s: float) -> None:
         for track_id, confidence in confidences.items():
             runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
             if (
                 confidence >= self.config.reid_confidence
                 and confidence - runner_up >= self.config.reid_margin
+                and self._reachable(by_id[track_id], stamp_s)
             ):
                 self._reid_streaks[track_id] = self._reid_streaks.get(track_id, 0) + 1
             else:

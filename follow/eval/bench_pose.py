@@ -28,6 +28,7 @@ from follow.pose.detector import decode_params
 from follow.pose.preprocess import prepare_input
 from follow.pose.quantize import default_int8_path, quantize_pose_model
 from follow.pose.runtime import OpenVinoBackend, OrtBackend, openvino_installed
+from follow.pose.stages import initial_stage_file
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +93,8 @@ def main(args: argparse.Namespace) -> dict:
     }
     if openvino_installed():
         runtimes["fast_path"] = OpenVinoBackend(int8, args.threads)
+        # What the detector runs by default (network_stages = 1): the same, initial stage only.
+        runtimes["fast_path_initial_stage"] = OpenVinoBackend(initial_stage_file(int8), args.threads)
         runtimes["reference_openvino_int8"] = OpenVinoBackend(
             models.resolve("human-pose-estimation-0001-ir"), args.threads
         )
@@ -132,6 +135,7 @@ def main(args: argparse.Namespace) -> dict:
         "ort_int8_ms": med["ort_int8"],
         "fast_path_ms": med["fast_path"],
         "fast_path": fast_name,
+        "fast_path_initial_stage_ms": med.get("fast_path_initial_stage"),
         "reference_openvino_int8_ms": reference,
         "fast_path_over_reference": med["fast_path"] / reference if reference else None,
         "ort_int8_over_reference": med["ort_int8"] / reference if reference else None,
@@ -145,7 +149,8 @@ def main(args: argparse.Namespace) -> dict:
     if not args.json:
         print(f"pose network at {result['input'][0]}x{result['input'][1]}, "
               f"{len(tensors)} PETS frames, medians (runtimes interleaved)")  # fmt: skip
-        for key in ("ort_fp32", "ort_int8", "fast_path", "reference_openvino_int8"):
+        for key in ("ort_fp32", "ort_int8", "fast_path", "reference_openvino_int8",
+                    "fast_path_initial_stage"):  # fmt: skip
             if key in med:
                 print(f"  {key:26s} {med[key]:8.1f} ms")
         if reference:
