@@ -115,6 +115,29 @@ def test_an_appearance_change_with_nobody_near_keeps_the_target(identifier):
     assert run(identifier, [target, other], 1, rng, t0=3.0)[0].confidences[1] > 0.5
 
 
+def test_a_low_confidence_while_someone_covers_the_target_waits_for_a_clear_view(identifier):
+    rng = np.random.default_rng(5)
+    target = Person(1, 2.0, 180, RED)
+    other = Person(2, 2.4, 460, BLUE)
+    run(identifier, [target, other], CFG.initial_training_frames + 3, rng)
+    assert identifier.target_id == 1
+    # The other passes close by, 0.4 m away on the floor (identity at risk): their boxes
+    # overlap and the target's crop shows the other's blue coat.
+    other.column_px = 200
+    target.shirt = BLUE
+    ests = run(identifier, [target, other], 4, rng, t0=2.0)
+    assert all(e.confidences[1] < CFG.id_switch_confidence for e in ests)
+    assert all(e.status == TargetStatus.TRACKING and e.target_id == 1 for e in ests)
+    # Clear again, and still the target: tracking goes on.
+    other.column_px, target.shirt = 460, RED
+    est = run(identifier, [target, other], 1, rng, t0=2.5)[0]
+    assert est.status == TargetStatus.TRACKING and est.target_id == 1
+    # Had the tracker swapped them, the clear view shows it: re-identification.
+    target.shirt = BLUE
+    est = run(identifier, [target, other], 1, rng, t0=2.6)[0]
+    assert est.status == TargetStatus.REIDENTIFICATION
+
+
 def test_unobserved_tracks_have_no_appearance_and_do_not_break_tracking(identifier):
     rng = np.random.default_rng(2)
     target = Person(1, 2.0, 180, RED)

@@ -8,7 +8,9 @@ initial -> initial training -> tracking <-> re-identification
   observed track's as negative for `initial_training_frames` frames in which it is seen.
 - tracking: learning goes on while the target's confidence stays at or above
   `id_switch_confidence`; below it, or when the target's track is lost, the identity is
-  no longer trusted and the state becomes re-identification.
+  no longer trusted and the state becomes re-identification. A low confidence is not
+  acted on while another person covers the target's crop (it then describes them, not
+  the target): the tracker's identity is kept until the crop is clear again.
 - re-identification: nothing is learnt; a track whose confidence is at least
   `reid_confidence` and ahead of every other seen track's by `reid_margin`, in
   `reid_frames` consecutive frames in which it is seen, and that stands where the target
@@ -196,6 +198,12 @@ class TargetIdentifier:
                         "target track %d confidence %.2f is low, but nobody came near it: "
                         "not learnt", self.target_id, confidences[self.target_id],
                     )  # fmt: skip
+                elif low and self._crop_shows_another(boxes):
+                    log.debug(
+                        "target track %d confidence %.2f is low while another person "
+                        "covers it: judged once it is clear", self.target_id,
+                        confidences[self.target_id],
+                    )  # fmt: skip
                 elif low:
                     log.info(
                         "target track %d confidence %.2f below %.2f: re-identification",
@@ -235,15 +243,20 @@ class TargetIdentifier:
         return any(float(np.linalg.norm(t.position_m - target.position_m)) <= limit
                    for i, t in by_id.items() if i != self.target_id)  # fmt: skip
 
-    def _learn(self, appearances: dict[int, Appearance], boxes: dict) -> bool:
-        """Learn the frame unless the target's crop shows someone else; whether it did."""
+    def _crop_shows_another(self, boxes: dict) -> bool:
+        """Whether another person's box covers more than `max_learning_overlap` of the
+        target's: its crop then shows (part of) someone else."""
         target_box = boxes[self.target_id]
         limit = self.config.max_learning_overlap
-        if any(
+        return any(
             covered_fraction(target_box, box) > limit
             for i, box in boxes.items()
             if i != self.target_id
-        ):
+        )
+
+    def _learn(self, appearances: dict[int, Appearance], boxes: dict) -> bool:
+        """Learn the frame unless the target's crop shows someone else; whether it did."""
+        if self._crop_shows_another(boxes):
             return False
         positives = [appearances[self.target_id]]
         negatives = [a for i, a in appearances.items() if i != self.target_id]
