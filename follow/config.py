@@ -123,8 +123,8 @@ class IdentifyConfig:
     reid_frames: int = 5
     reid_margin: float = 0.0  # re-identification: lead over every other track, each frame
     # Re-identification names only a track the target could have walked to since it was
-    # last seen: within reid_reach_m plus reid_reach_speed_mps per second of its last
-    # position on the floor (a look-alike across the room is not the person who vanished
+    # last named: within reid_reach_m plus reid_reach_speed_mps per second of its track's
+    # last position on the floor (a look-alike across the room is not the person who vanished
     # half a second ago; after a long absence the whole view qualifies).
     reid_reach_m: float = 1.5
     reid_reach_speed_mps: float = 2.0

@@ -14,8 +14,8 @@ initial -> initial training -> tracking <-> re-identification
 - re-identification: nothing is learnt; a track whose confidence is at least
   `reid_confidence` and ahead of every other seen track's by `reid_margin`, in
   `reid_frames` consecutive frames in which it is seen, and that stands where the target
-  could have walked since it was last seen (`reid_reach_m` + `reid_reach_speed_mps` per
-  second), becomes the target again.
+  could have walked since it was last the target (`reid_reach_m` + `reid_reach_speed_mps`
+  per second from its track's last position), becomes the target again.
 
 A track's appearance is cut from the observation associated with it in this frame; a
 track without one (occluded, missed) has no appearance and no confidence this frame.
@@ -269,7 +269,7 @@ class TargetIdentifier:
         self._reid_streaks = {}
 
     def _reachable(self, track: TrackState, stamp_s: float) -> bool:
-        """Whether the target could have walked to `track` since it was last seen."""
+        """Whether the target could have walked to `track` since it was last named."""
         if self._last_target_position_m is None:
             return True
         reach_m = self.config.reid_reach_m + self.config.reid_reach_speed_mps * max(
