@@ -67,3 +67,18 @@ def test_identification_evaluation_accounts_for_every_frame(pets, capsys, tmp_pa
     assert sum(fractions[k] for k in ("ct", "cl", "wt", "wl")) == pytest.approx(1.0, abs=1e-3)
     assert fractions["ct"] > 0.5  # the selected person is followed most of the time
     assert (tmp_path / "i.png").stat().st_size > 5_000
+
+
+def test_bench_times_every_stage_and_says_which_model_ran(pets, capsys):
+    r = _run(capsys, "bench", "--frames", "3", "--warmup", "1", "--json")
+    assert r["frames"] == 3
+    for key in ("pose_ms", "inference_ms", "decode_ms", "tracker_ms", "identify_ms",
+                "control_ms", "end_to_end_ms"):  # fmt: skip
+        assert r[key] is not None and r[key] >= 0.0, key
+    assert r["pose_ms"] >= r["inference_ms"] > 0.0
+    assert r["end_to_end_ms"] >= r["pose_ms"]
+    assert r["end_to_end_fps"] == pytest.approx(1000.0 / r["end_to_end_ms"], rel=0.01)
+    assert 50.0 < r["peak_rss_mb"] < 4000.0
+    # The default runs the initial stage; without the INT8 model it says FP32 ran.
+    assert "initial-stage" in r["pose_model"]
+    assert ("int8" in r["pose_model"]) != bool(r["notes"])
