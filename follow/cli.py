@@ -19,6 +19,7 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("demo", None): ("follow.sim.demo", "the whole stack on a simulated robot (no downloads)"),
     ("eval", "localization"): ("follow.eval.localization", "ground-plane error vs distance (simulation)"),
     ("eval", "pose"): ("follow.eval.pose", "skeleton detector recall/precision on PETS 2009"),
+    ("eval", "pose-near"): ("follow.eval.pose_near", "skeleton detector on people seen large (real crops, robot scale)"),
     ("eval", "crops"): ("follow.eval.crops", "target identification on real person crops"),
     ("eval", "ankle-height"): ("follow.eval.ankle_height", "ankle keypoint height over the annotated ground point (PETS 2009)"),
     ("eval", "tracking"): ("follow.eval.tracking", "CLEAR MOT / IDF1 on PETS 2009 against other trackers"),

@@ -39,3 +39,13 @@ def test_bad_config_names_the_problem(tmp_path, text, match):
     path.write_text(text)
     with pytest.raises(ConfigError, match=match):
         Config.load(path)
+
+
+def test_the_shipped_example_configs_load():
+    from pathlib import Path
+
+    examples = sorted((Path(__file__).parents[1] / "examples").glob("*.toml"))
+    assert examples
+    for path in examples:
+        cfg = Config.load(path)
+        assert cfg != Config(), path  # each one changes something

@@ -62,3 +62,21 @@ def test_eval_pose_command_prints_json(model_path, data_path, monkeypatch, capsy
     assert row["input"] == [640, 480] and result["frames"] == 2
     assert 0.5 <= row["neck_recall"] <= 1.0 and 0.5 <= row["precision"] <= 1.0
     assert row["ms"] > 0 and row["people"] >= 3
+
+
+def test_near_people_evaluation_finds_large_real_people(data_path, model_path, capsys):
+    import json
+
+    from follow import cli
+
+    data_path("ccf_crops/p01.jpg")
+    model_path("pose/human-pose-estimation-0001.onnx")
+    capsys.readouterr()
+    assert cli.main(["eval", "pose-near", "--person-heights", "320", "--sizes", "256",
+                     "--stages", "1", "2", "--json"]) == 0  # fmt: skip
+    r = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert r["crops"] == 42 and len(r["rows"]) == 2
+    for row in r["rows"]:
+        assert row["neck"] >= 0.9 and row["ankle"] >= 0.8, row
+    assert cli.main(["eval", "pose-near", "--person-heights", "470", "--sizes", "256"]) != 0
+    assert "does not fit" in capsys.readouterr().err

@@ -1,0 +1,109 @@
+"""`follow eval pose-near`: the skeleton detector on people seen large, as a following
+robot sees them.
+
+PETS 2009 shows people 35-95 px tall; a robot 1.5-4 m behind its target sees them
+several times larger. This pastes the 42 real person crops of `ccf_crops/` (about 128 px
+tall, tightly cut) at a given height into the middle of a grey 640x480 frame and counts
+the crops whose neck the detector finds in the upper 40 % of the person and whose ankle
+it finds in the lower quarter, for each network input height and stage count. The grey
+surround is plainer than a real scene, so the rates are an upper bound on clutter but a
+fair comparison between settings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+FRAME_SIZE = (640, 480)
+NECK_ZONE = 0.4  # upper share of the person where the neck must lie
+ANKLE_ZONE = 0.75  # the ankle must lie below this share of the person's height
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--person-heights", type=int, nargs="+", default=[192, 320, 432],
+                   help="heights in px the crops are scaled to (frame 640x480)")  # fmt: skip
+    p.add_argument("--sizes", type=int, nargs="+", default=[256, 368, 576],
+                   help="network input heights in px (multiples of 8)")  # fmt: skip
+    p.add_argument("--stages", type=int, nargs="+", default=[1, 2], help="network_stages")
+    p.add_argument("--config", help="TOML configuration (pose settings)")
+    p.add_argument("--data-dir", help="folder with the crops (default $FOLLOW_DATA_DIR/ccf_crops)")
+
+
+def crops_dir(given: str | None) -> Path:
+    if given:
+        path = Path(given)
+    else:
+        root = os.environ.get("FOLLOW_DATA_DIR")
+        if not root:
+            raise ValueError("$FOLLOW_DATA_DIR is not set (or give --data-dir)")
+        path = Path(root) / "ccf_crops"
+    crops = sorted(path.glob("*.jpg"))
+    if not crops:
+        raise ValueError(f"no .jpg person crops in {path}")
+    return path
+
+
+def frames_with_people(crop_paths, person_height_px: int):
+    """(frame, (x0, y0, w, h)) with each crop scaled to the height, centred."""
+    width, height = FRAME_SIZE
+    if not 0 < person_height_px <= height - 16:
+        raise ValueError(f"person height {person_height_px} px does not fit a {height} px frame")
+    out = []
+    for path in crop_paths:
+        crop = cv2.imread(str(path))
+        if crop is None:
+            raise ValueError(f"cannot read {path}")
+        scale = person_height_px / crop.shape[0]
+        crop = cv2.resize(crop, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
+        h, w = crop.shape[:2]
+        frame = np.full((height, width, 3), 128, np.uint8)
+        y0, x0 = (height - h) // 2, (width - w) // 2
+        frame[y0 : y0 + h, x0 : x0 + w] = crop
+        out.append((frame, (x0, y0, w, h)))
+    return out
+
+
+def detection_rates(detector, frames) -> tuple[float, float]:
+    """(share with the neck found, share with neck and ankle found)."""
+    from follow.pose.observations import skeletons_to_observations
+
+    necks = ankles = 0
+    for frame, (x0, y0, w, h) in frames:
+        observations = skeletons_to_observations(detector.detect(frame), FRAME_SIZE,
+                                                 detector.config)  # fmt: skip
+        on_person = [o for o in observations
+                     if x0 <= o.neck_px[0] <= x0 + w and y0 <= o.neck_px[1] <= y0 + NECK_ZONE * h]  # fmt: skip
+        necks += bool(on_person)
+        ankles += any(o.ankle_px is not None and o.ankle_px[1] >= y0 + ANKLE_ZONE * h
+                      for o in on_person)  # fmt: skip
+    return necks / len(frames), ankles / len(frames)
+
+
+def main(args) -> dict:
+    from follow.config import Config
+    from follow.pose.detector import PoseDetector
+
+    config = Config.load(args.config) if args.config else Config()
+    crop_paths = sorted(crops_dir(args.data_dir).glob("*.jpg"))
+    rows = []
+    for person_px in args.person_heights:
+        frames = frames_with_people(crop_paths, person_px)
+        for stages in args.stages:
+            for size in args.sizes:
+                pose = dataclasses.replace(config.pose, input_height_px=size,
+                                           network_stages=stages, warmup_runs=0)  # fmt: skip
+                neck, ankle = detection_rates(PoseDetector(pose), frames)
+                rows.append({"person_px": person_px, "network_stages": stages,
+                             "input_height_px": size, "neck": neck, "ankle": ankle})  # fmt: skip
+    if not args.json:
+        print(f"{len(crop_paths)} real person crops pasted into a 640x480 frame")
+        print(f"{'person px':>9s} {'stages':>6s} {'input':>5s} {'neck':>6s} {'ankle':>6s}")
+        for r in rows:
+            print(f"{r['person_px']:9d} {r['network_stages']:6d} {r['input_height_px']:5d} "
+                  f"{r['neck']:6.2f} {r['ankle']:6.2f}")  # fmt: skip
+    return {"crops": len(crop_paths), "rows": rows}
