@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from follow.eval.pets import GT_IMAGE_SIZE
-from follow.eval.pets_setup import PetsSetup, load_evaluation
+from follow.eval.pets_setup import PetsSetup, add_evaluation_arguments, load_evaluation
 from follow.ukf.models import population_ankle_height_m
 
 MAX_HIDDEN_FRACTION = 0.2
@@ -23,10 +23,8 @@ RANGE_BINS_M = (0.0, 20.0, 25.0, 30.0, 40.0)
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--frames", type=int, help="only the first N frames (default: all)")
-    p.add_argument("--config", help="TOML configuration (the pose network's settings)")
+    add_evaluation_arguments(p)
     p.add_argument("--plot", help="write a PNG histogram of the samples here")
-    p.add_argument("--no-cache", action="store_true", help="run the pose network again")
 
 
 def ankle_samples(setup: PetsSetup, frames, skeletons, config) -> tuple[np.ndarray, np.ndarray]:
@@ -34,7 +32,7 @@ def ankle_samples(setup: PetsSetup, frames, skeletons, config) -> tuple[np.ndarr
     from follow.pose.observations import skeletons_to_observations
 
     camera = setup.camera
-    centre = np.array([*camera.position_base[:2], camera.pose.height_m])
+    centre = camera.position_base  # (x, y, height) of the camera over the floor
     to_gt_px = GT_IMAGE_SIZE[0] / camera.image_size[0]
     heights, ranges = [], []
     for index in frames:
@@ -43,9 +41,8 @@ def ankle_samples(setup: PetsSetup, frames, skeletons, config) -> tuple[np.ndarr
         for obs in observations:
             if obs.ankle_px is None:
                 continue
-            nx, ny = obs.neck_px * to_gt_px
-            inside = [i for i, b in enumerate(boxes)
-                      if abs(nx - b.xc) <= b.w / 2 and b.bottom - b.h <= ny <= b.bottom]  # fmt: skip
+            neck = obs.neck_px * to_gt_px
+            inside = [i for i, b in enumerate(boxes) if b.contains(*neck)]
             if len(inside) != 1:
                 continue
             ray = camera.pixel_rays_base(obs.ankle_px[None].astype(float))[0]

@@ -23,7 +23,7 @@ import numpy as np
 
 from follow.config import Config
 from follow.eval.identification_metrics import OUTCOMES, OutcomeTally, classify
-from follow.eval.pets_setup import PETS_FPS, PetsSetup, load_evaluation
+from follow.eval.pets_setup import PETS_FPS, PetsSetup, add_evaluation_arguments, load_evaluation
 from follow.types import TargetStatus
 
 IDENTIFIERS = ("ccf10", "ccf10+reid", "reid")
@@ -31,9 +31,9 @@ NAMING_STATES = (TargetStatus.INITIAL_TRAINING, TargetStatus.TRACKING)
 
 
 def add_arguments(p) -> None:
+    add_evaluation_arguments(p)
     p.add_argument("--identifiers", default=",".join(IDENTIFIERS),
                    help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
-    p.add_argument("--frames", type=int, help="only the first N frames (default: all)")
     p.add_argument("--min-visible-s", type=float, default=20.0,
                    help="people visible at least this long become targets")  # fmt: skip
     p.add_argument("--max-targets", type=int, help="evaluate at most this many targets")
@@ -43,9 +43,7 @@ def add_arguments(p) -> None:
                    help="score every target to the end of the sequence, not only until its "
                         "last annotated frame (people who return get new ids in the ground "
                         "truth, so re-identifying them counts as wrong)")  # fmt: skip
-    p.add_argument("--config", help="TOML configuration")
     p.add_argument("--plot", help="write a PNG timeline of outcomes per target here")
-    p.add_argument("--no-cache", action="store_true", help="run the pose network again")
 
 
 class _CachedDescribe:

@@ -71,6 +71,13 @@ class PetsSetup:
         return self.sequence.frame_count
 
 
+def add_evaluation_arguments(p) -> None:
+    """The options `load_evaluation` reads, for every PETS evaluation command."""
+    p.add_argument("--frames", type=int, help="only the first N frames (default: all)")
+    p.add_argument("--config", help="TOML configuration, over the PETS settings (pets2009.toml)")
+    p.add_argument("--no-cache", action="store_true", help="run the pose network again")
+
+
 def load_evaluation(args) -> tuple[Config, PetsSetup, list[int], dict[int, list[Skeleton]]]:
     """What every PETS evaluation starts from: the configuration (the PETS settings in
     `pets2009.toml`, then `--config` over them), the sequence, its first `--frames`

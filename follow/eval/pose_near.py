@@ -13,7 +13,6 @@ fair comparison between settings.
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 
 import cv2
@@ -31,21 +30,18 @@ def add_arguments(p) -> None:
                    help="network input heights in px (multiples of 8)")  # fmt: skip
     p.add_argument("--stages", type=int, nargs="+", default=[1, 2], help="network_stages")
     p.add_argument("--config", help="TOML configuration (pose settings)")
-    p.add_argument("--data-dir", help="folder with the crops (default $FOLLOW_DATA_DIR/ccf_crops)")
+    p.add_argument("--crops-dir", help="folder of person crops (default $FOLLOW_DATA_DIR/ccf_crops)")
 
 
-def crops_dir(given: str | None) -> Path:
-    if given:
-        path = Path(given)
-    else:
-        root = os.environ.get("FOLLOW_DATA_DIR")
-        if not root:
-            raise ValueError("$FOLLOW_DATA_DIR is not set (or give --data-dir)")
-        path = Path(root) / "ccf_crops"
-    crops = sorted(path.glob("*.jpg"))
+def crop_files(given: str | None) -> list[Path]:
+    """Every .jpg crop in the folder (`follow eval crops`'s folder by default)."""
+    from follow.eval.crops import default_crops_dir
+
+    folder = Path(given) if given else default_crops_dir()
+    crops = sorted(folder.glob("*.jpg"))
     if not crops:
-        raise ValueError(f"no .jpg person crops in {path}")
-    return path
+        raise ValueError(f"no .jpg person crops in {folder}")
+    return crops
 
 
 def frames_with_people(crop_paths, person_height_px: int):
@@ -89,7 +85,7 @@ def main(args) -> dict:
     from follow.pose.detector import PoseDetector
 
     config = Config.load(args.config) if args.config else Config()
-    crop_paths = sorted(crops_dir(args.data_dir).glob("*.jpg"))
+    crop_paths = crop_files(args.crops_dir)
     rows = []
     for person_px in args.person_heights:
         frames = frames_with_people(crop_paths, person_px)

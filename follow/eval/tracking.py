@@ -9,20 +9,18 @@ from scipy.optimize import linear_sum_assignment
 
 from follow.config import Config
 from follow.eval.mot import GroundPlaneMot
-from follow.eval.pets_setup import PETS_FPS, PetsSetup, load_evaluation
+from follow.eval.pets_setup import PETS_FPS, PetsSetup, add_evaluation_arguments, load_evaluation
 
 METHODS = ("ours", "direct", "norfair", "bytetrack")
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--frames", type=int, help="only the first N frames (default: all)")
-    p.add_argument("--config", help="TOML configuration for our tracker and the pose network")
+    add_evaluation_arguments(p)
     p.add_argument("--match-threshold-m", type=float, default=1.0)
     p.add_argument("--score-from-frame", type=int, default=0,
                    help="run from the start but score only frames from this one on "
                         "(e.g. 400: the half not used to fit pets2009.toml)")  # fmt: skip
     p.add_argument("--plot", help="write a PNG of MOTA and IDF1 per method here")
-    p.add_argument("--no-cache", action="store_true", help="run the pose network again")
 
 
 class HungarianIds:
