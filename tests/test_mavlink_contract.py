@@ -19,6 +19,7 @@ import time
 
 import pytest
 from pymavlink import mavutil
+from waiting import wait_for
 
 from follow.config import MavlinkConfig
 from follow.control import mavlink_frames as mf
@@ -27,15 +28,6 @@ from follow.sim.rover import SimRover
 from follow.types import VelocityCommand
 
 mavlink = mavutil.mavlink
-
-
-def wait_for(predicate, timeout_s):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return False
 
 
 def drive(base, forward, yaw_rate, seconds):
