@@ -91,6 +91,23 @@ class FrameSource:
             self._cap.release()
 
 
+def open_source(
+    spec: str,
+    image_topic: str | None = None,
+    odom_topic: str | None = None,
+    camera_info_topic: str | None = None,
+    max_odometry_gap_s: float = 0.2,
+):
+    """A FrameSource, or a BagSource when `spec` names a recorded bag (or topics are given)."""
+    from follow.bag import BagSource, is_bag
+
+    if not (is_bag(spec) or image_topic or odom_topic or camera_info_topic):
+        return FrameSource(spec)
+    if not image_topic:
+        raise SourceError(f"bag {spec}: give the image topic to read (--image-topic)")
+    return BagSource(spec, image_topic, odom_topic, camera_info_topic, max_odometry_gap_s)
+
+
 class LatestSlot:
     """A one-item mailbox: `put` replaces whatever is there, `get` waits for a new item.
 

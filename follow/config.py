@@ -202,12 +202,33 @@ class MavlinkConfig:
 
 
 @dataclass(frozen=True)
+class RosConfig:
+    """Topics and safety bounds of `follow ros2`; the topics also name a bag's streams."""
+
+    # A topic ending in /compressed carries sensor_msgs/CompressedImage, any other Image.
+    image_topic: str = "/camera/image_raw"
+    camera_info_topic: str = "/camera/camera_info"  # empty = intrinsics from the camera file
+    odom_topic: str = "/odom"
+    cmd_vel_topic: str = "/cmd_vel"
+    odom_frame: str = "odom"  # frame of the published target and tracks
+    publish_cmd_vel: bool = False  # drive the base directly (else only feed Nav2)
+    publish_annotated_image: bool = False
+    # An image older than this (by its stamp) when the controller runs stops the base.
+    max_image_age_s: float = 0.5
+    # Odometry is matched to an image's stamp within this gap; newer than this is needed
+    # for any non-zero cmd_vel.
+    max_odometry_age_s: float = 0.2
+    diagnostics_period_s: float = 1.0
+
+
+@dataclass(frozen=True)
 class Config:
     pose: PoseConfig = field(default_factory=PoseConfig)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     identify: IdentifyConfig = field(default_factory=IdentifyConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
+    ros: RosConfig = field(default_factory=RosConfig)
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "config", base: Config | None = None) -> Config:

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from follow.camera import CameraModel
-from follow.capture import FrameSource, LatestSlot
+from follow.capture import FrameSource, LatestSlot, open_source
 from follow.config import Config
 from follow.pipeline import ControlLoop, FrameResult, Perception, ThreadedRunner, run_offline
 from follow.render import annotate, top_down
@@ -30,8 +30,11 @@ def add_arguments(p) -> None:
     p.add_argument(
         "source",
         help="video file, camera index (e.g. 0), GStreamer pipeline (a string with '!'), "
-        "or a folder of images",
+        "a folder of images, or a recorded bag (ROS 1 .bag, ROS 2 bag directory, .mcap)",
     )
+    p.add_argument("--image-topic", help="bag: the image topic (Image or CompressedImage)")
+    p.add_argument("--odom-topic", help="bag: nav_msgs/Odometry, the robot pose at each image")
+    p.add_argument("--camera-info-topic", help="bag: CameraInfo, intrinsics over the camera file")
     p.add_argument("--camera", required=True, help="camera file (YAML/JSON, from follow-calib)")
     p.add_argument("--config", help="TOML configuration (defaults: the paper's values)")
     p.add_argument("--mavlink", help="MAVLink connection string, e.g. udpin:0.0.0.0:14550")
@@ -150,13 +153,22 @@ def main(args) -> dict:
         config = config.replace("mavlink", connection=args.mavlink)
     if args.replay:
         return replay(args, config)
-    source = FrameSource(args.source)
+    source = open_source(args.source, args.image_topic, args.odom_topic, args.camera_info_topic,
+                         config.ros.max_odometry_age_s)  # fmt: skip
+    bag_odometry = source.odometry_at if getattr(source, "odometry", None) is not None else None
+    if bag_odometry and args.realtime:
+        raise ValueError("--realtime does not replay a bag's odometry; leave it out")
     frames = iter(source)
     first = next(frames, None)
     if first is None:
         raise ValueError(f"source {args.source}: no frames")
     height, width = first.image.shape[:2]
-    camera = camera_for_frames(CameraModel.load(args.camera), width, height)
+    camera = CameraModel.load(args.camera)
+    if getattr(source, "camera_info", None) is not None:
+        from follow.rosmsg import camera_from_info
+
+        camera = camera_from_info(source.camera_info, camera)
+    camera = camera_for_frames(camera, width, height)
     perception = build_perception(config, camera)
     if args.target_id is not None:
         perception.identifier.select_target(args.target_id)
@@ -194,7 +206,7 @@ def main(args) -> dict:
             dropped = runner.dropped_frames
         else:
             for count, (frame, result, command) in enumerate(
-                run_offline(perception, all_frames(), controller), start=1
+                run_offline(perception, all_frames(), controller, bag_odometry), start=1
             ):
                 base.send(command)
                 commands.append(command)
@@ -220,6 +232,8 @@ def main(args) -> dict:
         "final_target_id": results[-1].target.target_id if results else None,
         "commands": len(commands),
     }
+    if hasattr(source, "frames_without_odometry"):
+        summary["frames_without_odometry"] = source.frames_without_odometry
     if not args.json:
         print(f"{summary['frames']} frames at {summary['fps']} fps "
               f"({dropped} dropped); states: {states}")  # fmt: skip

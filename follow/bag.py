@@ -1,0 +1,132 @@
+"""Recorded robot bags as a frame source: ROS 1 `.bag`, ROS 2 bag directories and
+MCAP / SQLite files, read with `rosbags` (pure Python, no ROS installation).
+
+Images come from one topic (Image or CompressedImage), stamped with their header's
+time; the robot's pose at each image's stamp comes from an odometry topic
+(nav_msgs/Odometry, interpolated between samples). An image with no odometry close
+enough is skipped with a warning rather than placed at an assumed pose.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from pathlib import Path
+
+from follow.capture import SourceError
+from follow.odometry_buffer import OdometryBuffer
+from follow.rosmsg import image_from_msg, odometry_from_msg, stamp_s
+from follow.types import Frame, InvalidInput, Odometry
+
+log = logging.getLogger(__name__)
+
+BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
+CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+
+
+def is_bag(spec: str) -> bool:
+    """Whether a source names a bag (by suffix, or a directory holding metadata.yaml)."""
+    path = Path(spec)
+    return path.suffix in BAG_SUFFIXES or (path.is_dir() and (path / "metadata.yaml").is_file())
+
+
+class BagSource:
+    """Iterates the frames of one image topic of a bag, in recording order."""
+
+    live = False
+
+    def __init__(
+        self,
+        spec: str,
+        image_topic: str,
+        odom_topic: str | None = None,
+        camera_info_topic: str | None = None,
+        max_odometry_gap_s: float = 0.2,
+    ):
+        try:
+            from rosbags.highlevel import AnyReader
+            from rosbags.typesys import Stores, get_typestore
+        except ImportError:
+            raise SourceError(
+                "reading bags needs the rosbags package: pip install 'follow[bag]'"
+            ) from None
+        self.spec = spec
+        path = Path(spec)
+        if not path.exists():
+            raise SourceError(f"bag {spec}: no such file or directory")
+        try:
+            self._reader = AnyReader([path], default_typestore=get_typestore(Stores.LATEST))
+            self._reader.open()
+        except Exception as exc:  # rosbags raises its own error classes per format
+            raise SourceError(f"bag {spec}: cannot be read ({exc})") from None
+        self._images = self._connections(image_topic, IMAGE_TYPES)
+        self.odometry: OdometryBuffer | None = None
+        if odom_topic:
+            connections = self._connections(odom_topic, (ODOMETRY_TYPE,))
+            self.odometry = self._read_odometry(connections, max_odometry_gap_s)
+        self.camera_info = None
+        if camera_info_topic:
+            info = self._connections(camera_info_topic, (CAMERA_INFO_TYPE,))
+            for connection, _, raw in self._reader.messages(info):
+                self.camera_info = self._reader.deserialize(raw, connection.msgtype)
+                break
+            if self.camera_info is None:
+                raise SourceError(f"bag {spec}: topic {camera_info_topic} holds no message")
+        self.fps = self._frame_rate()
+        self.frames_without_odometry = 0
+
+    def _connections(self, topic: str, types: tuple[str, ...]) -> list:
+        found = [c for c in self._reader.connections if c.topic == topic]
+        if not found:
+            topics = sorted({f"{c.topic} ({c.msgtype})" for c in self._reader.connections})
+            raise SourceError(f"bag {self.spec}: no topic {topic}; it holds {topics}")
+        wrong = [c.msgtype for c in found if c.msgtype not in types]
+        if wrong:
+            raise SourceError(f"bag {self.spec}: topic {topic} is {wrong[0]}, expected {types}")
+        return found
+
+    def _read_odometry(self, connections: list, max_gap_s: float) -> OdometryBuffer:
+        poses = [odometry_from_msg(self._reader.deserialize(raw, c.msgtype))
+                 for c, _, raw in self._reader.messages(connections)]  # fmt: skip
+        if not poses:
+            raise SourceError(f"bag {self.spec}: odometry topic {connections[0].topic} is empty")
+        buffer = OdometryBuffer(max_gap_s, capacity=len(poses))
+        for pose in poses:
+            buffer.add(pose)
+        return buffer
+
+    def _frame_rate(self) -> float:
+        stamps = [t for _, t, _ in self._reader.messages(self._images)]
+        if len(stamps) < 2 or stamps[-1] <= stamps[0]:
+            return 15.0
+        return (len(stamps) - 1) / ((stamps[-1] - stamps[0]) * 1e-9)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for connection, log_time_ns, raw in self._reader.messages(self._images):
+            msg = self._reader.deserialize(raw, connection.msgtype)
+            stamp = stamp_s(msg.header)
+            if stamp == 0.0:  # an unstamped image: the time it was recorded
+                stamp = log_time_ns * 1e-9
+            try:
+                frame = Frame(image_from_msg(msg), stamp)
+            except InvalidInput as exc:
+                log.warning("skipping the image at %.3f s: %s", stamp, exc)
+                continue
+            if self.odometry is not None and self.odometry.at(stamp) is None:
+                self.frames_without_odometry += 1
+                log.warning("skipping the image at %.3f s: no odometry within %.2f s",
+                            stamp, self.odometry.max_gap_s)  # fmt: skip
+                continue
+            yield frame
+
+    def odometry_at(self, stamp: float) -> Odometry:
+        """The robot's pose at an image's stamp (only for frames this source yielded)."""
+        pose = self.odometry.at(stamp) if self.odometry is not None else None
+        if pose is None:
+            raise ValueError(f"bag {self.spec}: no odometry at {stamp:.3f} s")
+        return pose
+
+    def close(self) -> None:
+        self._reader.close()

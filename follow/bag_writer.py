@@ -1,0 +1,127 @@
+"""Writing robot bags (images, odometry, camera info) with `rosbags`, no ROS needed.
+
+The format follows the path: `.bag` is ROS 1, `.mcap` one MCAP file, anything else a
+ROS 2 bag directory (MCAP storage). Used by the demo's `--bag` and by tests that turn
+a video into the bag a robot would have recorded.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from follow.camera import CameraModel
+from follow.rosmsg import camera_info_fields, image_fields, quaternion_of_yaw, stamp_fields
+from follow.types import Odometry
+
+
+class BagWriter:
+    """One bag being written; topics are added on their first message."""
+
+    def __init__(self, path: str | Path):
+        try:
+            from rosbags.typesys import Stores, get_typestore
+        except ImportError:
+            raise RuntimeError("writing bags needs rosbags: pip install 'follow[bag]'") from None
+        self.path = Path(path)
+        if self.path.exists():
+            raise FileExistsError(f"bag {self.path} exists already; not overwriting it")
+        self.ros1 = self.path.suffix == ".bag"
+        self._single_mcap = self.path.suffix == ".mcap"
+        self._tmp: Path | None = None
+        if self.ros1:
+            from rosbags.rosbag1 import Writer
+
+            self.typestore = get_typestore(Stores.ROS1_NOETIC)
+            self._writer = Writer(self.path)
+        else:
+            from rosbags.rosbag2 import StoragePlugin, Writer
+
+            self.typestore = get_typestore(Stores.ROS2_KILTED)
+            target = self.path
+            if self._single_mcap:  # rosbags writes a directory; its one .mcap is kept
+                self._tmp = Path(tempfile.mkdtemp(prefix="follow-bag-"))
+                target = self._tmp / "bag"
+            self._writer = Writer(target, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._writer.open()
+        self._connections: dict[str, object] = {}
+        self._seq = 0
+
+    def _types(self, name: str):
+        return self.typestore.types[name]
+
+    def _header(self, stamp: float, frame_id: str):
+        fields = {"stamp": self._types("builtin_interfaces/msg/Time")(**stamp_fields(stamp)),
+                  "frame_id": frame_id}  # fmt: skip
+        if self.ros1:
+            self._seq += 1
+            fields["seq"] = self._seq
+        return self._types("std_msgs/msg/Header")(**fields)
+
+    def write(self, topic: str, stamp: float, msg) -> None:
+        """One message, recorded at `stamp` seconds."""
+        msgtype = msg.__msgtype__
+        if topic not in self._connections:
+            self._connections[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=self.typestore
+            )
+        serialize = self.typestore.serialize_ros1 if self.ros1 else self.typestore.serialize_cdr
+        self._writer.write(self._connections[topic], int(round(stamp * 1e9)),
+                           serialize(msg, msgtype))  # fmt: skip
+
+    def write_image(self, topic: str, stamp: float, image_bgr: np.ndarray, frame_id: str) -> None:
+        Image = self._types("sensor_msgs/msg/Image")
+        self.write(
+            topic, stamp, Image(header=self._header(stamp, frame_id), **image_fields(image_bgr))
+        )
+
+    def write_odometry(self, topic: str, pose: Odometry, frame_id: str = "odom",
+                       child_frame_id: str = "base_link") -> None:  # fmt: skip
+        t = self._types
+        point = t("geometry_msgs/msg/Point")(x=pose.x_m, y=pose.y_m, z=0.0)
+        orientation = t("geometry_msgs/msg/Quaternion")(**quaternion_of_yaw(pose.yaw_rad))
+        zero = t("geometry_msgs/msg/Vector3")(x=0.0, y=0.0, z=0.0)
+        msg = t("nav_msgs/msg/Odometry")(
+            header=self._header(pose.stamp_s, frame_id),
+            child_frame_id=child_frame_id,
+            pose=t("geometry_msgs/msg/PoseWithCovariance")(
+                pose=t("geometry_msgs/msg/Pose")(position=point, orientation=orientation),
+                covariance=np.zeros(36),
+            ),
+            twist=t("geometry_msgs/msg/TwistWithCovariance")(
+                twist=t("geometry_msgs/msg/Twist")(linear=zero, angular=zero),
+                covariance=np.zeros(36),
+            ),
+        )
+        self.write(topic, pose.stamp_s, msg)
+
+    def write_camera_info(
+        self, topic: str, stamp: float, camera: CameraModel, frame_id: str
+    ) -> None:
+        fields = camera_info_fields(camera)
+        if self.ros1:
+            fields = {(k.upper() if k in ("d", "k", "r", "p") else k): v for k, v in fields.items()}
+        roi = self._types("sensor_msgs/msg/RegionOfInterest")(
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        )
+        msg = self._types("sensor_msgs/msg/CameraInfo")(
+            header=self._header(stamp, frame_id), binning_x=0, binning_y=0, roi=roi, **fields
+        )
+        self.write(topic, stamp, msg)
+
+    def close(self) -> None:
+        self._writer.close()
+        if self._tmp is not None:
+            (written,) = (self._tmp / "bag").glob("*.mcap")
+            shutil.move(str(written), self.path)
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,127 @@
+"""Conversions between ROS messages and `follow`'s types, without ROS.
+
+The functions read messages by attribute, so they take rclpy messages (the ROS 2
+node) and the messages `rosbags` deserialises from ROS 1 and ROS 2 bags alike; the
+`*_fields` functions give the keyword arguments that build such messages.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from follow.camera import CameraModel
+from follow.types import InvalidInput, Odometry
+
+# Encodings of sensor_msgs/Image we decode: channels and the OpenCV conversion to BGR.
+_ENCODINGS: dict[str, tuple[int, int | None]] = {
+    "bgr8": (3, None),
+    "8UC3": (3, None),
+    "rgb8": (3, cv2.COLOR_RGB2BGR),
+    "bgra8": (4, cv2.COLOR_BGRA2BGR),
+    "rgba8": (4, cv2.COLOR_RGBA2BGR),
+    "mono8": (1, cv2.COLOR_GRAY2BGR),
+    "8UC1": (1, cv2.COLOR_GRAY2BGR),
+}
+# CameraInfo distortion models that are OpenCV's pinhole coefficients.
+_PINHOLE_MODELS = ("", "plumb_bob", "rational_polynomial")
+
+
+def stamp_s(header) -> float:
+    """Seconds of a std_msgs/Header (or of a bare builtin_interfaces/Time)."""
+    stamp = getattr(header, "stamp", header)
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def stamp_fields(seconds: float) -> dict:
+    """builtin_interfaces/Time keyword arguments for `seconds`."""
+    sec = math.floor(seconds)
+    nanosec = min(int(round((seconds - sec) * 1e9)), 999_999_999)
+    return {"sec": int(sec), "nanosec": nanosec}
+
+
+def image_from_msg(msg) -> np.ndarray:
+    """A BGR uint8 image from sensor_msgs/Image or CompressedImage."""
+    raw = msg.data
+    data = raw.ravel() if isinstance(raw, np.ndarray) else np.frombuffer(raw, dtype=np.uint8)
+    if hasattr(msg, "format"):  # CompressedImage
+        image = cv2.imdecode(data, cv2.IMREAD_COLOR)
+        if image is None:
+            raise InvalidInput(f"compressed image ({msg.format!r}) cannot be decoded")
+        return image
+    if msg.encoding not in _ENCODINGS:
+        raise InvalidInput(
+            f"image encoding {msg.encoding!r} is not supported; use one of {sorted(_ENCODINGS)}"
+        )
+    channels, conversion = _ENCODINGS[msg.encoding]
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    if step < width * channels or data.size < step * height:
+        raise InvalidInput(
+            f"image {width}x{height} {msg.encoding}: step {step} and {data.size} bytes do not fit"
+        )
+    rows = data[: step * height].reshape(height, step)[:, : width * channels]
+    image = rows.reshape(height, width, channels)
+    return np.ascontiguousarray(image) if conversion is None else cv2.cvtColor(image, conversion)
+
+
+def image_fields(image_bgr: np.ndarray) -> dict:
+    """sensor_msgs/Image keyword arguments (no header) for a BGR uint8 image."""
+    height, width = image_bgr.shape[:2]
+    return {"height": height, "width": width, "encoding": "bgr8", "is_bigendian": 0,
+            "step": 3 * width, "data": np.ascontiguousarray(image_bgr).reshape(-1)}  # fmt: skip
+
+
+def yaw_of_quaternion(q) -> float:
+    """Heading (rotation about z) of a geometry_msgs/Quaternion."""
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def quaternion_of_yaw(yaw_rad: float) -> dict:
+    """geometry_msgs/Quaternion keyword arguments of a rotation about z."""
+    return {"x": 0.0, "y": 0.0, "z": math.sin(yaw_rad / 2.0), "w": math.cos(yaw_rad / 2.0)}
+
+
+def odometry_from_msg(msg) -> Odometry:
+    """The planar robot pose of a nav_msgs/Odometry, at its header's stamp."""
+    pose = msg.pose.pose
+    yaw = yaw_of_quaternion(pose.orientation)
+    return Odometry(float(pose.position.x), float(pose.position.y), yaw, stamp_s(msg.header))
+
+
+def _field(msg, name: str):
+    """A CameraInfo field: lower case in ROS 2 (`k`), upper case in ROS 1 (`K`)."""
+    value = getattr(msg, name, None)
+    return getattr(msg, name.upper()) if value is None else value
+
+
+def camera_from_info(msg, mounted: CameraModel) -> CameraModel:
+    """`mounted` (the camera file: its pose on the robot) with the intrinsics, distortion
+    and image size of a sensor_msgs/CameraInfo."""
+    model = str(msg.distortion_model)
+    if model not in _PINHOLE_MODELS:
+        raise InvalidInput(
+            f"camera_info distortion_model {model!r} is not supported; use one of "
+            f"{[m for m in _PINHOLE_MODELS if m]}"
+        )
+    K = np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3)
+    dist = np.asarray(_field(msg, "d"), dtype=np.float64).ravel()
+    if dist.size and not dist.any():
+        dist = np.zeros(0)
+    try:
+        return CameraModel(K, dist, (int(msg.width), int(msg.height)), mounted.pose)
+    except ValueError as exc:
+        raise InvalidInput(f"camera_info: {exc}") from None
+
+
+def camera_info_fields(camera: CameraModel) -> dict:
+    """sensor_msgs/CameraInfo keyword arguments (no header) of a camera's intrinsics."""
+    dist = np.zeros(5) if camera.dist.size == 0 else camera.dist
+    if dist.size == 4:
+        dist = np.append(dist, 0.0)
+    P = np.hstack([camera.K, np.zeros((3, 1))])
+    return {"width": camera.image_size[0], "height": camera.image_size[1],
+            "distortion_model": "plumb_bob" if dist.size == 5 else "rational_polynomial",
+            "d": dist.astype(np.float64), "k": camera.K.reshape(-1), "r": np.eye(3).reshape(-1),
+            "p": P.reshape(-1)}  # fmt: skip

@@ -1,0 +1,182 @@
+"""Recorded bags as input: writing and reading ROS 1, ROS 2 and MCAP bags, odometry
+matched to image stamps, and `follow run BAG` giving the same results as the video."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from pets_robot import CONFIG_TOML, pets_camera, pets_frames, robot_pose
+
+from follow import cli
+from follow.bag import BagSource
+from follow.bag_writer import BagWriter
+from follow.camera import CameraModel, CameraPose
+from follow.capture import SourceError
+from follow.runlog import read_run_log
+from follow.types import Odometry
+
+ODOM_PERIOD_S = 0.02
+ODOM_OFFSET_S = 0.007  # odometry is never stamped at the images' instants
+
+
+def odometry_track(first_s: float, last_s: float) -> list[Odometry]:
+    n = int((last_s - first_s + 0.2) / ODOM_PERIOD_S) + 1
+    return [robot_pose(first_s - 0.1 + ODOM_OFFSET_S + k * ODOM_PERIOD_S) for k in range(n)]
+
+
+def write_robot_bag(path, frames, camera, odometry=True):
+    with BagWriter(path) as bag:
+        poses = odometry_track(frames[0].stamp_s, frames[-1].stamp_s) if odometry else []
+        for frame in frames:
+            for pose in [p for p in poses if p.stamp_s < frame.stamp_s]:
+                bag.write_odometry("/odom", pose)
+            poses = [p for p in poses if p.stamp_s >= frame.stamp_s]
+            bag.write_camera_info("/camera/camera_info", frame.stamp_s, camera, "camera")
+            bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+        for pose in poses:
+            bag.write_odometry("/odom", pose)
+
+
+@pytest.fixture
+def small_frames():
+    from follow.types import Frame
+
+    rng = np.random.default_rng(3)
+    return [Frame(rng.integers(0, 255, (48, 64, 3), dtype=np.uint8), 1000.0 + 0.1 * i)
+            for i in range(6)]  # fmt: skip
+
+
+@pytest.fixture
+def small_camera():
+    pose = CameraPose(height_m=1.2, pitch_rad=0.1)
+    return CameraModel.from_fov((64, 48), 70.0, pose, dist=np.array([0.1, -0.02, 0, 0, 0.01]))
+
+
+@pytest.mark.parametrize("name", ["robot.bag", "robot.mcap", "robot_ros2"])
+def test_every_bag_format_gives_back_the_frames_odometry_and_intrinsics(
+    tmp_path, small_frames, small_camera, name
+):
+    write_robot_bag(tmp_path / name, small_frames, small_camera)
+    source = BagSource(str(tmp_path / name), "/camera/image_raw", "/odom", "/camera/camera_info")
+    frames = list(source)
+    source.close()
+    assert [f.stamp_s for f in frames] == pytest.approx([f.stamp_s for f in small_frames], abs=1e-9)
+    assert all(np.array_equal(a.image, b.image) for a, b in zip(frames, small_frames, strict=True))
+    assert source.fps == pytest.approx(10.0)
+    for frame in frames:  # the pose at each image's instant, between 50 Hz samples
+        pose, truth = source.odometry_at(frame.stamp_s), robot_pose(frame.stamp_s)
+        assert (pose.x_m, pose.y_m, pose.yaw_rad) == pytest.approx(
+            (truth.x_m, truth.y_m, truth.yaw_rad), abs=1e-6
+        )
+    from follow.rosmsg import camera_from_info
+
+    camera = camera_from_info(source.camera_info, small_camera)
+    np.testing.assert_allclose(camera.K, small_camera.K)
+    np.testing.assert_allclose(camera.dist, small_camera.dist)
+    assert camera.image_size == (64, 48)
+
+
+def test_images_without_odometry_nearby_are_skipped(tmp_path, small_frames, small_camera):
+    path = tmp_path / "gap.mcap"
+    with BagWriter(path) as bag:
+        for frame in small_frames:
+            bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+        bag.write_odometry("/odom", robot_pose(small_frames[0].stamp_s + 0.05))
+    source = BagSource(str(path), "/camera/image_raw", "/odom", max_odometry_gap_s=0.1)
+    stamps = [f.stamp_s for f in source]
+    # Frames 0 and 1 lie 0.05 s from the one odometry sample; the rest are too far.
+    assert stamps == pytest.approx([small_frames[0].stamp_s, small_frames[1].stamp_s])
+    assert source.frames_without_odometry == 4
+
+
+def test_a_missing_topic_is_named_with_the_topics_the_bag_holds(
+    tmp_path, small_frames, small_camera
+):
+    write_robot_bag(tmp_path / "robot.mcap", small_frames, small_camera)
+    with pytest.raises(SourceError, match=r"no topic /image.*/camera/image_raw \(sensor_msgs"):
+        BagSource(str(tmp_path / "robot.mcap"), "/image")
+    with pytest.raises(SourceError, match="topic /odom is nav_msgs/msg/Odometry, expected"):
+        BagSource(str(tmp_path / "robot.mcap"), "/odom")
+
+
+def test_follow_run_on_a_bag_needs_the_image_topic(tmp_path, small_frames, small_camera, capsys):
+    write_robot_bag(tmp_path / "robot.mcap", small_frames, small_camera)
+    small_camera.save(tmp_path / "cam.yaml")
+    code = cli.main(["run", str(tmp_path / "robot.mcap"), "--camera", str(tmp_path / "cam.yaml")])
+    assert code == 1
+    assert "--image-topic" in capsys.readouterr().err
+
+
+FRAMES = 16
+
+
+def _run(args, capsys) -> dict:
+    capsys.readouterr()
+    assert cli.main(args + ["--json"]) == 0
+    return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+
+
+def test_follow_run_on_a_pets_bag_matches_the_video(tmp_path, data_path, model_path, capsys):
+    """The same skeletons, tracks and targets from the bag as from the video; with the
+    bag's odometry, the robot pose at every image and the tracks it implies."""
+    from follow.config import Config
+    from follow.run import build_perception
+
+    model_path("pose/human-pose-estimation-0001.onnx")
+    camera, camera_file = pets_camera(data_path, tmp_path)
+    (tmp_path / "config.toml").write_text(CONFIG_TOML)
+    frames = pets_frames(data_path, FRAMES)
+    write_robot_bag(tmp_path / "robot.mcap", frames, camera)
+    common = ["--camera", str(camera_file), "--config", str(tmp_path / "config.toml"),
+              "--target-id", "1", "--max-frames", str(FRAMES)]  # fmt: skip
+    video = str(data_path("pets2009_s2l1/View_001.avi"))
+    _run(["run", video, *common, "--log", str(tmp_path / "video.jsonl")], capsys)
+    topics = ["--image-topic", "/camera/image_raw", "--camera-info-topic", "/camera/camera_info"]
+    _run(["run", str(tmp_path / "robot.mcap"), *common, *topics,
+          "--log", str(tmp_path / "still.jsonl")], capsys)  # fmt: skip
+    moving = _run(["run", str(tmp_path / "robot.mcap"), *common, *topics, "--odom-topic", "/odom",
+                   "--log", str(tmp_path / "moving.jsonl")], capsys)  # fmt: skip
+    assert moving["frames"] == FRAMES and moving["frames_without_odometry"] == 0
+
+    video_log = list(read_run_log(tmp_path / "video.jsonl")[1])
+    still_log = list(read_run_log(tmp_path / "still.jsonl")[1])
+    moving_log = list(read_run_log(tmp_path / "moving.jsonl")[1])
+    # Without odometry the bag is the video: the same tracks and targets, frame by frame.
+    assert sum(len(r.tracks) for r in video_log) > 2 * FRAMES
+    for v, s in zip(video_log, still_log, strict=True):
+        assert s.tracks == v.tracks
+        assert (s.target_status, s.target_id) == (v.target_status, v.target_id)
+    assert any(r.target_id == 1 for r in video_log)
+
+    # With odometry: the pose at each image's stamp, and the tracks that pose implies
+    # (tracking and identification re-run here on the video's skeletons at that pose).
+    config = Config.load(tmp_path / "config.toml")
+    current = [[]]
+    height, width = frames[0].image.shape[:2]
+    perception = build_perception(
+        config, camera.for_image_size(width, height), detect=lambda frame: current[0]
+    )
+    perception.identifier.select_target(1)
+    for index, (v, m) in enumerate(zip(video_log, moving_log, strict=True)):
+        truth = robot_pose(frames[index].stamp_s)
+        assert m.stamp_s == pytest.approx(frames[index].stamp_s, abs=1e-6)
+        assert (m.robot.x_m, m.robot.y_m, m.robot.yaw_rad) == pytest.approx(
+            (truth.x_m, truth.y_m, truth.yaw_rad), abs=1e-4
+        )
+        current[0] = v.skeletons
+        result = perception.process(frames[index], truth, index)
+        expected = {t.track_id: t.mean[:2] for t in result.tracks}
+        got = {t["id"]: np.array(t["mean"][:2]) for t in m.tracks}
+        assert got.keys() == expected.keys()
+        for track_id, position in expected.items():
+            np.testing.assert_allclose(got[track_id], position, atol=2e-3)
+        assert m.target_id == result.target.target_id
+    # The robot turned by 0.05 rad/s: tracks in `odom` are not those of the still camera.
+    last_v = {t["id"]: np.array(t["mean"][:2]) for t in video_log[-1].tracks}
+    last_m = {t["id"]: np.array(t["mean"][:2]) for t in moving_log[-1].tracks}
+    shared = last_v.keys() & last_m.keys()
+    assert shared and max(np.linalg.norm(last_v[k] - last_m[k]) for k in shared) > 0.2
+    assert math.isfinite(moving["fps"])
