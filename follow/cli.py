@@ -16,6 +16,7 @@ import sys
 # (command, subcommand or None) -> (module, one-line help)
 COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("run", None): ("follow.run", "follow a person: camera or video in, base commands out"),
+    ("ros2", None): ("follow.ros2.cli", "the ROS 2 node: images and odometry in, target/tracks/cmd_vel out"),
     ("demo", None): ("follow.sim.demo", "the whole stack on a simulated robot (no downloads)"),
     ("eval", "localization"): ("follow.eval.localization", "ground-plane error vs distance (simulation)"),
     ("eval", "pose"): ("follow.eval.pose", "skeleton detector recall/precision on PETS 2009"),

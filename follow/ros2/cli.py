@@ -1,0 +1,35 @@
+"""`follow ros2`: run the ROS 2 node (see follow/ros2/node.py and docs/ros2.md)."""
+
+from __future__ import annotations
+
+import argparse
+
+from follow.camera import CameraModel
+from follow.config import Config
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--camera", required=True,
+                   help="camera file: the camera's pose on the robot (and intrinsics when "
+                   "ros.camera_info_topic is empty)")  # fmt: skip
+    p.add_argument("--config", help="TOML configuration; ROS parameters `section.key` override it")
+    p.add_argument("--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=[],
+                   help="ROS arguments, e.g. --ros-args -p ros.publish_cmd_vel:=true "
+                   "-r __ns:=/robot")  # fmt: skip
+
+
+def main(args) -> dict:
+    try:
+        import rclpy  # noqa: F401
+    except ImportError as exc:
+        raise RuntimeError(
+            "follow ros2 needs ROS 2's Python packages: pip install 'follow[ros2]' "
+            f"(ROS 2 Kilted wheels for Python 3.11), or source a ROS 2 installation ({exc})"
+        ) from None
+    from follow.ros2.node import run
+
+    config = Config.load(args.config) if args.config else Config()
+    summary = run(config, CameraModel.load(args.camera), args.ros_args or [])
+    if not args.json:
+        print(f"{summary.get('frames', 0)} frames; the base was left stopped")
+    return summary

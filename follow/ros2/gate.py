@@ -1,0 +1,60 @@
+"""The node's velocity output: a `Base` for the shared ControlLoop that publishes
+cmd_vel, and refuses to move on stale odometry or while following is stopped.
+
+The ControlLoop already stops on stale images (its perception time-out) and the
+controller on a lost target; this gate adds the rules that only the node knows: no
+fresh odometry (by its stamp, on the node's clock) means stop, and so does an operator's
+stop request.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+from follow.types import Odometry, VelocityCommand
+
+
+class CmdVelGate:
+    """`send` forwards a command to `publish`, replaced by zero when it must not move."""
+
+    def __init__(
+        self,
+        publish: Callable[[VelocityCommand], None],
+        clock: Callable[[], float],
+        max_odometry_age_s: float,
+    ):
+        self.publish = publish
+        self.clock = clock
+        self.max_odometry_age_s = max_odometry_age_s
+        self.following = True
+        self.blocked = 0  # moving commands replaced by zero
+        self.last_sent: VelocityCommand | None = None
+        self._odometry: Odometry | None = None
+        self._lock = threading.Lock()
+
+    def update_odometry(self, pose: Odometry) -> None:
+        with self._lock:
+            if self._odometry is None or pose.stamp_s >= self._odometry.stamp_s:
+                self._odometry = pose
+
+    def odometry(self) -> Odometry | None:
+        """The newest pose if it is fresh, else None (never an assumed one)."""
+        with self._lock:
+            pose = self._odometry
+        if pose is None or self.clock() - pose.stamp_s > self.max_odometry_age_s:
+            return None
+        return pose
+
+    def healthy(self) -> bool:
+        return self.odometry() is not None
+
+    def send(self, command: VelocityCommand) -> None:
+        if not command.is_stop and not (self.following and self.healthy()):
+            self.blocked += 1
+            command = VelocityCommand.stop(command.stamp_s)
+        self.last_sent = command
+        self.publish(command)
+
+    def close(self) -> None:
+        self.send(VelocityCommand.stop(self.clock()))

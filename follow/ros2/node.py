@@ -1,0 +1,340 @@
+"""The `follow` ROS 2 node: camera images and odometry in; the target for Nav2's
+following server, every track, the identifier's state and diagnostics out; optionally
+cmd_vel from the project's own controller.
+
+It runs the same stack as `follow run` (`build_perception`, `Perception`, the
+`FollowingController` in the shared `ControlLoop`) on a perception thread of its own, so
+the executor keeps taking odometry and requests while a frame is processed. Safety as in
+`follow run`: an image older than `max_image_age_s`, odometry older than
+`max_odometry_age_s`, a lost target or a stop request give a zero cmd_vel, and so does
+shutdown (SIGINT or SIGTERM).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import signal
+import statistics
+import threading
+import time
+from collections import deque
+
+import rclpy
+from geometry_msgs.msg import PoseArray, PoseStamped, Twist
+from nav_msgs.msg import Odometry as OdometryMsg
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from std_msgs.msg import Int32, String
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+from follow.camera import CameraModel
+from follow.capture import LatestSlot
+from follow.config import Config
+from follow.odometry_buffer import OdometryBuffer
+from follow.pipeline import ControlLoop, FrameResult
+from follow.ros2 import messages
+from follow.ros2.gate import CmdVelGate
+from follow.rosmsg import camera_from_info, image_fields, image_from_msg, odometry_from_msg, stamp_s
+from follow.types import Frame, InvalidInput, Odometry, VelocityCommand
+
+log = logging.getLogger(__name__)
+
+NODE_NAME = "follow"
+ODOMETRY_QUEUE = 50  # odometry messages held while the executor is busy
+
+
+def parameters_over(node: Node, config: Config) -> Config:
+    """Every config key declared as a ROS parameter `section.key` (default: the TOML's
+    value); the values the node was started with override the TOML."""
+    changed: dict[str, dict] = {}
+    for section in dataclasses.fields(config):
+        values = getattr(config, section.name)
+        for field in dataclasses.fields(values):
+            default = getattr(values, field.name)
+            value = node.declare_parameter(f"{section.name}.{field.name}", default).value
+            if value != default:
+                changed.setdefault(section.name, {})[field.name] = value
+    return Config.from_dict(changed, source="ROS parameters", base=config)
+
+
+class FollowNode(Node):
+    """Subscribes, runs perception and control, publishes (see the module doc)."""
+
+    def __init__(self, config: Config, mounted: CameraModel, detect=None):
+        super().__init__(NODE_NAME)
+        self.config = parameters_over(self, config)
+        ros = self.config.ros
+        if ros.publish_cmd_vel and not ros.odom_topic:
+            raise ValueError("ros.publish_cmd_vel needs ros.odom_topic: no odometry, no driving")
+        self.mounted = mounted
+        self.model_name = "given detector"
+        if detect is None:
+            from follow.pose.detector import PoseDetector
+
+            detector = PoseDetector(self.config.pose)
+            self.model_name = f"{detector.model_path.name} on {detector.backend_name}"
+
+            def detect(frame: Frame):
+                return detector.detect(frame.image)
+
+        self._detect = detect
+        self.perception = None
+        self._pending_target: int | None = None
+        self._lock = threading.Lock()  # the identifier: perception thread vs requests
+        self.following = True
+        self.camera_info = None
+        self.odometry = OdometryBuffer(ros.max_odometry_age_s) if ros.odom_topic else None
+        self.frames = 0
+        self.frames_without_odometry = 0
+        self.stale_frames = 0  # images not newer than the last one processed
+        self.errors = 0
+        self._last_stamp: float | None = None
+        self._recent: deque = deque(maxlen=300)  # (wall time, timing_ms) per frame
+        self._images = LatestSlot()
+        self.results = LatestSlot()  # newest FrameResult for the control loop
+
+        self._make_publishers()
+        self._make_subscriptions()
+        self.gate: CmdVelGate | None = None
+        self.control: ControlLoop | None = None
+        if ros.publish_cmd_vel:
+            from follow.control.controller import FollowingController
+
+            self.gate = CmdVelGate(self._publish_twist, self.now_s, ros.max_odometry_age_s)
+            self.control = ControlLoop(
+                FollowingController(self.config.control), self.gate, self.results,
+                self.config.control.control_rate_hz, ros.max_image_age_s, clock=self.now_s,
+            )  # fmt: skip
+        self.create_timer(ros.diagnostics_period_s, self._publish_diagnostics)
+        self._stopping = threading.Event()
+        self._worker = threading.Thread(target=self._perceive, name="perception", daemon=True)
+        self._worker.start()
+        if self.control is not None:
+            self.control.start()
+        self.get_logger().info(
+            f"following people in {ros.image_topic} ({self.model_name}); "
+            f"cmd_vel {'on ' + ros.cmd_vel_topic if ros.publish_cmd_vel else 'off'}"
+        )
+
+    # ------------------------------------------------------------------ wiring
+    def _make_publishers(self) -> None:
+        self.pub_target = self.create_publisher(PoseStamped, "~/target", 10)
+        self.pub_tracks = self.create_publisher(PoseArray, "~/tracks", 10)
+        self.pub_markers = self.create_publisher(MarkerArray, "~/track_markers", 10)
+        self.pub_state = self.create_publisher(String, "~/target_state", 10)
+        self.pub_image = None
+        if self.config.ros.publish_annotated_image:
+            self.pub_image = self.create_publisher(Image, "~/image_annotated", 2)
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.pub_cmd_vel = self.create_publisher(Twist, self.config.ros.cmd_vel_topic, 10)
+
+    def _make_subscriptions(self) -> None:
+        ros = self.config.ros
+        image_type = CompressedImage if ros.image_topic.endswith("/compressed") else Image
+        # Best effort takes images from reliable and best-effort publishers alike.
+        self.create_subscription(image_type, ros.image_topic, self._images.put,
+                                 qos_profile_sensor_data)  # fmt: skip
+        if ros.camera_info_topic:
+            self.create_subscription(CameraInfo, ros.camera_info_topic, self._on_camera_info,
+                                     qos_profile_sensor_data)  # fmt: skip
+        if ros.odom_topic:
+            odometry_qos = QoSProfile(
+                depth=ODOMETRY_QUEUE, reliability=ReliabilityPolicy.BEST_EFFORT
+            )
+            self.create_subscription(OdometryMsg, ros.odom_topic, self._on_odometry, odometry_qos)
+        self.create_subscription(Int32, "~/select_target", self._on_select_target, 10)
+        self.create_service(Trigger, "~/stop_following", self._on_stop_following)
+
+    def now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    # ------------------------------------------------------------------ inputs
+    def _on_camera_info(self, msg) -> None:
+        self.camera_info = msg
+
+    def _on_odometry(self, msg) -> None:
+        pose = odometry_from_msg(msg)
+        self.odometry.add(pose)
+        if self.gate is not None:
+            self.gate.update_odometry(pose)
+
+    def _on_select_target(self, msg) -> None:
+        """A track id to follow; a negative id: the nearest person again."""
+        with self._lock:
+            self.following = True
+            if self.gate is not None:
+                self.gate.following = True
+            if self.perception is None:
+                self._pending_target = msg.data
+            elif msg.data >= 0:
+                self.perception.identifier.select_target(msg.data)
+            else:
+                self.perception.identifier.reset()
+        self.get_logger().info(f"target selected: {msg.data if msg.data >= 0 else 'nearest'}")
+
+    def _on_stop_following(self, request, response):
+        with self._lock:
+            self.following = False
+            if self.gate is not None:
+                self.gate.following = False
+                self.gate.send(VelocityCommand.stop(self.now_s()))
+        response.success = True
+        response.message = "stopped following; publish a track id on ~/select_target to resume"
+        return response
+
+    # ------------------------------------------------------------------ perception
+    def _perceive(self) -> None:
+        while not self._stopping.is_set():
+            msg = self._images.get(timeout_s=0.2)
+            if msg is None:
+                continue
+            try:
+                self._process(msg)
+            except Exception:  # one bad frame must not end the node; control goes stale
+                self.errors += 1
+                log.exception("frame failed")
+
+    def _perception_for(self, width: int, height: int):
+        if self.perception is not None:
+            return self.perception
+        from follow.run import build_perception, camera_for_frames
+
+        camera = self.mounted
+        if self.config.ros.camera_info_topic:
+            if self.camera_info is None:
+                self.get_logger().warning("waiting for camera_info", throttle_duration_sec=5.0)
+                return None
+            camera = camera_from_info(self.camera_info, self.mounted)
+        camera = camera_for_frames(camera, width, height)
+        self.perception = build_perception(self.config, camera, detect=self._detect)
+        if self._pending_target is not None and self._pending_target >= 0:
+            self.perception.identifier.select_target(self._pending_target)
+        return self.perception
+
+    def _process(self, msg) -> None:
+        ros = self.config.ros
+        stamp = stamp_s(msg.header)
+        if self._last_stamp is not None and stamp <= self._last_stamp:
+            self.stale_frames += 1
+            return
+        try:
+            image = image_from_msg(msg)
+        except InvalidInput as exc:
+            self.get_logger().warning(f"image dropped: {exc}", throttle_duration_sec=5.0)
+            return
+        if self.odometry is not None:
+            self.odometry.wait_until(stamp, ros.max_odometry_age_s)
+            robot = self.odometry.at(stamp)
+            if robot is None:
+                self.frames_without_odometry += 1
+                self.get_logger().warning(
+                    f"image dropped: no odometry within {ros.max_odometry_age_s} s of its stamp",
+                    throttle_duration_sec=5.0,
+                )
+                return
+        else:
+            robot = Odometry.origin(stamp)
+        with self._lock:
+            perception = self._perception_for(image.shape[1], image.shape[0])
+            if perception is None:
+                return
+            result = perception.process(Frame(image, stamp), robot, self.frames)
+            following = self.following
+        self.frames += 1
+        self._last_stamp = stamp
+        self._recent.append((time.monotonic(), result.timing_ms))
+        self.results.put(result)
+        self._publish(result, image, following)
+
+    # ------------------------------------------------------------------ outputs
+    def _publish(self, result: FrameResult, image, following: bool) -> None:
+        frame_id = self.config.ros.odom_frame
+        self.pub_tracks.publish(messages.tracks_pose_array(result, frame_id))
+        self.pub_markers.publish(messages.track_markers(result, frame_id))
+        name = getattr(self.perception.identifier, "name", "identifier")
+        self.pub_state.publish(messages.target_state(result, str(name), following))
+        target = messages.target_pose(result, frame_id)
+        if target is not None and following:
+            self.pub_target.publish(target)
+        if self.pub_image is not None:
+            from follow.render import annotate
+
+            command = self.gate.last_sent if self.gate is not None else None
+            picture = annotate(image, result.skeletons, result.tracks, result.target, command)
+            self.pub_image.publish(Image(header=messages.header(result.stamp_s, "camera"),
+                                         **image_fields(picture)))  # fmt: skip
+
+    def _publish_twist(self, command: VelocityCommand) -> None:
+        self.pub_cmd_vel.publish(messages.twist(command))
+
+    def _publish_diagnostics(self) -> None:
+        period = self.config.ros.diagnostics_period_s
+        now = time.monotonic()
+        recent = [timing for wall, timing in self._recent if now - wall <= period]
+        values = {"fps": f"{len(recent) / period:.2f}", "model": self.model_name,
+                  "frames": str(self.frames),
+                  "frames_without_odometry": str(self.frames_without_odometry),
+                  "following": str(self.following)}  # fmt: skip
+        for stage in ("pose", "tracker", "identify"):
+            stage_ms = [t[stage] for t in recent if stage in t]
+            if stage_ms:
+                values[f"{stage}_ms"] = f"{statistics.median(stage_ms):.1f}"
+        if self.gate is not None:
+            values["cmd_vel_blocked"] = str(self.gate.blocked)
+            values["watchdog_trips"] = str(self.control.watchdog_trips)
+        ok = bool(recent)
+        message = "running" if ok else "no frames processed recently"
+        self.pub_diagnostics.publish(
+            messages.diagnostics(self.now_s(), "follow: perception", values, ok, message)
+        )
+
+    # ------------------------------------------------------------------ shutdown
+    def shutdown(self) -> dict:
+        """Stop perception and control; the base's last command is zero."""
+        self._stopping.set()
+        self._images.close()
+        self._worker.join(timeout=10.0)
+        if self.control is not None:
+            self.control.stop()  # sends zero through the gate
+        if self.config.ros.publish_cmd_vel:
+            self._publish_twist(VelocityCommand.stop(self.now_s()))
+        return {
+            "frames": self.frames,
+            "frames_without_odometry": self.frames_without_odometry,
+            "stale_frames": self.stale_frames,
+            "errors": self.errors,
+            "cmd_vel_blocked": self.gate.blocked if self.gate is not None else 0,
+        }
+
+
+def run(config: Config, camera: CameraModel, ros_args: list[str]) -> dict:
+    """Spin the node until SIGINT or SIGTERM, then stop the base and shut down."""
+    rclpy.init(args=["follow", "--ros-args", *ros_args] if ros_args else ["follow"],
+               signal_handler_options=SignalHandlerOptions.NO)  # fmt: skip
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set())
+                for sig in (signal.SIGINT, signal.SIGTERM)}  # fmt: skip
+    node = None
+    summary: dict = {}
+    try:
+        node = FollowNode(config, camera)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        if node is not None:
+            summary = node.shutdown()
+            time.sleep(0.2)  # let the last zero command leave before the node goes
+            node.destroy_node()
+        rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return summary

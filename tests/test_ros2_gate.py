@@ -1,0 +1,38 @@
+"""The ROS 2 node's cmd_vel gate (no ROS needed): moving commands pass only with fresh
+odometry and while following; zero always passes."""
+
+from follow.ros2.gate import CmdVelGate
+from follow.types import Odometry, VelocityCommand
+
+
+def make_gate(now):
+    sent = []
+    gate = CmdVelGate(sent.append, lambda: now[0], max_odometry_age_s=0.2)
+    return gate, sent
+
+
+def test_moving_needs_fresh_odometry():
+    now = [10.0]
+    gate, sent = make_gate(now)
+    gate.send(VelocityCommand(0.5, 0.1, 10.0))  # no odometry yet
+    gate.update_odometry(Odometry(1.0, 2.0, 0.3, 9.9))
+    gate.send(VelocityCommand(0.5, 0.1, 10.0))
+    now[0] = 10.05
+    gate.update_odometry(Odometry(0.0, 0.0, 0.0, 9.0))  # an older sample never replaces
+    assert gate.odometry().x_m == 1.0
+    now[0] = 10.2
+    gate.send(VelocityCommand(0.5, 0.1, 10.2))  # 0.3 s old now: stop
+    assert [(c.forward_mps, c.yaw_rate_radps) for c in sent] == [(0, 0), (0.5, 0.1), (0, 0)]
+    assert gate.blocked == 2 and gate.odometry() is None and not gate.healthy()
+
+
+def test_a_stop_request_holds_the_base_until_following_resumes():
+    now = [5.0]
+    gate, sent = make_gate(now)
+    gate.update_odometry(Odometry(0.0, 0.0, 0.0, 5.0))
+    gate.following = False
+    gate.send(VelocityCommand(1.0, 0.0, 5.0))
+    gate.following = True
+    gate.send(VelocityCommand(1.0, 0.0, 5.0))
+    gate.close()
+    assert [c.forward_mps for c in sent] == [0.0, 1.0, 0.0] and sent[-1].is_stop
