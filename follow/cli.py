@@ -28,6 +28,7 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("eval", "identification"): ("follow.eval.identification", "CT/CL/WT/WL on PETS 2009"),
     ("bench", None): ("follow.eval.bench", "per-stage latency and end-to-end fps"),
     ("bench", "pose"): ("follow.eval.bench_pose", "pose network runtimes side by side"),
+    ("bench", "ros2"): ("follow.ros2.bench", "latency the ROS 2 node adds over perception"),
     ("bench", "identify"): ("follow.eval.bench_identify", "CCF features and classifier update speed"),
     ("models", None): ("follow.models", "list, fetch or verify the model files"),
 }

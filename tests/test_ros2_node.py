@@ -10,11 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import signal
-import subprocess
-import sys
-import threading
 import time
 
 import numpy as np
@@ -26,6 +22,14 @@ from follow.types import Odometry
 
 try:
     import rclpy
+
+    from follow.ros2.loopback import (
+        RobotSide,
+        at_stamp,
+        isolated_environment,
+        start_node,
+        wait_for,
+    )
 except ImportError as exc:  # pragma: no cover - depends on the installation
     if os.environ.get("FOLLOW_REQUIRE_ROS2") == "1":
         raise
@@ -51,115 +55,8 @@ max_odometry_age_s = 0.5
 """
 
 
-class RobotSide:
-    """The robot's side: publishes camera and odometry, records what the node says."""
-
-    def __init__(self, context):
-        from geometry_msgs.msg import PoseArray, PoseStamped, Twist
-        from nav_msgs.msg import Odometry as OdometryMsg
-        from sensor_msgs.msg import CameraInfo, Image
-        from std_msgs.msg import Int32, String
-        from visualization_msgs.msg import MarkerArray
-
-        self.types = {"Image": Image, "CameraInfo": CameraInfo, "Odometry": OdometryMsg,
-                      "Int32": Int32}  # fmt: skip
-        self.node = rclpy.create_node("follow_tester", context=context)
-        self.pub_image = self.node.create_publisher(Image, "/camera/image_raw", 10)
-        self.pub_info = self.node.create_publisher(CameraInfo, "/camera/camera_info", 10)
-        self.pub_odom = self.node.create_publisher(OdometryMsg, "/odom", 50)
-        self.pub_select = self.node.create_publisher(Int32, "/follow/select_target", 10)
-        self.received: dict[str, list] = {
-            k: [] for k in ("tracks", "markers", "target", "state", "cmd")
-        }
-        for key, kind, topic in [("tracks", PoseArray, "/follow/tracks"),
-                                 ("markers", MarkerArray, "/follow/track_markers"),
-                                 ("target", PoseStamped, "/follow/target"),
-                                 ("state", String, "/follow/target_state"),
-                                 ("cmd", Twist, "/cmd_vel")]:  # fmt: skip
-            self.node.create_subscription(kind, topic, self._recorder(key), 50)
-        self.executor = rclpy.executors.SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self._spin = threading.Thread(target=self.executor.spin, daemon=True)
-        self._spin.start()
-        self.pose: Odometry | None = None
-        self._lock = threading.Lock()
-        self._heartbeat = threading.Event()
-
-    def _recorder(self, key):
-        return lambda msg: self.received[key].append((time.monotonic(), msg))
-
-    def now_s(self) -> float:
-        return self.node.get_clock().now().nanoseconds * 1e-9
-
-    def publish_odometry(self, pose: Odometry, stamp: float) -> None:
-        from follow.rosmsg import quaternion_of_yaw, stamp_fields
-
-        msg = self.types["Odometry"]()
-        msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_fields(stamp).values()
-        msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
-        msg.pose.pose.position.x, msg.pose.pose.position.y = pose.x_m, pose.y_m
-        q = quaternion_of_yaw(pose.yaw_rad)
-        msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = q["z"], q["w"]
-        self.pub_odom.publish(msg)
-
-    def start_odometry(self, period_s: float = 0.05) -> None:
-        """Odometry at 20 Hz, stamped now, at the pose of the latest frame."""
-
-        def beat():
-            while not self._heartbeat.wait(period_s):
-                with self._lock:
-                    if self.pose is not None:
-                        self.publish_odometry(self.pose, self.now_s())
-
-        threading.Thread(target=beat, daemon=True).start()
-
-    def publish_frame(self, image, camera, pose: Odometry, stamp: float | None = None) -> float:
-        """The pose stamped at the image's instant, CameraInfo and the image; its stamp."""
-        from follow.rosmsg import camera_info_fields, image_fields, stamp_fields
-
-        with self._lock:
-            stamp = self.now_s() if stamp is None else stamp
-            self.publish_odometry(pose, stamp)
-            self.pose = pose
-        info = self.types["CameraInfo"](**camera_info_fields(camera))
-        msg = self.types["Image"](**{**image_fields(image), "data": image.tobytes()})
-        for m in (info, msg):
-            m.header.stamp.sec, m.header.stamp.nanosec = stamp_fields(stamp).values()
-            m.header.frame_id = "camera"
-        self.pub_info.publish(info)
-        self.pub_image.publish(msg)
-        return stamp_s(msg.header)
-
-    def tracks_at(self, stamp: float):
-        return at_stamp(self.received["tracks"], stamp, lambda m: stamp_s(m.header))
-
-    def close(self) -> None:
-        self._heartbeat.set()
-        self.executor.shutdown()
-        self.node.destroy_node()
-
-
 def is_zero(twist) -> bool:
     return twist.linear.x == 0.0 and twist.angular.z == 0.0
-
-
-def at_stamp(received: list, stamp: float, stamp_of):
-    """The message stamped `stamp` (float seconds keep ~0.2 us at today's epoch)."""
-    return next((m for _, m in received if abs(stamp_of(m) - stamp) < 1e-6), None)
-
-
-def wait_until(predicate, timeout_s: float, what: str | None, process=None) -> bool:
-    """Whether `predicate()` came true in time; a time-out fails the test if `what` names it."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        if process is not None and process.poll() is not None:
-            pytest.fail(f"the node exited ({process.returncode}) while waiting for {what}")
-        time.sleep(0.02)
-    if what is not None:
-        pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
-    return False
 
 
 @pytest.fixture(scope="module")
@@ -175,19 +72,14 @@ def ros_run(tmp_path_factory):
     height, width = frames[0].image.shape[:2]
     camera = mounted.for_image_size(width, height)
 
-    domain = random.randrange(1, 100)
-    env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    env = isolated_environment()
     with pytest.MonkeyPatch.context() as mp:
         for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
             mp.setenv(key, env[key])
         stderr = open(out / "node.log", "w")
-        node = subprocess.Popen(
-            [sys.executable, "-m", "follow.cli", "ros2", "--camera", str(camera_file),
-             "--config", str(out / "config.toml"), "--json"],
-            env=env, stdout=subprocess.PIPE, stderr=stderr, text=True,
-        )  # fmt: skip
+        node = start_node(camera_file, out / "config.toml", env, stderr)
         context = rclpy.Context()
-        rclpy.init(context=context, domain_id=domain)
+        rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
         tester = RobotSide(context)
         try:
             run = drive(tester, node, frames, camera)
@@ -209,22 +101,13 @@ def ros_run(tmp_path_factory):
 
 
 def drive(tester: RobotSide, node, frames, camera) -> dict:
-    wait_until(lambda: tester.pub_image.get_subscription_count() > 0
-               and tester.pub_select.get_subscription_count() > 0, 90, "the node", node)  # fmt: skip
-    time.sleep(1.0)  # discovery is done both ways, not only on the tester's side
+    tester.wait_for_node(node)
     tester.pub_select.publish(tester.types["Int32"](data=1))
     tester.start_odometry()
     stamps, poses = [], []
-    for index, frame in enumerate(frames):
+    for frame in frames:
         pose = robot_pose(START_S + frame.stamp_s - frames[0].stamp_s)
-        published_s = time.monotonic()
-        stamp = tester.publish_frame(frame.image, camera, pose)
-        for _ in range(20):  # a best-effort image can be lost: send it again, same stamp
-            if wait_until(lambda s=stamp: tester.tracks_at(s) is not None, 3.0, None, node):
-                break
-            tester.publish_frame(frame.image, camera, pose, stamp)
-        else:
-            pytest.fail(f"no tracks for frame {index} after 60 s")
+        stamp, published_s, _ = tester.send_frame(frame.image, camera, pose, node)
         stamps.append(stamp)
         poses.append(Odometry(pose.x_m, pose.y_m, pose.yaw_rad, stamp))
     last_frame_s = time.monotonic()
@@ -233,7 +116,7 @@ def drive(tester: RobotSide, node, frames, camera) -> dict:
         cmd = tester.received["cmd"]
         return bool(cmd) and cmd[-1][0] > last_frame_s and is_zero(cmd[-1][1])
 
-    wait_until(stopped, MAX_IMAGE_AGE_S + 5.0, "a zero cmd_vel after the images stopped", node)
+    assert wait_for(stopped, MAX_IMAGE_AGE_S + 5.0, node), "cmd_vel never went to zero"
     return {"stamps": stamps, "poses": poses, "last_frame_s": last_frame_s,
             "last_image_s": published_s,
             "stopped_s": time.monotonic()}  # fmt: skip

@@ -98,12 +98,14 @@ def track_markers(result: FrameResult, frame_id: str) -> MarkerArray:
 
 
 def target_state(result: FrameResult, identifier: str, following: bool) -> String:
-    """The identifier's state as JSON (status, target id, per-track confidences)."""
+    """The identifier's state as JSON (status, target id, per-track confidences) and the
+    frame's stage latencies."""
     return String(data=json.dumps({
         "stamp_s": result.stamp_s, "frame": result.frame_index,
         "status": result.target.status.value, "target_id": result.target.target_id,
         "confidences": {str(k): round(float(v), 4) for k, v in result.target.confidences.items()},
         "identifier": identifier, "following": following,
+        "timing_ms": {k: round(float(v), 3) for k, v in result.timing_ms.items()},
     }))  # fmt: skip
 
 
