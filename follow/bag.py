@@ -24,6 +24,8 @@ BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+STRING_TYPE = "std_msgs/msg/String"
+SKELETON_STAMP_TOLERANCE_S = 1e-6
 
 
 def is_bag(spec: str) -> bool:
@@ -44,6 +46,7 @@ class BagSource:
         odom_topic: str | None = None,
         camera_info_topic: str | None = None,
         max_odometry_gap_s: float = 0.2,
+        skeletons_topic: str | None = None,
     ):
         try:
             from rosbags.highlevel import AnyReader
@@ -74,6 +77,11 @@ class BagSource:
                 break
             if self.camera_info is None:
                 raise SourceError(f"bag {spec}: topic {camera_info_topic} holds no message")
+        self._skeletons: tuple[list[float], list] | None = None
+        if skeletons_topic:
+            self._skeletons = self._read_skeletons(
+                self._connections(skeletons_topic, (STRING_TYPE,))
+            )
         self.fps = self._frame_rate()
         self.frames_without_odometry = 0
 
@@ -96,6 +104,39 @@ class BagSource:
         for pose in poses:
             buffer.add(pose)
         return buffer
+
+    def _read_skeletons(self, connections: list) -> tuple[list[float], list]:
+        """Recorded detections: JSON lists of skeletons (the run log's format), stamped
+        with their record time, the time of the image they belong to."""
+        import json
+
+        from follow.runlog import skeleton_from_json
+
+        stamps, skeletons = [], []
+        for c, log_time_ns, raw in self._reader.messages(connections):
+            text = self._reader.deserialize(raw, c.msgtype).data
+            try:
+                skeletons.append([skeleton_from_json(d) for d in json.loads(text)])
+            except (ValueError, KeyError, TypeError) as exc:
+                raise SourceError(
+                    f"bag {self.spec}: skeletons at {log_time_ns} ns: {exc}"
+                ) from None
+            stamps.append(log_time_ns * 1e-9)
+        order = sorted(range(len(stamps)), key=stamps.__getitem__)
+        return [stamps[i] for i in order], [skeletons[i] for i in order]
+
+    def recorded_skeletons(self, frame: Frame) -> list:
+        """The skeletons recorded for a frame (a `detect` for build_perception)."""
+        import bisect
+
+        if self._skeletons is None:
+            raise ValueError(f"bag {self.spec}: no skeletons topic was given")
+        stamps, skeletons = self._skeletons
+        i = bisect.bisect_left(stamps, frame.stamp_s - SKELETON_STAMP_TOLERANCE_S)
+        if i < len(stamps) and abs(stamps[i] - frame.stamp_s) <= SKELETON_STAMP_TOLERANCE_S:
+            return skeletons[i]
+        log.warning("no recorded skeletons at %.6f s: none seen in that frame", frame.stamp_s)
+        return []
 
     def _frame_rate(self) -> float:
         stamps = [t for _, t, _ in self._reader.messages(self._images)]

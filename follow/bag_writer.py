@@ -78,6 +78,10 @@ class BagWriter:
             topic, stamp, Image(header=self._header(stamp, frame_id), **image_fields(image_bgr))
         )
 
+    def write_string(self, topic: str, stamp: float, text: str) -> None:
+        """A std_msgs/String (it has no header: the bag's record time is `stamp`)."""
+        self.write(topic, stamp, self._types("std_msgs/msg/String")(data=text))
+
     def write_odometry(self, topic: str, pose: Odometry, frame_id: str = "odom",
                        child_frame_id: str = "base_link") -> None:  # fmt: skip
         t = self._types

@@ -97,15 +97,17 @@ def open_source(
     odom_topic: str | None = None,
     camera_info_topic: str | None = None,
     max_odometry_gap_s: float = 0.2,
+    skeletons_topic: str | None = None,
 ):
     """A FrameSource, or a BagSource when `spec` names a recorded bag (or topics are given)."""
     from follow.bag import BagSource, is_bag
 
-    if not (is_bag(spec) or image_topic or odom_topic or camera_info_topic):
+    if not (is_bag(spec) or image_topic or odom_topic or camera_info_topic or skeletons_topic):
         return FrameSource(spec)
     if not image_topic:
         raise SourceError(f"bag {spec}: give the image topic to read (--image-topic)")
-    return BagSource(spec, image_topic, odom_topic, camera_info_topic, max_odometry_gap_s)
+    return BagSource(spec, image_topic, odom_topic, camera_info_topic, max_odometry_gap_s,
+                     skeletons_topic)  # fmt: skip
 
 
 class LatestSlot:

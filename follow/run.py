@@ -35,6 +35,8 @@ def add_arguments(p) -> None:
     p.add_argument("--image-topic", help="bag: the image topic (Image or CompressedImage)")
     p.add_argument("--odom-topic", help="bag: nav_msgs/Odometry, the robot pose at each image")
     p.add_argument("--camera-info-topic", help="bag: CameraInfo, intrinsics over the camera file")
+    p.add_argument("--skeletons-topic", help="bag: recorded skeletons (follow demo --bag) "
+                   "used instead of the pose network")  # fmt: skip
     p.add_argument("--camera", required=True, help="camera file (YAML/JSON, from follow-calib)")
     p.add_argument("--config", help="TOML configuration (defaults: the paper's values)")
     p.add_argument("--mavlink", help="MAVLink connection string, e.g. udpin:0.0.0.0:14550")
@@ -154,7 +156,7 @@ def main(args) -> dict:
     if args.replay:
         return replay(args, config)
     source = open_source(args.source, args.image_topic, args.odom_topic, args.camera_info_topic,
-                         config.ros.max_odometry_age_s)  # fmt: skip
+                         config.ros.max_odometry_age_s, args.skeletons_topic)  # fmt: skip
     bag_odometry = source.odometry_at if getattr(source, "odometry", None) is not None else None
     if bag_odometry and args.realtime:
         raise ValueError("--realtime does not replay a bag's odometry; leave it out")
@@ -169,7 +171,8 @@ def main(args) -> dict:
 
         camera = camera_from_info(source.camera_info, camera)
     camera = camera_for_frames(camera, width, height)
-    perception = build_perception(config, camera)
+    detect = source.recorded_skeletons if args.skeletons_topic else None
+    perception = build_perception(config, camera, detect)
     if args.target_id is not None:
         perception.identifier.select_target(args.target_id)
 

@@ -45,6 +45,8 @@ def add_arguments(p) -> None:
     p.add_argument("--identifier", help="identifier to use (default: ccf10 if its weights "
                    "are available, else channels)")  # fmt: skip
     p.add_argument("--no-video", action="store_true", help="skip writing the video")
+    p.add_argument("--bag", help="also write the run as a robot bag (.mcap, .bag or a "
+                   "directory): images, odometry, skeletons, ground truth; follow run replays it")  # fmt: skip
 
 
 def scenario(rng: np.random.Generator) -> tuple[list[Walker], dict[int, Appearance]]:
@@ -160,6 +162,7 @@ def run_demo(
     output: Path | None = None,
     write_video: bool = True,
     config: Config | None = None,
+    bag_path: Path | None = None,
 ) -> dict:
     from follow.control.controller import FollowingController
     from follow.control.mavlink_base import MavlinkBase
@@ -205,6 +208,11 @@ def run_demo(
             video_path=output / "demo.mp4" if write_video else None,
             log_path=output / "demo.jsonl",
         )
+    bag = None
+    if bag_path:
+        from follow.sim.demo_bag import DemoBag
+
+        bag = DemoBag(bag_path, camera, ident_name, seed)
     n_frames = int(round(seconds * DEMO_CAMERA.fps))
     timing = []
     with SimRover(seed=seed) as rover:
@@ -239,8 +247,13 @@ def run_demo(
                 trajectory["outcome"].append(score.timeline[-1] if score.timeline else "lost")
                 if outputs is not None:
                     outputs.write(frame, result, command)
+                if bag is not None:  # the pose perception used, and the truth
+                    bag.write(frame, result.skeletons, odom, wf.robot,
+                              {p.person_id: tuple(p.position_m) for p in wf.people})  # fmt: skip
     if outputs is not None:
         outputs.close()
+    if bag is not None:
+        bag.close()
     summary = {
         **score.summary(),
         "identifier": ident_name,
@@ -252,6 +265,8 @@ def run_demo(
         summary["outputs"] = [str(output / n) for n in ("demo.mp4", "demo_top_down.png",
                                                        "demo.jsonl")  # fmt: skip
                               if (output / n).exists()]
+    if bag_path:
+        summary.setdefault("outputs", []).append(str(bag_path))
     return summary
 
 
@@ -288,7 +303,7 @@ def plot_top_down(trajectory: dict, path: Path) -> None:
 
 def main(args) -> dict:
     summary = run_demo(args.seconds, args.seed, args.identifier, Path(args.output),
-                       write_video=not args.no_video)  # fmt: skip
+                       write_video=not args.no_video, bag_path=args.bag)  # fmt: skip
     if not args.json:
         s = summary["seconds"]
         print(f"identifier {summary['identifier']}, {summary['seconds_simulated']} s simulated")

@@ -1,0 +1,56 @@
+"""`follow demo --bag`: the demo's run as a robot bag, which `follow run` replays to the
+same tracks and targets, and whose ground truth matches what was followed."""
+
+import json
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+
+from follow import cli
+from follow.runlog import read_run_log
+from follow.sim.demo import TARGET_ID, run_demo
+from follow.sim.demo_bag import (
+    CAMERA_INFO_TOPIC,
+    IMAGE_TOPIC,
+    ODOM_TOPIC,
+    SKELETONS_TOPIC,
+    TRUE_PEOPLE_TOPIC,
+    companion_paths,
+)
+
+
+def test_follow_run_replays_the_demo_bag_to_the_same_targets(tmp_path, capsys):
+    bag = tmp_path / "demo.mcap"
+    run_demo(seconds=6.0, seed=0, identifier="channels", output=tmp_path / "demo",
+             write_video=False, bag_path=bag)  # fmt: skip
+    camera_file, config_file = companion_paths(bag)
+    capsys.readouterr()
+    args = ["run", str(bag), "--camera", str(camera_file), "--config", str(config_file),
+            "--image-topic", IMAGE_TOPIC, "--odom-topic", ODOM_TOPIC,
+            "--camera-info-topic", CAMERA_INFO_TOPIC, "--skeletons-topic", SKELETONS_TOPIC,
+            "--log", str(tmp_path / "replay.jsonl"), "--json"]  # fmt: skip
+    assert cli.main(args) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    demo = list(read_run_log(tmp_path / "demo" / "demo.jsonl")[1])
+    replay = list(read_run_log(tmp_path / "replay.jsonl")[1])
+    assert summary["frames"] == len(demo) == 90 and summary["frames_without_odometry"] == 0
+    for d, r in zip(demo, replay, strict=True):
+        assert r.stamp_s == d.stamp_s and r.robot == d.robot
+        assert (r.target_status, r.target_id) == (d.target_status, d.target_id)
+        # The bag holds the skeletons as the run log rounds them (1e-4 px): the same
+        # tracks to within a millimetre.
+        assert [t["id"] for t in r.tracks] == [t["id"] for t in d.tracks]
+        for a, b in zip(r.tracks, d.tracks, strict=True):
+            np.testing.assert_allclose(a["mean"], b["mean"], atol=2e-3)
+    assert sum(r.target_status == "tracking" for r in replay) > 30
+
+    # The ground truth in the bag: the followed track lies on the true target.
+    with AnyReader([bag]) as reader:
+        (people,) = [c for c in reader.connections if c.topic == TRUE_PEOPLE_TOPIC]
+        truth = [json.loads(reader.deserialize(raw, c.msgtype).data)
+                 for c, _, raw in reader.messages([people])]  # fmt: skip
+    assert len(truth) == len(replay)
+    last = replay[-1]
+    track = next(t for t in last.tracks if t["id"] == last.target_id)
+    error_m = np.linalg.norm(np.array(track["mean"][:2]) - truth[-1][str(TARGET_ID)])
+    assert last.target_status == "tracking" and error_m < 0.5
