@@ -36,3 +36,28 @@ def test_a_stop_request_holds_the_base_until_following_resumes():
     gate.send(VelocityCommand(1.0, 0.0, 5.0))
     gate.close()
     assert [c.forward_mps for c in sent] == [0.0, 1.0, 0.0] and sent[-1].is_stop
+
+
+def test_unsafe_ros_settings_are_refused_by_name():
+    import pytest
+
+    from follow.config import ConfigError, RosConfig
+    from follow.ros2.gate import check_ros_config
+
+    check_ros_config(RosConfig())
+    with pytest.raises(ConfigError, match="max_image_age_s must be positive"):
+        check_ros_config(RosConfig(max_image_age_s=0.0))
+    with pytest.raises(ConfigError, match="max_odometry_age_s must be positive"):
+        check_ros_config(RosConfig(max_odometry_age_s=float("inf")))
+    with pytest.raises(ConfigError, match="publish_cmd_vel needs odom_topic"):
+        check_ros_config(RosConfig(publish_cmd_vel=True, odom_topic=""))
+
+
+def test_follow_ros2_without_ros_says_what_to_install(tmp_path, monkeypatch, capsys):
+    import sys
+
+    from follow import cli
+
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # as if the ros2 extra were missing
+    assert cli.main(["ros2", "--camera", str(tmp_path / "camera.yaml")]) == 1
+    assert "pip install 'follow[ros2]'" in capsys.readouterr().err

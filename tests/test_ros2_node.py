@@ -74,7 +74,7 @@ def ros_run(tmp_path_factory):
 
     env = isolated_environment()
     with pytest.MonkeyPatch.context() as mp:
-        for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOCALHOST_ONLY"):
             mp.setenv(key, env[key])
         stderr = open(out / "node.log", "w")
         node = start_node(camera_file, out / "config.toml", env, stderr)

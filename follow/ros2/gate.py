@@ -1,5 +1,6 @@
-"""The node's velocity output: a `Base` for the shared ControlLoop that publishes
-cmd_vel, and refuses to move on stale odometry or while following is stopped.
+"""The node's safety rules, without ROS: the `[ros]` limits checked at start-up, and its
+velocity output, a `Base` for the shared ControlLoop that publishes cmd_vel and refuses
+to move on stale odometry or while following is stopped.
 
 The ControlLoop already stops on stale images (its perception time-out) and the
 controller on a lost target; this gate adds the rules that only the node knows: no
@@ -12,6 +13,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
+from follow.config import ConfigError, RosConfig
 from follow.types import Odometry, VelocityCommand
 
 
@@ -58,3 +60,15 @@ class CmdVelGate:
 
     def close(self) -> None:
         self.send(VelocityCommand.stop(self.clock()))
+
+
+def check_ros_config(ros: RosConfig) -> None:
+    """The node's time limits must be positive and finite: they are its safety rules."""
+    for name in ("max_image_age_s", "max_odometry_age_s", "diagnostics_period_s"):
+        value = getattr(ros, name)
+        if not (0.0 < value < float("inf")):
+            raise ConfigError(f"[ros] {name} must be positive and finite, got {value}")
+    if not ros.image_topic:
+        raise ConfigError("[ros] image_topic must name the camera's image topic")
+    if ros.publish_cmd_vel and not ros.odom_topic:
+        raise ConfigError("[ros] publish_cmd_vel needs odom_topic: no odometry, no driving")

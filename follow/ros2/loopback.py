@@ -27,9 +27,10 @@ def at_stamp(received: list, stamp: float, stamp_of):
 
 
 def isolated_environment() -> dict[str, str]:
-    """Environment for a private ROS graph: a random domain, discovery on localhost."""
+    """Environment for a private ROS graph: a random domain, discovery on localhost
+    (ROS_AUTOMATIC_DISCOVERY_RANGE since Jazzy; ROS_LOCALHOST_ONLY for older ones)."""
     return {**os.environ, "ROS_DOMAIN_ID": str(random.randrange(1, 100)),
-            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}  # fmt: skip
+            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_LOCALHOST_ONLY": "1"}  # fmt: skip
 
 
 class NodeExited(RuntimeError):

@@ -34,11 +34,11 @@ from visualization_msgs.msg import MarkerArray
 
 from follow.camera import CameraModel
 from follow.capture import LatestSlot
-from follow.config import Config
+from follow.config import Config, ConfigError
 from follow.odometry_buffer import OdometryBuffer
 from follow.pipeline import ControlLoop, FrameResult
 from follow.ros2 import messages
-from follow.ros2.gate import CmdVelGate
+from follow.ros2.gate import CmdVelGate, check_ros_config
 from follow.rosmsg import camera_from_info, image_fields, image_from_msg, odometry_from_msg, stamp_s
 from follow.types import Frame, InvalidInput, Odometry, VelocityCommand
 
@@ -51,12 +51,17 @@ ODOMETRY_QUEUE = 50  # odometry messages held while the executor is busy
 def parameters_over(node: Node, config: Config) -> Config:
     """Every config key declared as a ROS parameter `section.key` (default: the TOML's
     value); the values the node was started with override the TOML."""
+    from rclpy.exceptions import ParameterException
+
     changed: dict[str, dict] = {}
     for section in dataclasses.fields(config):
         values = getattr(config, section.name)
         for field in dataclasses.fields(values):
-            default = getattr(values, field.name)
-            value = node.declare_parameter(f"{section.name}.{field.name}", default).value
+            default, name = getattr(values, field.name), f"{section.name}.{field.name}"
+            try:
+                value = node.declare_parameter(name, default).value
+            except ParameterException as exc:
+                raise ConfigError(f"ROS parameter {name}: {exc}") from None
             if value != default:
                 changed.setdefault(section.name, {})[field.name] = value
     return Config.from_dict(changed, source="ROS parameters", base=config)
@@ -69,8 +74,7 @@ class FollowNode(Node):
         super().__init__(NODE_NAME)
         self.config = parameters_over(self, config)
         ros = self.config.ros
-        if ros.publish_cmd_vel and not ros.odom_topic:
-            raise ValueError("ros.publish_cmd_vel needs ros.odom_topic: no odometry, no driving")
+        check_ros_config(ros)
         self.mounted = mounted
         self.model_name = "given detector"
         if detect is None:
