@@ -35,7 +35,7 @@ except ImportError as exc:  # pragma: no cover - depends on the installation
         raise
     pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
 
-FRAMES = 8
+FRAMES = 9  # 8, a pause, and one more before the stop request
 MAX_IMAGE_AGE_S = 2.0
 # The pose network takes up to ~1 s a frame on a shared CPU (FP32): the target estimate
 # may age that much between frames without counting as lost, and outlives the images'
@@ -105,21 +105,37 @@ def drive(tester: RobotSide, node, frames, camera) -> dict:
     tester.pub_select.publish(tester.types["Int32"](data=1))
     tester.start_odometry()
     stamps, poses = [], []
-    for frame in frames:
+
+    def send(frame):
         pose = robot_pose(START_S + frame.stamp_s - frames[0].stamp_s)
         stamp, published_s, _ = tester.send_frame(frame.image, camera, pose, node)
         stamps.append(stamp)
         poses.append(Odometry(pose.x_m, pose.y_m, pose.yaw_rad, stamp))
-    last_frame_s = time.monotonic()
+        return published_s
 
-    def stopped() -> bool:
+    def last_command_zero_since(since_s: float) -> bool:
         cmd = tester.received["cmd"]
-        return bool(cmd) and cmd[-1][0] > last_frame_s and is_zero(cmd[-1][1])
+        return bool(cmd) and cmd[-1][0] > since_s and is_zero(cmd[-1][1])
 
-    assert wait_for(stopped, MAX_IMAGE_AGE_S + 5.0, node), "cmd_vel never went to zero"
-    return {"stamps": stamps, "poses": poses, "last_frame_s": last_frame_s,
-            "last_image_s": published_s,
-            "stopped_s": time.monotonic()}  # fmt: skip
+    for frame in frames[:-1]:
+        published_s = send(frame)
+    run = {"last_frame_s": time.monotonic(), "last_image_s": published_s}
+    assert wait_for(lambda: last_command_zero_since(run["last_frame_s"]), MAX_IMAGE_AGE_S + 5.0,
+                    node), "cmd_vel never went to zero after the images stopped"  # fmt: skip
+    # One more frame: moving again; then a stop request must stop the base at once.
+    run["resume_s"] = time.monotonic()
+    send(frames[-1])
+    resumed_s = time.monotonic()
+    run["moved_again"] = wait_for(
+        lambda: any(t > resumed_s and not is_zero(m) for t, m in tester.received["cmd"]), 1.0
+    )
+    run["stop_called_s"] = time.monotonic()
+    future = tester.stop_following.call_async(tester.stop_following.srv_type.Request())
+    assert wait_for(future.done, 10.0, node), "~/stop_following did not answer"
+    run["stop_response"] = future.result()
+    assert wait_for(lambda: last_command_zero_since(run["stop_called_s"]), 2.0, node)
+    run["stopped_s"] = tester.received["cmd"][-1][0]
+    return {**run, "stamps": stamps, "poses": poses}
 
 
 def test_target_and_tracks_match_the_stack_of_follow_run(ros_run):
@@ -170,9 +186,9 @@ def test_cmd_vel_drives_while_tracking_and_stops_when_images_stop(ros_run):
     during = [m for t, m in commands if t <= ros_run["last_frame_s"]]
     moving = [m for m in during if not is_zero(m)]
     assert len(moving) >= 5, f"the robot never drove towards the target: {ros_run['summary']}"
-    before_sigint = [(t, m) for t, m in commands if t < ros_run["sigint_s"]]
-    moving_after = [t for t, m in before_sigint if t > ros_run["last_frame_s"] and not is_zero(m)]
-    first_zero = next(t for t, m in before_sigint
+    paused = [(t, m) for t, m in commands if t < ros_run["resume_s"]]
+    moving_after = [t for t, m in paused if t > ros_run["last_frame_s"] and not is_zero(m)]
+    first_zero = next(t for t, m in paused
                       if t > ros_run["last_frame_s"] and is_zero(m)
                       and all(t > t2 for t2 in moving_after))  # fmt: skip
     # It kept moving after the last result until the newest image (stamped when it was
@@ -180,6 +196,23 @@ def test_cmd_vel_drives_while_tracking_and_stops_when_images_stop(ros_run):
     assert moving_after, "the robot stopped at once, not when the images went stale"
     age_s = first_zero - ros_run["last_image_s"]
     assert MAX_IMAGE_AGE_S - 0.05 <= age_s <= MAX_IMAGE_AGE_S + 0.4, age_s
+
+
+def test_stop_following_stops_the_base_before_the_images_go_stale(ros_run):
+    assert ros_run["moved_again"], "the robot did not move after the last frame"
+    assert ros_run["stop_response"].success
+    # Well inside max_image_age_s: the stop request, not stale images, stopped it.
+    assert ros_run["stopped_s"] - ros_run["stop_called_s"] < 0.5 < MAX_IMAGE_AGE_S
+    after = [m for t, m in ros_run["received"]["cmd"] if t > ros_run["stopped_s"]]
+    assert all(is_zero(m) for m in after)
+
+
+def test_diagnostics_report_rate_latency_and_model(ros_run):
+    statuses = [s for _, m in ros_run["received"]["diagnostics"] for s in m.status]
+    busy = [{kv.key: kv.value for kv in s.values} for s in statuses if s.message == "running"]
+    assert busy, [s.message for s in statuses]
+    assert all(float(v["fps"]) > 0 and float(v["pose_ms"]) > 0 for v in busy)
+    assert all("human-pose-estimation" in v["model"] for v in busy)
 
 
 def test_sigint_leaves_the_base_stopped(ros_run):

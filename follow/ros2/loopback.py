@@ -63,10 +63,12 @@ class RobotSide:
     """The robot's side: publishes camera and odometry, records what the node says."""
 
     def __init__(self, context: rclpy.Context):
+        from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseArray, PoseStamped, Twist
         from nav_msgs.msg import Odometry as OdometryMsg
         from sensor_msgs.msg import CameraInfo, Image
         from std_msgs.msg import Int32, String
+        from std_srvs.srv import Trigger
         from visualization_msgs.msg import MarkerArray
 
         self.types = {"Image": Image, "CameraInfo": CameraInfo, "Odometry": OdometryMsg,
@@ -77,14 +79,16 @@ class RobotSide:
         self.pub_odom = self.node.create_publisher(OdometryMsg, "/odom", 50)
         self.pub_select = self.node.create_publisher(Int32, "/follow/select_target", 10)
         self.received: dict[str, list] = {
-            k: [] for k in ("tracks", "markers", "target", "state", "cmd")
+            k: [] for k in ("tracks", "markers", "target", "state", "cmd", "diagnostics")
         }
         for key, kind, topic in [("tracks", PoseArray, "/follow/tracks"),
                                  ("markers", MarkerArray, "/follow/track_markers"),
                                  ("target", PoseStamped, "/follow/target"),
                                  ("state", String, "/follow/target_state"),
-                                 ("cmd", Twist, "/cmd_vel")]:  # fmt: skip
+                                 ("cmd", Twist, "/cmd_vel"),
+                                 ("diagnostics", DiagnosticArray, "/diagnostics")]:  # fmt: skip
             self.node.create_subscription(kind, topic, self._recorder(key), 50)
+        self.stop_following = self.node.create_client(Trigger, "/follow/stop_following")
         self.executor = rclpy.executors.SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self._spin = threading.Thread(target=self.executor.spin, daemon=True)
