@@ -110,7 +110,7 @@ def test_follow_run_on_a_bag_needs_the_image_topic(tmp_path, small_frames, small
     assert "--image-topic" in capsys.readouterr().err
 
 
-FRAMES = 16
+FRAMES = 10
 
 
 def _run(args, capsys) -> dict:

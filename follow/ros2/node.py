@@ -246,7 +246,11 @@ class FollowNode(Node):
         else:
             robot = Odometry.origin(stamp)
         with self._lock:
-            perception = self._perception_for(image.shape[1], image.shape[0])
+            try:
+                perception = self._perception_for(image.shape[1], image.shape[0])
+            except ValueError as exc:  # a camera_info or camera file that cannot be used
+                self.get_logger().error(f"image dropped: {exc}", throttle_duration_sec=5.0)
+                return
             if perception is None:
                 return
             result = perception.process(Frame(image, stamp), robot, self.frames)
