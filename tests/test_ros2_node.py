@@ -50,6 +50,7 @@ initial_training_frames = 3
 target_timeout_s = {TARGET_TIMEOUT_S}
 [ros]
 publish_cmd_vel = true
+publish_annotated_image = true
 max_image_age_s = {MAX_IMAGE_AGE_S}
 max_odometry_age_s = 0.5
 """
@@ -213,6 +214,17 @@ def test_diagnostics_report_rate_latency_and_model(ros_run):
     assert busy, [s.message for s in statuses]
     assert all(float(v["fps"]) > 0 and float(v["pose_ms"]) > 0 for v in busy)
     assert all("human-pose-estimation" in v["model"] for v in busy)
+
+
+def test_annotated_images_come_with_every_frame(ros_run):
+    from follow.rosmsg import image_from_msg
+
+    images = [m for _, m in ros_run["received"]["annotated"]]
+    assert [stamp_s(m.header) for m in images] == pytest.approx(ros_run["stamps"], abs=1e-6)
+    first, last = image_from_msg(images[0]), image_from_msg(images[-1])
+    frame = ros_run["frames"][-1].image
+    assert last.shape == frame.shape and first.shape == frame.shape
+    assert np.abs(last.astype(int) - frame).sum() > 0  # tracks and skeletons drawn on it
 
 
 def test_sigint_leaves_the_base_stopped(ros_run):

@@ -79,14 +79,16 @@ class RobotSide:
         self.pub_odom = self.node.create_publisher(OdometryMsg, "/odom", 50)
         self.pub_select = self.node.create_publisher(Int32, "/follow/select_target", 10)
         self.received: dict[str, list] = {
-            k: [] for k in ("tracks", "markers", "target", "state", "cmd", "diagnostics")
+            k: []
+            for k in ("tracks", "markers", "target", "state", "cmd", "diagnostics", "annotated")
         }
         for key, kind, topic in [("tracks", PoseArray, "/follow/tracks"),
                                  ("markers", MarkerArray, "/follow/track_markers"),
                                  ("target", PoseStamped, "/follow/target"),
                                  ("state", String, "/follow/target_state"),
                                  ("cmd", Twist, "/cmd_vel"),
-                                 ("diagnostics", DiagnosticArray, "/diagnostics")]:  # fmt: skip
+                                 ("diagnostics", DiagnosticArray, "/diagnostics"),
+                                 ("annotated", Image, "/follow/image_annotated")]:  # fmt: skip
             self.node.create_subscription(kind, topic, self._recorder(key), 50)
         self.stop_following = self.node.create_client(Trigger, "/follow/stop_following")
         self.executor = rclpy.executors.SingleThreadedExecutor(context=context)

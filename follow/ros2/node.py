@@ -259,10 +259,10 @@ class FollowNode(Node):
         self._last_stamp = stamp
         self._recent.append((time.monotonic(), result.timing_ms))
         self.results.put(result)
-        self._publish(result, image, following)
+        self._publish(result, image, following, msg.header.frame_id)
 
     # ------------------------------------------------------------------ outputs
-    def _publish(self, result: FrameResult, image, following: bool) -> None:
+    def _publish(self, result: FrameResult, image, following: bool, camera_frame: str) -> None:
         frame_id = self.config.ros.odom_frame
         self.pub_tracks.publish(messages.tracks_pose_array(result, frame_id))
         self.pub_markers.publish(messages.track_markers(result, frame_id))
@@ -276,7 +276,7 @@ class FollowNode(Node):
 
             command = self.gate.last_sent if self.gate is not None else None
             picture = annotate(image, result.skeletons, result.tracks, result.target, command)
-            self.pub_image.publish(Image(header=messages.header(result.stamp_s, "camera"),
+            self.pub_image.publish(Image(header=messages.header(result.stamp_s, camera_frame),
                                          **image_fields(picture)))  # fmt: skip
 
     def _publish_twist(self, command: VelocityCommand) -> None:
