@@ -128,7 +128,7 @@ def drive(tester: RobotSide, node, frames, camera) -> dict:
     send(frames[-1])
     resumed_s = time.monotonic()
     run["moved_again"] = wait_for(
-        lambda: any(t > resumed_s and not is_zero(m) for t, m in tester.received["cmd"]), 1.0
+        lambda: any(t > resumed_s and not is_zero(m) for t, m in tester.received["cmd"]), 1.5
     )
     run["stop_called_s"] = time.monotonic()
     future = tester.stop_following.call_async(tester.stop_following.srv_type.Request())
@@ -196,14 +196,17 @@ def test_cmd_vel_drives_while_tracking_and_stops_when_images_stop(ros_run):
     # published) was max_image_age_s old, then stopped within a control tick or so.
     assert moving_after, "the robot stopped at once, not when the images went stale"
     age_s = first_zero - ros_run["last_image_s"]
-    assert MAX_IMAGE_AGE_S - 0.05 <= age_s <= MAX_IMAGE_AGE_S + 0.4, age_s
+    # (the upper margin allows for a control thread delayed on a busy machine)
+    assert MAX_IMAGE_AGE_S - 0.05 <= age_s <= MAX_IMAGE_AGE_S + 1.0, age_s
 
 
 def test_stop_following_stops_the_base_before_the_images_go_stale(ros_run):
     assert ros_run["moved_again"], "the robot did not move after the last frame"
     assert ros_run["stop_response"].success
-    # Well inside max_image_age_s: the stop request, not stale images, stopped it.
-    assert ros_run["stopped_s"] - ros_run["stop_called_s"] < 0.5 < MAX_IMAGE_AGE_S
+    # At once, and by the request: the controller still wanted to move (its commands
+    # were blocked), so it was not the images going stale.
+    assert ros_run["stopped_s"] - ros_run["stop_called_s"] < 1.0
+    assert ros_run["summary"]["cmd_vel_blocked"] > 0, ros_run["summary"]
     after = [m for t, m in ros_run["received"]["cmd"] if t > ros_run["stopped_s"]]
     assert all(is_zero(m) for m in after)
 
