@@ -35,17 +35,18 @@ except ImportError as exc:  # pragma: no cover - depends on the installation
         raise
     pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
 
-FRAMES = 9  # 8, a pause, and one more before the stop request
-MAX_IMAGE_AGE_S = 2.0
-# The pose network takes up to ~1 s a frame on a shared CPU (FP32): the target estimate
+SELECT_AFTER_FRAME = 2
+FRAMES = 10  # 8, a pause, one before the stop request and one after
+MAX_IMAGE_AGE_S = 3.0
+# A frame takes up to ~2 s on a busy shared CPU (FP32 pose): the target estimate
 # may age that much between frames without counting as lost, and outlives the images'
 # own limit so that stopping the images is what stops the robot.
-TARGET_TIMEOUT_S = 3.0
+TARGET_TIMEOUT_S = 4.0
 CONFIG = f"""
 [pose]
 input_height_px = 368
 [identify]
-initial_training_frames = 3
+initial_training_frames = 2
 [control]
 target_timeout_s = {TARGET_TIMEOUT_S}
 [ros]
@@ -103,7 +104,6 @@ def ros_run(tmp_path_factory):
 
 def drive(tester: RobotSide, node, frames, camera) -> dict:
     tester.wait_for_node(node)
-    tester.pub_select.publish(tester.types["Int32"](data=1))
     tester.start_odometry()
     stamps, poses = [], []
 
@@ -118,14 +118,26 @@ def drive(tester: RobotSide, node, frames, camera) -> dict:
         cmd = tester.received["cmd"]
         return bool(cmd) and cmd[-1][0] > since_s and is_zero(cmd[-1][1])
 
-    for frame in frames[:-1]:
+    # Each frame stamped when it is sent, after the node has answered the previous one.
+    # The first frame takes seconds (the identifier's first use compiles), which can end
+    # the tracks it started: the target is chosen on ~/select_target once tracks exist.
+    for index, frame in enumerate(frames[:-2]):
         published_s = send(frame)
-    run = {"last_frame_s": time.monotonic(), "last_image_s": published_s}
+        if index == SELECT_AFTER_FRAME:
+            markers = tester.received["markers"][-1][1].markers
+            ids = [m.id for m in markers if m.ns == "people"]
+            assert ids, "no tracks to select from"
+            run_selected = ids[0]
+            tester.pub_select.publish(tester.types["Int32"](data=run_selected))
+            time.sleep(0.3)  # taken before the next frame
+    run = {"last_frame_s": time.monotonic(), "last_image_s": published_s,
+           "selected": run_selected}  # fmt: skip
     assert wait_for(lambda: last_command_zero_since(run["last_frame_s"]), MAX_IMAGE_AGE_S + 5.0,
                     node), "cmd_vel never went to zero after the images stopped"  # fmt: skip
-    # One more frame: moving again; then a stop request must stop the base at once.
+    # One more frame: moving again; then a stop request must stop the base at once, and
+    # a frame after it gives tracks but no target pose and no motion.
     run["resume_s"] = time.monotonic()
-    send(frames[-1])
+    send(frames[-2])
     resumed_s = time.monotonic()
     run["moved_again"] = wait_for(
         lambda: any(t > resumed_s and not is_zero(m) for t, m in tester.received["cmd"]), 1.5
@@ -136,6 +148,8 @@ def drive(tester: RobotSide, node, frames, camera) -> dict:
     run["stop_response"] = future.result()
     assert wait_for(lambda: last_command_zero_since(run["stop_called_s"]), 2.0, node)
     run["stopped_s"] = tester.received["cmd"][-1][0]
+    send(frames[-1])
+    time.sleep(0.3)  # commands the controller would send after that frame
     return {**run, "stamps": stamps, "poses": poses}
 
 
@@ -153,7 +167,6 @@ def test_target_and_tracks_match_the_stack_of_follow_run(ros_run):
         CameraInfo(**camera_info_fields(ros_run["camera"])), ros_run["camera"]
     )
     perception = build_perception(config, camera)
-    perception.identifier.select_target(1)
     received = ros_run["received"]
     states = [(t, json.loads(m.data)) for t, m in received["state"]]
     tracked = 0
@@ -161,6 +174,8 @@ def test_target_and_tracks_match_the_stack_of_follow_run(ros_run):
         zip(ros_run["frames"], ros_run["stamps"], ros_run["poses"], strict=True)
     ):
         expected = perception.process(Frame(frame.image, stamp), pose, index)
+        if index == SELECT_AFTER_FRAME:
+            perception.identifier.select_target(ros_run["selected"])
         poses = at_stamp(received["tracks"], stamp, lambda m: stamp_s(m.header))
         got = np.array([[p.position.x, p.position.y] for p in poses.poses]).reshape(-1, 2)
         want = np.array([t.position_m for t in expected.tracks]).reshape(-1, 2)
@@ -171,7 +186,7 @@ def test_target_and_tracks_match_the_stack_of_follow_run(ros_run):
         state = at_stamp(states, stamp, lambda d: d["stamp_s"])
         assert (state["status"], state["target_id"]) == (
             expected.target.status.value, expected.target.target_id)  # fmt: skip
-        if expected.target.status == TargetStatus.TRACKING:
+        if expected.target.status == TargetStatus.TRACKING and index < len(ros_run["frames"]) - 1:
             tracked += 1
             target = at_stamp(received["target"], stamp, lambda m: stamp_s(m.header)).pose.position
             np.testing.assert_allclose(
@@ -179,7 +194,11 @@ def test_target_and_tracks_match_the_stack_of_follow_run(ros_run):
             )
         else:
             assert at_stamp(received["target"], stamp, lambda m: stamp_s(m.header)) is None
-    assert tracked >= 3 and len(received["tracks"]) == len(ros_run["frames"])
+    gaps = np.diff(ros_run["stamps"]).round(2).tolist()
+    statuses = [json.loads(m.data)["status"][:5] for _, m in received["state"]]
+    ids = [[p.id for p in m.markers if p.ns == "people"] for _, m in received["markers"]]
+    assert tracked >= 3, f"stamp gaps {gaps}, states {statuses}, tracks {ids}"
+    assert len(received["tracks"]) == len(ros_run["frames"])
 
 
 def test_cmd_vel_drives_while_tracking_and_stops_when_images_stop(ros_run):
@@ -200,15 +219,19 @@ def test_cmd_vel_drives_while_tracking_and_stops_when_images_stop(ros_run):
     assert MAX_IMAGE_AGE_S - 0.05 <= age_s <= MAX_IMAGE_AGE_S + 1.0, age_s
 
 
-def test_stop_following_stops_the_base_before_the_images_go_stale(ros_run):
+def test_stop_following_stops_the_base_and_the_target_output(ros_run):
     assert ros_run["moved_again"], "the robot did not move after the last frame"
     assert ros_run["stop_response"].success
-    # At once, and by the request: the controller still wanted to move (its commands
-    # were blocked), so it was not the images going stale.
     assert ros_run["stopped_s"] - ros_run["stop_called_s"] < 1.0
-    assert ros_run["summary"]["cmd_vel_blocked"] > 0, ros_run["summary"]
     after = [m for t, m in ros_run["received"]["cmd"] if t > ros_run["stopped_s"]]
-    assert all(is_zero(m) for m in after)
+    assert after and all(is_zero(m) for m in after)
+    # The frame after the stop: still tracked (the reference test checks its state), but
+    # no target pose for Nav2 and the state says so.
+    last = ros_run["stamps"][-1]
+    states = [(t, json.loads(m.data)) for t, m in ros_run["received"]["state"]]
+    state = at_stamp(states, last, lambda d: d["stamp_s"])
+    assert state["status"] == "tracking" and state["following"] is False
+    assert at_stamp(ros_run["received"]["target"], last, lambda m: stamp_s(m.header)) is None
 
 
 def test_diagnostics_report_rate_latency_and_model(ros_run):

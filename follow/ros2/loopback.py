@@ -147,20 +147,25 @@ class RobotSide:
         return stamp_s(msg.header)
 
     def wait_for_node(self, process: subprocess.Popen, timeout_s: float = 90.0) -> None:
-        """Until the node subscribes to the camera and the target selection."""
+        """Until the node subscribes to the camera and the target selection, and its
+        outputs are matched here."""
         if not wait_for(lambda: self.pub_image.get_subscription_count() > 0
-                        and self.pub_select.get_subscription_count() > 0, timeout_s, process):  # fmt: skip
+                        and self.pub_select.get_subscription_count() > 0
+                        and self.node.count_publishers("/follow/tracks") > 0,
+                        timeout_s, process):  # fmt: skip
             raise TimeoutError(f"follow ros2 did not subscribe within {timeout_s} s")
         time.sleep(1.0)  # discovery done both ways, not only on this side
 
-    def send_frame(self, image, camera, pose: Odometry, process, timeout_s: float = 60.0):
-        """Publish one frame and wait for the node's tracks of it; a best-effort image can
-        be lost, so it is sent again (same stamp) every 3 s. (stamp, published_s,
-        answered_s) with monotonic times."""
+    def send_frame(self, image, camera, pose: Odometry, process, stamp: float | None = None,
+                   timeout_s: float = 60.0, resend_s: float = 1.0):  # fmt: skip
+        """Publish one frame (stamped `stamp`, default now) and wait for the node's tracks
+        of it. A best-effort image can be lost, so it is sent again with the same stamp
+        every `resend_s` (the node drops an image not newer than the last it processed).
+        (stamp, published_s, answered_s) with monotonic times."""
         published_s = time.monotonic()
-        stamp = self.publish_frame(image, camera, pose)
-        for _ in range(max(1, int(timeout_s / 3.0))):
-            if wait_for(lambda: self.tracks_at(stamp) is not None, 3.0, process):
+        stamp = self.publish_frame(image, camera, pose, stamp)
+        for _ in range(max(1, int(timeout_s / resend_s))):
+            if wait_for(lambda: self.tracks_at(stamp) is not None, resend_s, process):
                 answered_s = next(t for t, m in self.received["tracks"]
                                   if abs(stamp_s(m.header) - stamp) < 1e-6)  # fmt: skip
                 return stamp, published_s, answered_s
