@@ -119,6 +119,7 @@ def _run(args, capsys) -> dict:
     return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_follow_run_on_a_pets_bag_matches_the_video(tmp_path, data_path, model_path, capsys):
     """The same skeletons, tracks and targets from the bag as from the video; with the
     bag's odometry, the robot pose at every image and the tracks it implies."""

@@ -35,6 +35,7 @@ except ImportError as exc:  # pragma: no cover - depends on the installation
         raise
     pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
 
+pytestmark = pytest.mark.slow  # a node process, its model, ~10 frames and a 3 s stop
 SELECT_AFTER_FRAME = 2
 FRAMES = 10  # 8, a pause, one before the stop request and one after
 MAX_IMAGE_AGE_S = 3.0
