@@ -24,8 +24,9 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 from follow.capture import LatestSlot
+from follow.config import ControlConfig
 from follow.control.odometry import OdometryPolicy
-from follow.control.target import TargetMotion
+from follow.control.target import TargetMotion, ViewCone
 from follow.frames import odom_to_base, vector_odom_to_base
 from follow.types import (
     Frame,
@@ -308,3 +309,24 @@ class ThreadedRunner:
     @property
     def dropped_frames(self) -> int:
         return self.frames.dropped
+
+
+def build_runner(
+    perception: Perception,
+    base,
+    config: ControlConfig,
+    view: ViewCone | None = None,
+    clock: Callable[[], float] = time.monotonic,
+    on_command: Callable[[VelocityCommand], None] | None = None,
+) -> ThreadedRunner:
+    """The runner that drives a base: `follow run`, the demo and the evaluations all
+    build it here, so they test the code that drives the robot. `view` is the camera's
+    field of view (`ViewCone.from_camera`); `clock` is injectable for tests."""
+    from follow.control.controller import FollowingController
+
+    control = ControlLoop(
+        FollowingController(config, view=view), base, LatestSlot(), config.control_rate_hz,
+        config.watchdog_timeout_s, clock=clock, on_command=on_command,
+        odometry=OdometryPolicy(base),
+    )  # fmt: skip
+    return ThreadedRunner(perception, control, base, clock=clock)

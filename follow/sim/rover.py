@@ -137,6 +137,8 @@ class SimRover:
         self.setpoints_accepted = 0
         self.setpoints_ignored = 0
         self.setpoint_log: deque[tuple[float, int, int]] = deque(maxlen=10_000)  # (t, frame, mask)
+        # The newest setpoint heard: (monotonic time, vx m/s, yaw rate rad/s), any mode.
+        self.last_setpoint: tuple[float, float, float] | None = None
         self.commands_received: list[int] = []
         self.companion_heartbeats = 0
 
@@ -265,6 +267,7 @@ class SimRover:
             )
         elif kind == "SET_POSITION_TARGET_LOCAL_NED" and msg.target_system == self._system_id:
             self.setpoint_log.append((now, msg.coordinate_frame, msg.type_mask))
+            self.last_setpoint = (now, float(msg.vx), float(msg.yaw_rate))
             self._last_setpoint_heard_s = now
             if self._setpoint_px4(msg) if self._px4 else self._setpoint(msg):
                 self.setpoints_accepted += 1
