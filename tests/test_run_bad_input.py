@@ -106,7 +106,9 @@ def test_unknown_target_id_warns_once(caplog):
         for k in range(60):
             watch.check(_result(k / 15, [1, 2]))
     warnings = [r.getMessage() for r in caplog.records]
-    assert len(warnings) == 1 and "--target-id 999: no track with this id after 2.0 s" in warnings[0]
+    assert (
+        len(warnings) == 1 and "--target-id 999: no track with this id after 2.0 s" in warnings[0]
+    )
     found = TargetIdWatch(2, warn_after_s=2.0)
     for k in range(60):
         found.check(_result(k / 15, [1, 2]))

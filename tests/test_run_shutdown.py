@@ -12,10 +12,10 @@ import time
 import cv2
 import numpy as np
 import pytest
+from waiting import wait_for
 
 from follow.camera import CameraModel, CameraPose
 from follow.sim.rover import SimRover
-from waiting import wait_for
 
 
 def write_video(path, frames=300, size=(320, 240), fps=15.0):
