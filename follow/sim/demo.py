@@ -18,7 +18,7 @@ import dataclasses
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -166,6 +166,49 @@ class SimFrame(Frame):
     world: WorldFrame | None = None
 
 
+def sim_perception(camera, config: Config, seed: int = 0):
+    """The stack as on the robot, with the synthetic detector in place of the pose
+    network (it reads the world a `SimFrame` shows)."""
+    from follow.boost.factory import build_identifier
+    from follow.pipeline import Perception
+    from follow.pose.observations import skeletons_to_observations
+    from follow.sim.skeletons import SyntheticDetector
+    from follow.ukf.tracker import PeopleTracker
+
+    detector = SyntheticDetector(camera, seed=seed)
+
+    def detect(frame: SimFrame):
+        return [d.skeleton for d in detector.detect(frame.world)]
+
+    def to_observations(skeletons):  # as `follow run` does with the pose network's
+        return skeletons_to_observations(skeletons, camera.image_size, config.pose)
+
+    return Perception(detect, to_observations, PeopleTracker(camera, config.tracker),
+                      build_identifier(config.identify))  # fmt: skip
+
+
+def sim_frames(
+    world: World,
+    rover,
+    camera,
+    looks: dict[int, Appearance],
+    n_frames: int,
+    seed: int = 0,
+    edit: Callable[[WorldFrame], WorldFrame] | None = None,
+) -> Iterator[SimFrame]:
+    """The robot's camera: the world stepped once per frame and rendered from the
+    rover's true pose. `edit` may change what a frame shows (a person hidden, say)."""
+    horizon = horizon_row(camera)
+    for _ in range(n_frames):
+        world.set_robot_pose(rover.true_pose())
+        wf = world.step()
+        if edit is not None:
+            wf = edit(wf)
+        views = person_views(wf, wf.robot, camera, looks)
+        image = render_scene(camera.image_size, horizon, views, seed=seed)
+        yield SimFrame(image, wf.stamp_s, world=wf)
+
+
 def run_demo(
     seconds: float = 34.0,
     seed: int = 0,
@@ -177,11 +220,9 @@ def run_demo(
 ) -> dict:
     from follow.control.mavlink_base import MavlinkBase
     from follow.control.target import ViewCone
-    from follow.pipeline import Perception, build_runner
-    from follow.pose.observations import skeletons_to_observations
+    from follow.pipeline import build_runner
     from follow.run import Outputs
     from follow.sim.rover import SimRover
-    from follow.sim.skeletons import SyntheticDetector
 
     config = config or Config()
     ident_name = choose_identifier(identifier)
@@ -190,20 +231,8 @@ def run_demo(
     walkers, looks = scenario(rng)
     world = World(walkers, camera=DEMO_CAMERA, seed=seed)
     camera = DEMO_CAMERA.detection_camera()
-    detector = SyntheticDetector(camera, seed=seed)
-    horizon = horizon_row(camera)
 
-    from follow.boost.factory import build_identifier
-    from follow.ukf.tracker import PeopleTracker
-
-    def detect(frame: SimFrame):
-        return [d.skeleton for d in detector.detect(frame.world)]
-
-    def to_observations(skeletons):  # as `follow run` does with the pose network's
-        return skeletons_to_observations(skeletons, camera.image_size, config.pose)
-
-    perception = Perception(detect, to_observations, PeopleTracker(camera, config.tracker),
-                            build_identifier(config.identify))  # fmt: skip
+    perception = sim_perception(camera, config, seed)
     score = DemoScore(config.control.following_distance_m, world.dt_s)
     trajectory = {"robot": [], "people": {w.person_id: [] for w in walkers}, "outcome": []}
     output = Path(output) if output else None
@@ -221,15 +250,7 @@ def run_demo(
     with SimRover(seed=seed) as rover:
         mav = dataclasses.replace(config.mavlink or MavlinkConfig(), connection=rover.connection)
         with MavlinkBase(mav, clock=clock) as base:
-
-            def frames():  # the camera: the world as seen from the rover's true pose
-                for _ in range(n_frames):
-                    world.set_robot_pose(rover.true_pose())
-                    wf = world.step()
-                    views = person_views(wf, wf.robot, camera, looks)
-                    image = render_scene(camera.image_size, horizon, views, seed=seed)
-                    yield SimFrame(image, wf.stamp_s, world=wf)
-
+            frames = sim_frames(world, rover, camera, looks, n_frames, seed)
             runner = build_runner(perception, base, config.control, ViewCone.from_camera(camera),
                                   clock=clock)  # fmt: skip
 
@@ -245,7 +266,7 @@ def run_demo(
                     outputs.write(frame, result, runner.control.last_command)
 
             try:
-                runner.run(frames(), pace_hz=DEMO_CAMERA.fps, on_result=on_result)
+                runner.run(frames, pace_hz=DEMO_CAMERA.fps, on_result=on_result)
             finally:
                 if outputs is not None:
                     outputs.close()
