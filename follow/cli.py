@@ -13,7 +13,8 @@ import json
 import logging
 import sys
 
-# (command, subcommand or None) -> (module, one-line help)
+# (command, subcommand or None) -> (module, one-line help); one row per command.
+# fmt: off
 COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("run", None): ("follow.run", "follow a person: camera or video in, base commands out"),
     ("demo", None): ("follow.sim.demo", "the whole stack on a simulated robot (no downloads)"),
@@ -32,6 +33,7 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("bench", "identify"): ("follow.eval.bench_identify", "CCF features and classifier update speed"),
     ("models", None): ("follow.models", "list, fetch or verify the model files"),
 }
+# fmt: on
 
 
 def _selected(argv: list[str]) -> tuple[str, str | None] | None:
