@@ -54,10 +54,11 @@ def test_signal_stops_the_rover_and_finalises_the_outputs(tmp_path, model_path, 
         finally:
             if process.poll() is None:
                 process.kill()
-        assert process.returncode == 0, err
-        assert signal.Signals(signum).name in err  # the shutdown names the signal
+        assert process.returncode == 0, err[-3000:]
+        assert signal.Signals(signum).name in err, err[-3000:]  # the shutdown names it
         stamp, vx, yaw_rate = rover.last_setpoint
-        assert stamp > signalled and vx == 0.0 and yaw_rate == 0.0  # follow sent the stop
+        stop_sent = stamp > signalled and vx == 0.0 and yaw_rate == 0.0
+        assert stop_sent, (rover.last_setpoint, signalled, err[-3000:])  # follow sent it
         assert abs(rover.true_velocity()[0]) < 0.05
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["stopped_by"] == signal.Signals(signum).name
@@ -65,6 +66,7 @@ def test_signal_stops_the_rover_and_finalises_the_outputs(tmp_path, model_path, 
     video = cv2.VideoCapture(str(tmp_path / "out.mp4"))
     ok, frame = video.read()
     assert ok and frame.shape[0] == 240
-    assert video.get(cv2.CAP_PROP_FRAME_COUNT) >= 5
     lines = (tmp_path / "run.jsonl").read_text().splitlines()
     assert all(json.loads(line) for line in lines)  # every line complete: flushed
+    # Every logged frame is in the video, but for the one the signal may have cut short.
+    assert video.get(cv2.CAP_PROP_FRAME_COUNT) >= len(lines) - 2 >= 4
