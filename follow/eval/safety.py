@@ -109,6 +109,7 @@ CASES = (
     Case("sigterm", _signal(signal.SIGTERM)),
 )
 CASE_NAMES = tuple(c.name for c in CASES)
+SIGNAL_CASES = ("sigint", "sigterm")
 
 
 def target_walker(fault_at_s: float, side_exit: bool) -> Walker:
@@ -177,6 +178,8 @@ def run_case(case: Case, fault_at_s: float = 5.0, seed: int = 0,
     from follow.sim.rover import SimRover
     from follow.sim.world import World
 
+    if case.name in SIGNAL_CASES and threading.current_thread() is not threading.main_thread():
+        raise RuntimeError(f"case {case.name}: signals can only be handled in the main thread")
     config = (config or Config()).replace("identify", identifier="channels", seed=seed)
     rng = np.random.default_rng(seed)
     walker = target_walker(fault_at_s, case.side_exit)
