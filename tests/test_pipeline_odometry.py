@@ -134,3 +134,19 @@ def test_a_capture_error_ends_the_run_and_is_raised():
         done.set()
         assert "8x8" in str(exc)
     assert done.is_set() and base.commands[-1].is_stop
+
+
+def test_the_watchdog_has_its_own_timeout():
+    from follow.pipeline import build_runner
+
+    now = [0.0]
+    base = _Base()
+    config = ControlConfig(watchdog_timeout_s=0.3, target_timeout_s=1.0)
+    runner = build_runner(None, base, config, clock=lambda: now[0])
+    loop = runner.control
+    assert loop.perception_timeout_s == 0.3 and runner.odometry is loop.odometry
+    loop.results.put(_tracking(0.0))
+    now[0] = 0.2
+    assert loop.tick().forward_mps > 0  # 0.2 s old: fresh for both timeouts
+    now[0] = 0.4
+    assert loop.tick().is_stop and loop.watchdog_trips == 1  # past the watchdog only
