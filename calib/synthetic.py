@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from follow.camera import CameraModel
+from follow.camera import CameraModel, undistort_points
 
 BLACK_LEVEL = 25.0
 WHITE_LEVEL = 225.0
@@ -58,7 +58,7 @@ def _normalized_sample_rays(
     lattice = np.column_stack([uc.ravel(), vc.ravel()]).reshape(-1, 1, 2)
     if dist.size:
         criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-        norm = cv2.undistortPointsIter(lattice, K, dist, None, None, criteria).reshape(uc.shape + (2,))
+        norm = undistort_points(lattice, K, dist, criteria).reshape(uc.shape + (2,))
     else:
         Kinv = np.linalg.inv(K)
         flat = lattice.reshape(-1, 2) @ Kinv[:2, :2].T + Kinv[:2, 2]

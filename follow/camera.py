@@ -28,6 +28,17 @@ _BASE_FROM_CAM_LEVEL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 
 _HORIZON_EPS = 1e-9
 
 
+def undistort_points(pixels: np.ndarray, K: np.ndarray, dist: np.ndarray, criteria) -> np.ndarray:
+    """Normalised coordinates of distorted pixels (N, 1, 2), iterated to `criteria`.
+
+    OpenCV 4's Python `undistortPoints` takes no termination criteria (its default 5
+    iterations are too few for strong distortion); that overload is `undistortPointsIter`.
+    """
+    if hasattr(cv2, "undistortPointsIter"):
+        return cv2.undistortPointsIter(pixels, K, dist, None, None, criteria)
+    return cv2.undistortPoints(pixels, K, dist, criteria=criteria)
+
+
 class CameraFileError(ValueError):
     """A camera file that cannot be read: the message names the file and the field."""
 
@@ -191,11 +202,8 @@ class CameraModel:
         """Unit viewing rays (N, 3) in `base` through undistorted pixels (N, 2)."""
         px = np.atleast_2d(np.asarray(pixels, dtype=np.float64)).reshape(-1, 1, 2)
         if self.dist.size:
-            # undistortPointsIter: OpenCV 4.14's undistortPoints takes no criteria.
-            norm = cv2.undistortPointsIter(
-                px, self.K, self.dist, None, None,
-                (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10),
-            ).reshape(-1, 2)  # fmt: skip
+            criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+            norm = undistort_points(px, self.K, self.dist, criteria).reshape(-1, 2)
         else:
             Kinv = np.linalg.inv(self.K)
             norm = px.reshape(-1, 2) @ Kinv[:2, :2].T + Kinv[:2, 2]

@@ -17,6 +17,8 @@ from follow.types import Frame, InvalidInput
 
 log = logging.getLogger(__name__)
 
+# Containers may count a frame more than they decode; fewer than this is a short file.
+EARLY_END_TOLERANCE_FRAMES = 1
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
 
@@ -36,6 +38,7 @@ class FrameSource:
         self.spec = spec
         self.live = False
         self._folder: list[Path] | None = None
+        self.frame_count: int | None = None
         self._cap: cv2.VideoCapture | None = None
         path = Path(spec)
         if path.is_dir():
@@ -58,6 +61,8 @@ class FrameSource:
             raise SourceError(f"source {spec}: cannot be opened by OpenCV")
         fps = self._cap.get(cv2.CAP_PROP_FPS)
         self.fps = fps if fps and np.isfinite(fps) and fps > 0 else 15.0
+        count = self._cap.get(cv2.CAP_PROP_FRAME_COUNT) if not self.live else 0
+        self.frame_count = int(count) if count and np.isfinite(count) and count > 0 else None
 
     def __iter__(self) -> Iterator[Frame]:
         if self._folder is not None:
@@ -77,6 +82,7 @@ class FrameSource:
                 if self.live and failures < 10:
                     failures += 1
                     continue
+                self._warn_if_short(index)
                 return
             failures = 0
             stamp = time.monotonic() - start if self.live else index / self.fps
@@ -85,6 +91,17 @@ class FrameSource:
                 yield Frame(image, stamp)
             except InvalidInput as exc:  # pragma: no cover - decoder gave something odd
                 log.warning("skipping frame %d: %s", index, exc)
+
+    def _warn_if_short(self, read: int) -> None:
+        """A file that ends before the frame count its header announces is truncated or
+        corrupt: say so, since the run would otherwise end early in silence."""
+        if self.live or self.frame_count is None:
+            return
+        if read < self.frame_count - EARLY_END_TOLERANCE_FRAMES:
+            log.warning(
+                "source %s: the stream ended after %d of the %d frames its header announces "
+                "(truncated or corrupt file?)", self.spec, read, self.frame_count,
+            )  # fmt: skip
 
     def close(self) -> None:
         if self._cap is not None:

@@ -13,7 +13,8 @@ import json
 import logging
 import sys
 
-# (command, subcommand or None) -> (module, one-line help)
+# (command, subcommand or None) -> (module, one-line help); one row per command.
+# fmt: off
 COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("run", None): ("follow.run", "follow a person: camera or video in, base commands out"),
     ("ros2", None): ("follow.ros2.cli", "the ROS 2 node: images and odometry in, target/tracks/cmd_vel out"),
@@ -25,13 +26,16 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("eval", "ankle-height"): ("follow.eval.ankle_height", "ankle keypoint height over the annotated ground point (PETS 2009)"),
     ("eval", "tracking"): ("follow.eval.tracking", "CLEAR MOT / IDF1 on PETS 2009 against other trackers"),
     ("eval", "following"): ("follow.eval.following", "closed-loop following over the simulated MAVLink rover"),
+    ("eval", "safety"): ("follow.eval.safety", "every fault against the simulated rover: time to standstill, distance driven"),
     ("eval", "identification"): ("follow.eval.identification", "CT/CL/WT/WL on PETS 2009"),
     ("bench", None): ("follow.eval.bench", "per-stage latency and end-to-end fps"),
     ("bench", "pose"): ("follow.eval.bench_pose", "pose network runtimes side by side"),
     ("bench", "ros2"): ("follow.ros2.bench", "latency the ROS 2 node adds over perception"),
+    ("bench", "memory"): ("follow.eval.bench_memory", "RSS growth over a long synthetic run (bounded memory)"),
     ("bench", "identify"): ("follow.eval.bench_identify", "CCF features and classifier update speed"),
     ("models", None): ("follow.models", "list, fetch or verify the model files"),
 }
+# fmt: on
 
 
 def _selected(argv: list[str]) -> tuple[str, str | None] | None:

@@ -176,7 +176,16 @@ class ControlConfig:
     # Fraction of the target's own motion fed forward (radial speed, bearing rate).
     velocity_feedforward_gain: float = 1.0
     turn_in_place_bearing_rad: float = 0.7
+    # A target estimate whose last observation is older than this is lost (zero command).
     target_timeout_s: float = 0.5
+    # While the target is not seen in the newest frame, the forward speed limit falls
+    # linearly to zero this long after its last observation; meanwhile the robot only
+    # turns toward the predicted bearing, at most at search_yaw_rate_radps.
+    max_blind_drive_s: float = 0.5
+    # The control loop stops the base when perception has produced no result this long.
+    watchdog_timeout_s: float = 0.5
+    # `follow run --target-id N`: warn when track N has not appeared after this long.
+    missing_target_warn_s: float = 5.0
     # After a loss, turn toward the last bearing for this long (0 = stop at once).
     search_duration_s: float = 0.0
     search_yaw_rate_radps: float = 0.4

@@ -7,11 +7,16 @@
 
 Without threads (`run_offline`), every frame of a file is processed in order and the
 controller is stepped once per frame at the frame's time: reproducible, for evaluation
-and replay. `follow run` (the command) lives in `follow/run.py`.
+and replay (never driving a base). `follow run` (the command) lives in `follow/run.py`.
+
+Every runner reads the robot's pose through one `OdometryPolicy`: odometry is sampled
+with each frame when it is captured, and no fresh odometry means no target motion and a
+zero command.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -19,7 +24,9 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 from follow.capture import LatestSlot
-from follow.control.target import TargetMotion
+from follow.config import ControlConfig
+from follow.control.odometry import OdometryPolicy
+from follow.control.target import TargetMotion, ViewCone
 from follow.frames import odom_to_base, vector_odom_to_base
 from follow.types import (
     Frame,
@@ -85,7 +92,8 @@ class Perception:
 
 
 def target_motion(result: FrameResult | None, robot_now: Odometry) -> TargetMotion | None:
-    """The target's position and velocity in the robot frame as the robot stands now.
+    """The target's position and velocity in the robot frame as the robot stands now,
+    stamped with the time of its track's last observation (a coasting track ages).
 
     The track lives in `odom`, so the newest odometry (not the pose at the frame's time)
     is used: the robot may have turned since the frame was taken.
@@ -98,7 +106,8 @@ def target_motion(result: FrameResult | None, robot_now: Odometry) -> TargetMoti
     return TargetMotion(
         odom_to_base(track.position_m, robot_now),
         vector_odom_to_base(track.velocity_mps, robot_now),
-        result.stamp_s,
+        min(track.last_seen_s, result.stamp_s),
+        observed=track.observation is not None,
     )
 
 
@@ -106,8 +115,9 @@ class ControlLoop:
     """Runs the controller at a fixed rate in its own thread.
 
     Each tick takes the newest FrameResult; if perception has produced nothing for
-    `perception_timeout_s`, the target counts as lost (zero command) until it does again.
-    On stop, and on any exception inside the loop, the base gets a zero command.
+    `perception_timeout_s` (the watchdog), or the base has no fresh odometry, the command
+    is zero until both are back. On stop, and on any exception inside the loop, the base
+    gets a zero command.
     """
 
     def __init__(
@@ -119,9 +129,11 @@ class ControlLoop:
         perception_timeout_s: float,
         clock: Callable[[], float] = time.monotonic,
         on_command: Callable[[VelocityCommand], None] | None = None,
+        odometry: OdometryPolicy | None = None,
     ):
         self.controller = controller
         self.base = base
+        self.odometry = odometry if odometry is not None else OdometryPolicy(base)
         self.results = results
         self.period_s = 1.0 / rate_hz
         self.perception_timeout_s = perception_timeout_s
@@ -145,7 +157,12 @@ class ControlLoop:
     def tick(self) -> VelocityCommand:
         """One control step (public so tests and the offline runner can drive it)."""
         now = self.clock()
-        robot = self.base.odometry() or Odometry.origin(now)
+        robot = self.odometry.sample()
+        if robot is None:  # the robot's pose is unknown: no target motion, stop
+            self.controller.update(None, now)
+            command = VelocityCommand.stop(now)
+            self._send(command)
+            return command
         result: FrameResult | None = self.results.peek()
         stalled = result is None or now - result.stamp_s > self.perception_timeout_s
         if stalled and result is not None:
@@ -185,12 +202,24 @@ def run_offline(
     perception: Perception,
     frames: Iterable[Frame],
     controller=None,
-    odometry: Callable[[float], Odometry] | None = None,
-) -> Iterator[tuple[Frame, FrameResult, VelocityCommand | None]]:
+    odometry: OdometryPolicy | Callable[[float], Odometry | None] | None = None,
+) -> Iterator[tuple[Frame, FrameResult | None, VelocityCommand | None]]:
     """Every frame in order; the controller (if any) is stepped once per frame at the
-    frame's time. `odometry(stamp)` gives the robot pose (default: still at the origin)."""
+    frame's time. The robot pose comes from `odometry`: a base's policy, or a recorded
+    pose at the frame's stamp (a bag); default still at the origin. A frame without
+    fresh odometry is not processed (result None) and gets a stop."""
     for index, frame in enumerate(frames):
-        robot = odometry(frame.stamp_s) if odometry else Odometry.origin(frame.stamp_s)
+        if odometry is None:
+            robot = Odometry.origin(frame.stamp_s)
+        elif isinstance(odometry, OdometryPolicy):
+            robot = odometry.sample()
+        else:
+            robot = odometry(frame.stamp_s)
+        if robot is None:
+            if controller is not None:
+                controller.update(None, frame.stamp_s)
+            yield frame, None, VelocityCommand.stop(frame.stamp_s)
+            continue
         result = perception.process(frame, robot, index)
         command = None
         if controller is not None:
@@ -201,8 +230,11 @@ def run_offline(
 class ThreadedRunner:
     """Capture, perception and control in their own threads, on one clock.
 
-    Frames are re-stamped with `clock()` as they are captured, so the control loop's
-    staleness checks compare like with like. `pace_hz` plays a file at its frame rate.
+    Frames are re-stamped with `clock()` as they are captured, and the robot's pose is
+    sampled with them (so the tracker places each frame where the robot was when it was
+    taken), so the control loop's staleness checks compare like with like. A frame
+    captured without fresh odometry is not processed. `pace_hz` plays a file at its
+    frame rate. An error in the capture thread (a bad frame) ends the run and is raised.
     """
 
     def __init__(
@@ -219,8 +251,11 @@ class ThreadedRunner:
         self.frames = LatestSlot()
         self.results = control.results
         self._stop = threading.Event()
+        self.odometry = control.odometry
         self.captured = 0
         self.processed = 0
+        self.skipped_without_odometry = 0
+        self.capture_error: BaseException | None = None
 
     def _capture(self, source: Iterable[Frame], pace_hz: float | None) -> None:
         start = self.clock()
@@ -232,8 +267,11 @@ class ThreadedRunner:
                     delay = start + index / pace_hz - self.clock()
                     if delay > 0:
                         time.sleep(delay)
-                self.frames.put((index, Frame(frame.image, self.clock())))
+                stamped = dataclasses.replace(frame, stamp_s=self.clock())
+                self.frames.put((index, stamped, self.odometry.sample()))
                 self.captured += 1
+        except Exception as exc:  # raised again by run(), after the base has stopped
+            self.capture_error = exc
         finally:
             self.frames.close()
 
@@ -256,8 +294,10 @@ class ThreadedRunner:
                     if self.frames.closed:
                         break
                     continue
-                index, frame = item
-                robot = self.base.odometry() or Odometry.origin(frame.stamp_s)
+                index, frame, robot = item
+                if robot is None:  # pose unknown when taken: the control loop stops
+                    self.skipped_without_odometry += 1
+                    continue
                 result = self.perception.process(frame, robot, index)
                 self.results.put(result)
                 self.processed += 1
@@ -269,7 +309,30 @@ class ThreadedRunner:
             self._stop.set()
             self.control.stop()
             capture.join(timeout=2.0)
+        if self.capture_error is not None:
+            raise self.capture_error
 
     @property
     def dropped_frames(self) -> int:
         return self.frames.dropped
+
+
+def build_runner(
+    perception: Perception,
+    base,
+    config: ControlConfig,
+    view: ViewCone | None = None,
+    clock: Callable[[], float] = time.monotonic,
+    on_command: Callable[[VelocityCommand], None] | None = None,
+) -> ThreadedRunner:
+    """The runner that drives a base: `follow run`, the demo and the evaluations all
+    build it here, so they test the code that drives the robot. `view` is the camera's
+    field of view (`ViewCone.from_camera`); `clock` is injectable for tests."""
+    from follow.control.controller import FollowingController
+
+    control = ControlLoop(
+        FollowingController(config, view=view), base, LatestSlot(), config.control_rate_hz,
+        config.watchdog_timeout_s, clock=clock, on_command=on_command,
+        odometry=OdometryPolicy(base),
+    )  # fmt: skip
+    return ThreadedRunner(perception, control, base, clock=clock)

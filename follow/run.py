@@ -1,9 +1,11 @@
 """`follow run`: follow a person from a camera or a video, optionally driving a base.
 
-Live sources (a camera index or a GStreamer pipeline) and `--realtime` run capture,
-perception and control in their own threads on the wall clock. A file without
-`--realtime` is processed frame by frame, every frame, reproducibly. Ctrl-C or an error
-sends the base a zero command and flushes the log.
+Live sources (a camera index or a GStreamer pipeline), `--realtime` and any run that
+drives a base (`--mavlink`, a file then plays at its frame rate) run capture,
+perception and control in their own threads on the wall clock, with the perception
+watchdog. A file without a base and without `--realtime` is processed frame by frame,
+every frame, reproducibly. Ctrl-C, SIGTERM, SIGHUP or an error send the base a zero
+command, flush the log and finalise the video (see `follow/shutdown.py`).
 """
 
 from __future__ import annotations
@@ -16,11 +18,12 @@ import cv2
 import numpy as np
 
 from follow.camera import CameraModel
-from follow.capture import FrameSource, LatestSlot, open_source
+from follow.capture import FrameSource, open_source
 from follow.config import Config
-from follow.pipeline import ControlLoop, FrameResult, Perception, ThreadedRunner, run_offline
+from follow.pipeline import FrameResult, Perception, build_runner, run_offline
 from follow.render import annotate, top_down
 from follow.runlog import RunLogWriter, read_run_log
+from follow.shutdown import ShutdownSignals
 from follow.types import Frame, Odometry, VelocityCommand
 
 log = logging.getLogger(__name__)
@@ -132,7 +135,9 @@ class Outputs:
         canvas = np.hstack([picture, side])
         if self.video_path:
             if self._writer is None:
-                fourcc = cv2.VideoWriter_fourcc(*("mp4v" if self.video_path.endswith(".mp4") else "MJPG"))
+                fourcc = cv2.VideoWriter_fourcc(
+                    *("mp4v" if self.video_path.endswith(".mp4") else "MJPG")
+                )
                 self._writer = cv2.VideoWriter(
                     self.video_path, fourcc, self.fps, (canvas.shape[1], canvas.shape[0])
                 )
@@ -149,7 +154,69 @@ class Outputs:
             self.log.close()
 
 
+class RunSummary:
+    """What a run reports, kept as counters: O(1) memory however long the run."""
+
+    def __init__(self):
+        self.frames = 0
+        self.commands = 0
+        self.dropped_frames = 0
+        self.states: dict[str, int] = {}
+        self.final_target_id: int | None = None
+
+    def add_result(self, result: FrameResult) -> None:
+        self.frames += 1
+        status = result.target.status.value
+        self.states[status] = self.states.get(status, 0) + 1
+        self.final_target_id = result.target.target_id
+
+    def add_command(self, command: VelocityCommand) -> None:
+        self.commands += 1
+
+
+class TargetIdWatch:
+    """`--target-id N`: warns once when no track N has appeared `warn_after_s` into the
+    run (a mistyped id otherwise leaves the robot waiting in silence)."""
+
+    def __init__(self, target_id: int | None, warn_after_s: float):
+        self.target_id = target_id
+        self.warn_after_s = warn_after_s
+        self._first_stamp_s: float | None = None
+        self.found = target_id is None
+        self.warned = False
+
+    def check(self, result: FrameResult) -> None:
+        if self.found or self.warned:
+            return
+        if any(t.track_id == self.target_id for t in result.tracks):
+            self.found = True
+            return
+        if self._first_stamp_s is None:
+            self._first_stamp_s = result.stamp_s
+        if result.stamp_s - self._first_stamp_s >= self.warn_after_s:
+            self.warned = True
+            log.warning("--target-id %d: no track with this id after %.1f s; nothing is followed",
+                        self.target_id, self.warn_after_s)  # fmt: skip
+
+
+def checked_frames(first: Frame, rest, source_name: str):
+    """The frames of a stream, refusing one whose size differs from the first's (the
+    camera model and the tracks belong to one image size)."""
+    size = first.image.shape[:2]
+    yield first
+    for index, frame in enumerate(rest, start=1):
+        if frame.image.shape[:2] != size:
+            h, w = frame.image.shape[:2]
+            raise ValueError(
+                f"source {source_name}: frame {index} is {w}x{h}, but the stream started at "
+                f"{size[1]}x{size[0]}; a size change mid-stream is not supported"
+            )
+        yield frame
+
+
 def main(args) -> dict:
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     config = Config.load(args.config) if args.config else Config()
     if args.mavlink:
         config = config.replace("mavlink", connection=args.mavlink)
@@ -158,8 +225,9 @@ def main(args) -> dict:
     source = open_source(args.source, args.image_topic, args.odom_topic, args.camera_info_topic,
                          config.ros.max_odometry_age_s, args.skeletons_topic)  # fmt: skip
     bag_odometry = source.odometry_at if getattr(source, "odometry", None) is not None else None
-    if bag_odometry and args.realtime:
-        raise ValueError("--realtime does not replay a bag's odometry; leave it out")
+    if bag_odometry and (args.realtime or config.mavlink.connection):
+        raise ValueError("a bag's odometry is replayed frame by frame only: leave out "
+                         "--realtime and --mavlink")  # fmt: skip
     frames = iter(source)
     first = next(frames, None)
     if first is None:
@@ -175,78 +243,105 @@ def main(args) -> dict:
     perception = build_perception(config, camera, detect)
     if args.target_id is not None:
         perception.identifier.select_target(args.target_id)
-
-    def all_frames():
-        yield first
-        yield from frames
-
     header = {"source": args.source, "camera": str(args.camera), "config": args.config,
               "image_size": [width, height]}  # fmt: skip
-    outputs = Outputs(header, source.fps, args.output_video, args.frames_dir, args.log)
-    base = open_base(config)
-    from follow.control.controller import FollowingController
-
-    controller = FollowingController(config.control)
-    results: list[FrameResult] = []
-    commands: list[VelocityCommand] = []
+    summary = RunSummary()
+    watch = TargetIdWatch(args.target_id, config.control.missing_target_warn_s)
     started = time.perf_counter()
-    dropped = 0
-    try:
-        if source.live or args.realtime:
-            slot = LatestSlot()
-            control = ControlLoop(
-                controller, base, slot, config.control.control_rate_hz,
-                config.control.target_timeout_s, on_command=commands.append,
-            )  # fmt: skip
-            runner = ThreadedRunner(perception, control, base)
-
-            def on_result(frame, result):
-                results.append(result)
-                outputs.write(frame, result, control.last_command)
-
-            runner.run(all_frames(), pace_hz=None if source.live else source.fps,
-                       on_result=on_result, max_frames=args.max_frames)  # fmt: skip
-            dropped = runner.dropped_frames
-        else:
-            for count, (frame, result, command) in enumerate(
-                run_offline(perception, all_frames(), controller, bag_odometry), start=1
-            ):
-                base.send(command)
-                commands.append(command)
-                results.append(result)
-                outputs.write(frame, result, command)
-                if args.max_frames and count >= args.max_frames:
-                    break
-    except KeyboardInterrupt:
-        log.warning("interrupted: stopping the base")
-    finally:
-        base.close()
-        outputs.close()
-        source.close()
+    with ShutdownSignals() as signals:
+        outputs = Outputs(header, source.fps, args.output_video, args.frames_dir, args.log)
+        base = None
+        try:
+            base = open_base(config)
+            signals.base = base
+            run_frames(args, config, source, checked_frames(first, frames, args.source),
+                       perception, camera, base, outputs, summary, watch,
+                       bag_odometry)  # fmt: skip
+        except KeyboardInterrupt:
+            log.warning("%s: stopping the base", signals.reason or "interrupted")
+        finally:
+            if base is not None:
+                base.close()
+            outputs.close()
+            source.close()
     elapsed = time.perf_counter() - started
-    states: dict[str, int] = {}
-    for r in results:
-        states[r.target.status.value] = states.get(r.target.status.value, 0) + 1
-    summary = {
-        "frames": len(results),
+    dropped = summary.dropped_frames
+    result = {
+        "frames": summary.frames,
         "dropped_frames": dropped,
-        "fps": round(len(results) / elapsed, 2) if elapsed > 0 else None,
-        "states": states,
-        "final_target_id": results[-1].target.target_id if results else None,
-        "commands": len(commands),
+        "fps": round(summary.frames / elapsed, 2) if elapsed > 0 else None,
+        "states": summary.states,
+        "final_target_id": summary.final_target_id,
+        "commands": summary.commands,
+        "stopped_by": signals.reason,
     }
     if hasattr(source, "frames_without_odometry"):
-        summary["frames_without_odometry"] = source.frames_without_odometry
+        result["frames_without_odometry"] = source.frames_without_odometry
     if not args.json:
-        print(f"{summary['frames']} frames at {summary['fps']} fps "
-              f"({dropped} dropped); states: {states}")  # fmt: skip
-    return summary
+        print(f"{summary.frames} frames at {result['fps']} fps "
+              f"({dropped} dropped); states: {summary.states}")  # fmt: skip
+    return result
+
+
+def run_frames(args, config, source, frames, perception, camera, base, outputs, summary,
+               watch, bag_odometry=None) -> None:  # fmt: skip
+    """The loop: threads (a live source, `--realtime`, or any run driving a base: a file
+    is then played at its frame rate, with the watchdog) or, for a file without a base,
+    every frame in order."""
+    from follow.control.base import NullBase
+    from follow.control.controller import FollowingController
+    from follow.control.odometry import OdometryPolicy
+    from follow.control.target import ViewCone
+
+    view = ViewCone.from_camera(camera)
+    if source.live or args.realtime or not isinstance(base, NullBase):
+        runner = build_runner(perception, base, config.control, view,
+                              on_command=summary.add_command)  # fmt: skip
+
+        def on_result(frame, result):
+            summary.add_result(result)
+            watch.check(result)
+            outputs.write(frame, result, runner.control.last_command)
+
+        try:
+            runner.run(frames, pace_hz=None if source.live else source.fps,
+                       on_result=on_result, max_frames=args.max_frames)  # fmt: skip
+        finally:
+            summary.dropped_frames = runner.dropped_frames
+        return
+    controller = FollowingController(config.control, view=view)
+    # NullBase: the camera is still, a fixed pose; a bag: its recorded pose at each image
+    odometry = bag_odometry or OdometryPolicy(base)
+    for frame, result, command in run_offline(perception, frames, controller, odometry):
+        base.send(command)
+        summary.add_command(command)
+        if result is None:
+            continue
+        summary.add_result(result)
+        watch.check(result)
+        outputs.write(frame, result, command)
+        if args.max_frames and summary.frames >= args.max_frames:
+            break
+
+
+def check_replay_source(header: dict, log_path: str, source: str) -> None:
+    """Refuse to replay a log against another source than the one it was made from (the
+    skeletons would be compared with other frames, and agree by chance)."""
+    logged = header.get("source")
+    if logged is None:
+        raise ValueError(f"--replay {log_path}: the log's header names no source")
+    same = str(logged) == str(source)
+    if not same and Path(str(logged)).exists() and Path(source).exists():
+        same = Path(str(logged)).resolve() == Path(source).resolve()
+    if not same:
+        raise ValueError(f"--replay {log_path}: the log is of source {logged}, not {source}")
 
 
 def replay(args, config: Config) -> dict:
     """Tracking and identification again on a log's skeletons and the same frames."""
     header, records = read_run_log(args.replay)
     records = list(records)
+    check_replay_source(header, args.replay, args.source)
     by_index = {r.frame_index: r for r in records}
     source = FrameSource(args.source)
     camera = None
@@ -260,6 +355,12 @@ def replay(args, config: Config) -> dict:
                 continue
             if camera is None:
                 h, w = frame.image.shape[:2]
+                logged = header.get("image_size")
+                if logged is not None and list(logged) != [w, h]:
+                    raise ValueError(
+                        f"--replay {args.replay}: the log is of {logged[0]}x{logged[1]} "
+                        f"frames, but {args.source} has {w}x{h} frames"
+                    )
                 camera = camera_for_frames(CameraModel.load(args.camera), w, h)
                 perception = build_perception(config, camera, detect=lambda f: current[0])
                 if args.target_id is not None:

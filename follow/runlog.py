@@ -106,7 +106,9 @@ class RunLogWriter:
                 else {
                     "status": target.status.value,
                     "id": target.target_id,
-                    "confidences": {str(k): round(float(v), 4) for k, v in target.confidences.items()},
+                    "confidences": {
+                        str(k): round(float(v), 4) for k, v in target.confidences.items()
+                    },
                 },
                 "command": None
                 if command is None
@@ -137,7 +139,9 @@ def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
     try:
         header = json.loads(lines[0])
     except json.JSONDecodeError as exc:
-        raise ValueError(f"run log {path}: header line is not JSON ({exc})") from None
+        raise ValueError(f"run log {path}: line 1 (header) is not JSON ({exc})") from None
+    if not isinstance(header, dict):
+        raise ValueError(f"run log {path}: line 1 (header) is not a JSON object")
     if header.get("log_version") != LOG_VERSION:
         raise ValueError(f"run log {path}: unsupported log_version {header.get('log_version')}")
 
@@ -149,22 +153,37 @@ def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
                 if number == len(lines):
                     return
                 raise ValueError(f"run log {path}: line {number} is not JSON") from None
-            robot = d.get("robot")
-            target = d.get("target") or {}
-            command = d.get("command")
-            yield FrameRecord(
-                frame_index=int(d["frame"]),
-                stamp_s=float(d["stamp_s"]),
-                robot=None if robot is None else Odometry(*robot, float(d["stamp_s"])),
-                skeletons=[skeleton_from_json(s) for s in d.get("skeletons", [])],
-                tracks=d.get("tracks", []),
-                target_status=target.get("status", ""),
-                target_id=target.get("id"),
-                confidences={int(k): v for k, v in target.get("confidences", {}).items()},
-                command=None
-                if command is None
-                else VelocityCommand(command[0], command[1], float(d["stamp_s"])),
-                timing_ms=d.get("timing_ms", {}),
-            )
+            try:
+                yield _record(d)
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                raise ValueError(f"run log {path}: line {number}: {_problem(exc)}") from None
 
     return header, records()
+
+
+def _record(d: dict) -> FrameRecord:
+    """One frame line, parsed; KeyError / TypeError / ValueError when malformed."""
+    if not isinstance(d, dict):
+        raise TypeError(f"a frame record must be a JSON object, got {type(d).__name__}")
+    stamp_s = float(d["stamp_s"])
+    robot = d.get("robot")
+    target = d.get("target") or {}
+    command = d.get("command")
+    return FrameRecord(
+        frame_index=int(d["frame"]),
+        stamp_s=stamp_s,
+        robot=None if robot is None else Odometry(*robot, stamp_s),
+        skeletons=[skeleton_from_json(s) for s in d.get("skeletons", [])],
+        tracks=d.get("tracks", []),
+        target_status=target.get("status", ""),
+        target_id=target.get("id"),
+        confidences={int(k): v for k, v in target.get("confidences", {}).items()},
+        command=None if command is None else VelocityCommand(command[0], command[1], stamp_s),
+        timing_ms=d.get("timing_ms", {}),
+    )
+
+
+def _problem(exc: Exception) -> str:
+    if isinstance(exc, KeyError):
+        return f"frame record without the key {exc.args[0]!r}"
+    return f"malformed frame record ({exc})"

@@ -170,3 +170,24 @@ def test_px4_flavour_needs_streaming_before_offboard_and_fails_safe_on_loss():
         assert wait_for(lambda: rover.mode != rover.commanded_mode, 1.6)
         assert mf.px4_main_mode(rover.mode) == 4  # AUTO (loiter)
         c.close()
+
+
+def test_paused_telemetry_makes_the_base_report_no_odometry_and_last_setpoint_is_kept():
+    import dataclasses
+
+    from follow.config import MavlinkConfig
+    from follow.control.mavlink_base import MavlinkBase
+    from follow.types import VelocityCommand
+
+    with SimRover(seed=4) as rover:
+        config = dataclasses.replace(MavlinkConfig(), connection=rover.connection)
+        with MavlinkBase(config) as base:
+            assert wait_for(lambda: base.odometry() is not None, 2.0)
+            base.send(VelocityCommand(0.4, -0.2, time.monotonic()))
+            assert wait_for(lambda: (rover.last_setpoint or (0, 0, 0))[1] == pytest.approx(0.4))
+            assert rover.last_setpoint[2] == pytest.approx(0.2)  # NED: clockwise positive
+            rover.pause_telemetry()
+            assert wait_for(lambda: base.odometry() is None, 2.0)
+            assert rover.mode == mf.ROVER_MODE_GUIDED  # the link itself stays up
+            rover.pause_telemetry(False)
+            assert wait_for(lambda: base.odometry() is not None, 2.0)

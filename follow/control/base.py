@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
@@ -28,14 +29,23 @@ class Base(Protocol):
         """Send a zero velocity, then release the connection."""
 
 
-class NullBase:
-    """No robot: records every command and reports a fixed pose (the origin by default),
-    stamped with `clock()` when read, so that it is never stale."""
+# NullBase keeps this many recent commands: enough to inspect, bounded for long runs.
+NULL_BASE_HISTORY = 10_000
 
-    def __init__(self, pose: Odometry | None = None, clock: Callable[[], float] = time.monotonic):
+
+class NullBase:
+    """No robot: records the recent commands and reports a fixed pose (the origin by
+    default), stamped with `clock()` when read, so that it is never stale."""
+
+    def __init__(
+        self,
+        pose: Odometry | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        history: int = NULL_BASE_HISTORY,
+    ):
         self._lock = threading.Lock()
         self._clock = clock
-        self.commands: list[VelocityCommand] = []
+        self.commands: deque[VelocityCommand] = deque(maxlen=history)
         self.pose = pose or Odometry.origin()
         self.closed = False
 

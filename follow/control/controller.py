@@ -3,8 +3,12 @@
 A proportional law on distance and bearing with feed-forward of the target's own motion
 (so a steadily walking person is followed without a standing distance error), turning in
 place when the target is far to the side, and speed / yaw-rate / acceleration limits.
-Losing the target, or an estimate older than `target_timeout_s`, gives a zero command at
-once: the acceleration limits apply to driving, never to stopping.
+Losing the target, or a last observation older than `target_timeout_s`, gives a zero
+command at once: the acceleration limits apply to driving, never to stopping. A target
+not seen in the newest frame is driven toward only blind: the forward speed limit falls
+to zero within `max_blind_drive_s` of its last observation (also ignoring the braking
+limit) and the turn is capped at the search rate; a target predicted outside the
+camera's field of view (`view`) gets no forward command at all.
 """
 
 from __future__ import annotations
@@ -15,10 +19,14 @@ import math
 import numpy as np
 
 from follow.config import ConfigError, ControlConfig
-from follow.control.target import TargetMotion
+from follow.control.target import TargetMotion, ViewCone
 from follow.types import InvalidInput, VelocityCommand
 
 log = logging.getLogger(__name__)
+
+# Upper bounds of the safety timeouts: beyond them a robot drives too far on stale data.
+MAX_BLIND_DRIVE_S = 1.0
+MAX_WATCHDOG_TIMEOUT_S = 2.0
 
 
 def check_control_config(config: ControlConfig) -> None:
@@ -27,6 +35,7 @@ def check_control_config(config: ControlConfig) -> None:
         "following_distance_m", "max_forward_speed_mps", "max_yaw_rate_radps",
         "max_forward_accel_mps2", "max_forward_decel_mps2", "max_yaw_accel_radps2",
         "target_timeout_s", "control_rate_hz", "turn_in_place_bearing_rad",
+        "max_blind_drive_s", "watchdog_timeout_s", "missing_target_warn_s",
     )  # fmt: skip
     non_negative = (
         "max_backward_speed_mps", "distance_gain_per_s", "bearing_gain_per_s",
@@ -40,6 +49,13 @@ def check_control_config(config: ControlConfig) -> None:
         value = getattr(config, name)
         if not (math.isfinite(value) and value >= 0):
             raise ConfigError(f"[control] {name} must be >= 0, got {value}")
+    for name, most in (("max_blind_drive_s", MAX_BLIND_DRIVE_S),
+                       ("watchdog_timeout_s", MAX_WATCHDOG_TIMEOUT_S)):  # fmt: skip
+        if getattr(config, name) > most:
+            raise ConfigError(
+                f"[control] {name} must be <= {most} (a robot must not drive that long on "
+                f"stale data), got {getattr(config, name)}"
+            )
     if config.search_yaw_rate_radps > config.max_yaw_rate_radps:
         raise ConfigError(
             f"[control] search_yaw_rate_radps ({config.search_yaw_rate_radps}) exceeds "
@@ -66,9 +82,14 @@ def slew(previous: float, wanted: float, rise_per_s: float, fall_per_s: float, d
 class FollowingController:
     """Target motion in, velocity command out; call `update` once per control period."""
 
-    def __init__(self, config: ControlConfig = ControlConfig()):  # noqa: B008 (frozen)
+    def __init__(
+        self,
+        config: ControlConfig = ControlConfig(),  # noqa: B008 (frozen)
+        view: ViewCone | None = None,
+    ):
         check_control_config(config)
         self.config = config
+        self.view = view
         self._last: VelocityCommand | None = None
         self._last_bearing_rad: float | None = None
         self._lost_since_s: float | None = None
@@ -158,4 +179,16 @@ class FollowingController:
         yaw = slew(
             previous.yaw_rate_radps, yaw, cfg.max_yaw_accel_radps2, cfg.max_yaw_accel_radps2, dt_s
         )
+        if not target.observed:  # blind: forward bounded in time, turning bounded in rate
+            yaw = float(np.clip(yaw, -cfg.search_yaw_rate_radps, cfg.search_yaw_rate_radps))
+            forward = min(forward, self.blind_forward_limit_mps(stamp_s - target.stamp_s))
+        if self.view is not None and not self.view.contains(target.position_m):
+            forward = min(forward, 0.0)
         return VelocityCommand(forward, yaw, stamp_s)
+
+    def blind_forward_limit_mps(self, unseen_s: float) -> float:
+        """The most forward speed allowed `unseen_s` after the target's last observation:
+        falling linearly from the maximum to zero at `max_blind_drive_s`."""
+        cfg = self.config
+        left = 1.0 - max(0.0, unseen_s) / cfg.max_blind_drive_s
+        return cfg.max_forward_speed_mps * max(0.0, left)

@@ -13,12 +13,18 @@ from follow.types import InvalidInput
 @dataclass(frozen=True)
 class TargetMotion:
     """The target's ground position (m) and ground velocity (m/s, relative to the world,
-    not to the robot), both expressed in the robot's `base` frame, estimated at `stamp_s`.
+    not to the robot), both expressed in the robot's `base` frame.
+
+    `stamp_s` is when the target was last observed (not when the estimate was
+    predicted), so that a track coasting without observations ages and goes stale.
+    `observed` says whether the newest frame saw it; when not, the position is the
+    tracker's prediction and the controller only drives blind for a bounded time.
     """
 
     position_m: np.ndarray  # (2,) x forward, y left
     velocity_mps: np.ndarray  # (2,)
     stamp_s: float
+    observed: bool = True
 
     def __post_init__(self):
         for name in ("position_m", "velocity_mps"):
@@ -41,3 +47,36 @@ class TargetMotion:
     def bearing_rad(self) -> float:
         """Angle of the target from the robot's forward axis, positive to the left."""
         return float(math.atan2(self.position_m[1], self.position_m[0]))
+
+
+@dataclass(frozen=True)
+class ViewCone:
+    """The bearings (in `base`, from the camera's position) that the camera sees: a
+    target predicted outside them is not where the robot may drive blind."""
+
+    left_rad: float  # bearing of the image's left edge (positive = left)
+    right_rad: float  # bearing of the image's right edge (negative = right)
+    origin_m: tuple[float, float] = (0.0, 0.0)  # the camera's x, y on the robot
+
+    @classmethod
+    def from_camera(cls, camera) -> ViewCone:
+        """The horizontal field of view of a `CameraModel` (edges of its image)."""
+        fx, cx = float(camera.K[0, 0]), float(camera.K[0, 2])
+        width = camera.image_size[0]
+        yaw = camera.pose.yaw_rad
+        left = yaw + math.atan2(cx + 0.5, fx)
+        right = yaw - math.atan2(width - 0.5 - cx, fx)
+        return cls(left, right, (camera.pose.x_m, camera.pose.y_m))
+
+    @property
+    def horizontal_fov_rad(self) -> float:
+        return self.left_rad - self.right_rad
+
+    def contains(self, position_m: np.ndarray) -> bool:
+        """Whether a ground point (in `base`) lies inside the horizontal field of view."""
+        dx = float(position_m[0]) - self.origin_m[0]
+        dy = float(position_m[1]) - self.origin_m[1]
+        bearing = math.atan2(dy, dx)
+        mid = 0.5 * (self.left_rad + self.right_rad)
+        off = math.remainder(bearing - mid, math.tau)
+        return abs(off) <= 0.5 * self.horizontal_fov_rad

@@ -1,10 +1,12 @@
 """`follow eval following`: closed-loop following over the simulated MAVLink rover.
 
-A scripted walker (straight, turning, stopping) is followed in real time: its position,
-delayed and noised like a tracker's output, is put into the robot frame with the
-odometry that `MavlinkBase` reads back over UDP from `SimRover`, the controller turns it
-into a command, and the driver streams that command to the rover. The distance error is
-measured between the walker and the rover's true pose.
+A scripted walker (straight, turning, stopping) is followed in real time through the
+same threaded runner and control loop as `follow run` (`follow.pipeline.build_runner`):
+a scripted perception reports the walker's track, delayed and noised like a tracker's
+output, for frames captured at 15 Hz with the odometry that `MavlinkBase` reads back
+over UDP from `SimRover`; the control loop turns it into commands that the driver
+streams to the rover. The distance error is measured between the walker and the
+rover's true pose.
 """
 
 from __future__ import annotations
@@ -13,18 +15,26 @@ import argparse
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 from tqdm import tqdm
 
 from follow.config import Config, ControlConfig, MavlinkConfig
-from follow.control.controller import FollowingController
 from follow.control.mavlink_base import MavlinkBase
-from follow.control.target import TargetMotion
-from follow.frames import odom_to_base, vector_odom_to_base
+from follow.pipeline import FrameResult, build_runner
 from follow.sim.rover import SimRover
 from follow.sim.walker_paths import SCENARIOS, WalkerPath, scenario
+from follow.types import (
+    Frame,
+    Observation,
+    Odometry,
+    TargetEstimate,
+    TargetStatus,
+    TrackState,
+    VelocityCommand,
+)
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +67,32 @@ class RunTrace:
     target_missing: int = 0
 
 
+FRAME_RATE_HZ = 15.0
+_BLANK = np.zeros((8, 8, 3), np.uint8)
+
+
+class ScriptedPerception:
+    """Stands in for pose + tracker + identifier: one confirmed, observed track (id 1)
+    where a tracker would put the walker, and the identifier tracking it."""
+
+    def __init__(self, path: WalkerPath, settings: RunSettings, start_s: float):
+        self.path, self.settings, self.start_s = path, settings, start_s
+        self.rng = np.random.default_rng(settings.seed)
+
+    def process(self, frame: Frame, robot: Odometry, frame_index: int) -> FrameResult:
+        s = self.settings
+        seen_at = frame.stamp_s - self.start_s - s.perception_latency_s
+        xy, v = self.path.state(max(seen_at, 0.0))
+        xy = xy + self.rng.normal(0.0, s.position_noise_m, 2)
+        v = v + self.rng.normal(0.0, s.velocity_noise_mps, 2)
+        # Predict the latency away with the estimated velocity, as the tracker's filter would.
+        xy = xy + v * s.perception_latency_s
+        track = TrackState(1, np.array([xy[0], xy[1], v[0], v[1], 1.45]), np.eye(5) * 0.01,
+                           True, frame.stamp_s, observation=Observation(np.zeros(2)))  # fmt: skip
+        target = TargetEstimate(TargetStatus.TRACKING, 1, {1: 1.0}, frame.stamp_s)
+        return FrameResult(frame_index, frame.stamp_s, robot, [], [track], target)
+
+
 def run_following(
     path: WalkerPath,
     name: str,
@@ -64,48 +100,31 @@ def run_following(
     mavlink: MavlinkConfig | None = None,
     settings: RunSettings = RunSettings(),  # noqa: B008 (frozen)
     progress: bool = False,
+    clock: Callable[[], float] = time.monotonic,
 ) -> RunTrace:
     """Follow `path` in real time through MavlinkBase + SimRover; the walker's script starts
     once the vehicle is in GUIDED."""
-    rng = np.random.default_rng(settings.seed)
-    controller = FollowingController(control)
     trace = RunTrace(name, control.following_distance_m)
     with SimRover(seed=settings.seed) as rover:
         rover.packet_loss, rover.latency_s = settings.packet_loss, settings.link_latency_s
         cfg = mavlink or MavlinkConfig()
         cfg = MavlinkConfig(**{**cfg.__dict__, "connection": rover.connection})
-        with MavlinkBase(cfg) as base:
-            period_s = controller.period_s
-            t0 = time.monotonic()
-            next_tick = t0
-            bar = tqdm(total=round(path.duration_s), unit="s", desc=name, disable=not progress)
-            while (now := time.monotonic()) - t0 <= path.duration_s:
-                if int(now - t0) > bar.n:
-                    bar.update(int(now - t0) - bar.n)
-                t = now - t0
-                target = _estimate(path, t, now, base.odometry(), settings, rng)
-                trace.target_missing += target is None
-                command = controller.update(target, now)
-                base.send(command)
-                _record(trace, path, t, rover, command, control, settings)
-                next_tick += period_s
-                time.sleep(max(0.0, next_tick - time.monotonic()))
-            bar.close()
+        with MavlinkBase(cfg, clock=clock) as base:
+            t0 = clock()
+            perception = ScriptedPerception(path, settings, t0)
+
+            def on_command(command: VelocityCommand) -> None:
+                t = clock() - t0
+                if t <= path.duration_s:
+                    _record(trace, path, t, rover, command, control, settings)
+
+            runner = build_runner(perception, base, control, clock=clock, on_command=on_command)
+            n_frames = int(path.duration_s * FRAME_RATE_HZ)
+            frames = (Frame(_BLANK, 0.0) for _ in range(n_frames))
+            with tqdm(total=n_frames, unit="frame", desc=name, disable=not progress) as bar:
+                runner.run(frames, pace_hz=FRAME_RATE_HZ, on_result=lambda f, r: bar.update())
+            trace.target_missing = runner.skipped_without_odometry
     return trace
-
-
-def _estimate(path, t, now, odometry, settings, rng) -> TargetMotion | None:
-    """What a tracker would report: the walker `perception_latency_s` ago, with noise,
-    in the robot frame of the newest odometry (None without odometry)."""
-    if odometry is None:
-        return None
-    seen_at = t - settings.perception_latency_s
-    xy, v = path.state(max(seen_at, 0.0))
-    xy = xy + rng.normal(0.0, settings.position_noise_m, 2)
-    v = v + rng.normal(0.0, settings.velocity_noise_mps, 2)
-    # Predict the latency away with the estimated velocity, as the tracker's filter would.
-    xy = xy + v * settings.perception_latency_s
-    return TargetMotion(odom_to_base(xy, odometry), vector_odom_to_base(v, odometry), now)
 
 
 def _record(trace, path, t, rover, command, control, settings) -> None:

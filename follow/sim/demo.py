@@ -3,8 +3,10 @@
 The whole stack runs, in real time: people walk in a simulated world; a camera on the
 robot renders them (coloured clothes, so identification learns from pixels); a synthetic
 skeleton detector reports their joints with noise, misses and occlusions; the UKF
-tracker, the identifier, and the controller run as on the robot; commands go over
-MAVLink (UDP loopback) to a simulated ArduPilot rover, whose pose moves the camera.
+tracker, the identifier, and the controller run as on the robot, in the same threaded
+runner and control loop as `follow run` (`follow.pipeline.build_runner`: capture-time
+odometry, blind-drive bound, watchdog); commands go over MAVLink (UDP loopback) to a
+simulated ArduPilot rover, whose pose moves the camera.
 
 Needs no download: with CCF weights available (`$FOLLOW_MODEL_DIR` or the cache) it
 identifies with CCF10, else with the weight-free colour/gradient channels.
@@ -16,6 +18,7 @@ import dataclasses
 import logging
 import math
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +26,7 @@ import numpy as np
 from follow.config import Config, MavlinkConfig
 from follow.sim.appearance import Appearance, PersonView, render_scene
 from follow.sim.people import Walker
-from follow.sim.world import SimCameraConfig, World
+from follow.sim.world import SimCameraConfig, World, WorldFrame
 from follow.types import Frame, Odometry, TargetStatus
 
 log = logging.getLogger(__name__)
@@ -114,7 +117,8 @@ class DemoScore:
 
     def __init__(self, following_distance_m: float, dt_s: float):
         self.following_distance_m = following_distance_m
-        self.dt_s = dt_s
+        self.dt_s = dt_s  # the first frame's share; then the time between scored frames
+        self._last_stamp_s: float | None = None
         self.seconds = {"tracked": 0.0, "lost": 0.0, "wrong": 0.0}
         self.distance_errors_m: list[float] = []
         self.person_switches = 0
@@ -124,6 +128,8 @@ class DemoScore:
     def add(self, world_frame, robot_true: Odometry, tracks, target, started: bool) -> None:
         if not started:
             return
+        dt_s = self.dt_s if self._last_stamp_s is None else world_frame.stamp_s - self._last_stamp_s
+        self._last_stamp_s = world_frame.stamp_s
         track = next((t for t in tracks if t.track_id == target.target_id), None)
         following = target.status == TargetStatus.TRACKING and track is not None
         person = None
@@ -133,7 +139,7 @@ class DemoScore:
             dist, pid = min(d)
             person = pid if dist <= 1.0 else -1
         outcome = "lost" if person is None else ("tracked" if person == TARGET_ID else "wrong")
-        self.seconds[outcome] += self.dt_s
+        self.seconds[outcome] += dt_s
         self.timeline.append(outcome)
         if person is not None:
             if self._last_person is not None and person != self._last_person:
@@ -155,6 +161,56 @@ class DemoScore:
         }
 
 
+@dataclasses.dataclass(frozen=True)
+class SimFrame(Frame):
+    """A rendered frame with the world it shows (the synthetic detector reads it)."""
+
+    world: WorldFrame | None = None
+
+
+def sim_perception(camera, config: Config, seed: int = 0):
+    """The stack as on the robot, with the synthetic detector in place of the pose
+    network (it reads the world a `SimFrame` shows)."""
+    from follow.boost.factory import build_identifier
+    from follow.pipeline import Perception
+    from follow.pose.observations import skeletons_to_observations
+    from follow.sim.skeletons import SyntheticDetector
+    from follow.ukf.tracker import PeopleTracker
+
+    detector = SyntheticDetector(camera, seed=seed)
+
+    def detect(frame: SimFrame):
+        return [d.skeleton for d in detector.detect(frame.world)]
+
+    def to_observations(skeletons):  # as `follow run` does with the pose network's
+        return skeletons_to_observations(skeletons, camera.image_size, config.pose)
+
+    return Perception(detect, to_observations, PeopleTracker(camera, config.tracker),
+                      build_identifier(config.identify))  # fmt: skip
+
+
+def sim_frames(
+    world: World,
+    rover,
+    camera,
+    looks: dict[int, Appearance],
+    n_frames: int,
+    seed: int = 0,
+    edit: Callable[[WorldFrame], WorldFrame] | None = None,
+) -> Iterator[SimFrame]:
+    """The robot's camera: the world stepped once per frame and rendered from the
+    rover's true pose. `edit` may change what a frame shows (a person hidden, say)."""
+    horizon = horizon_row(camera)
+    for _ in range(n_frames):
+        world.set_robot_pose(rover.true_pose())
+        wf = world.step()
+        if edit is not None:
+            wf = edit(wf)
+        views = person_views(wf, wf.robot, camera, looks)
+        image = render_scene(camera.image_size, horizon, views, seed=seed)
+        yield SimFrame(image, wf.stamp_s, world=wf)
+
+
 def run_demo(
     seconds: float = 34.0,
     seed: int = 0,
@@ -162,15 +218,14 @@ def run_demo(
     output: Path | None = None,
     write_video: bool = True,
     config: Config | None = None,
+    clock: Callable[[], float] = time.monotonic,
     bag_path: Path | None = None,
 ) -> dict:
-    from follow.control.controller import FollowingController
     from follow.control.mavlink_base import MavlinkBase
-    from follow.pipeline import Perception, target_motion
-    from follow.pose.observations import skeletons_to_observations
+    from follow.control.target import ViewCone
+    from follow.pipeline import build_runner
     from follow.run import Outputs
     from follow.sim.rover import SimRover
-    from follow.sim.skeletons import SyntheticDetector
 
     config = config or Config()
     ident_name = choose_identifier(identifier)
@@ -179,23 +234,8 @@ def run_demo(
     walkers, looks = scenario(rng)
     world = World(walkers, camera=DEMO_CAMERA, seed=seed)
     camera = DEMO_CAMERA.detection_camera()
-    detector = SyntheticDetector(camera, seed=seed)
-    horizon = horizon_row(camera)
 
-    from follow.boost.factory import build_identifier
-    from follow.ukf.tracker import PeopleTracker
-
-    current: dict = {}
-
-    def detect(frame: Frame):
-        return [d.skeleton for d in detector.detect(current["world"])]
-
-    def to_observations(skeletons):  # as `follow run` does with the pose network's
-        return skeletons_to_observations(skeletons, camera.image_size, config.pose)
-
-    perception = Perception(detect, to_observations, PeopleTracker(camera, config.tracker),
-                            build_identifier(config.identify))  # fmt: skip
-    controller = FollowingController(config.control)
+    perception = sim_perception(camera, config, seed)
     score = DemoScore(config.control.following_distance_m, world.dt_s)
     trajectory = {"robot": [], "people": {w.person_id: [] for w in walkers}, "outcome": []}
     output = Path(output) if output else None
@@ -217,54 +257,48 @@ def run_demo(
     timing = []
     with SimRover(seed=seed) as rover:
         mav = dataclasses.replace(config.mavlink or MavlinkConfig(), connection=rover.connection)
-        with MavlinkBase(mav) as base:
-            t0 = time.monotonic()
-            odom = Odometry.origin()
-            for k in range(n_frames):
-                delay = t0 + k * world.dt_s - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-                truth = rover.true_pose()
-                world.set_robot_pose(truth)
-                wf = world.step()
-                current["world"] = wf
-                reported = base.odometry()
-                if reported is not None:
-                    odom = Odometry(reported.x_m, reported.y_m, reported.yaw_rad, wf.stamp_s)
-                image = render_scene(camera.image_size, horizon,
-                                     person_views(wf, wf.robot, camera, looks), seed=seed)  # fmt: skip
-                frame = Frame(image, wf.stamp_s)
-                started = time.perf_counter()
-                result = perception.process(frame, odom, k)
-                motion = target_motion(result, odom) if reported is not None else None
-                command = controller.update(motion, wf.stamp_s)
-                base.send(command)
-                timing.append(1e3 * (time.perf_counter() - started))
-                score.add(wf, wf.robot, result.tracks, result.target, started=k > 0)
+        with MavlinkBase(mav, clock=clock) as base:
+            frames = sim_frames(world, rover, camera, looks, n_frames, seed)
+            runner = build_runner(perception, base, config.control, ViewCone.from_camera(camera),
+                                  clock=clock)  # fmt: skip
+
+            def on_result(frame: SimFrame, result) -> None:
+                wf = frame.world
+                timing.append(sum(result.timing_ms.values()))
+                score.add(wf, wf.robot, result.tracks, result.target, started=wf.index > 0)
                 trajectory["robot"].append((wf.robot.x_m, wf.robot.y_m))
                 for p in wf.people:
                     trajectory["people"][p.person_id].append(tuple(p.position_m))
                 trajectory["outcome"].append(score.timeline[-1] if score.timeline else "lost")
                 if outputs is not None:
-                    outputs.write(frame, result, command)
+                    outputs.write(frame, result, runner.control.last_command)
                 if bag is not None:  # the pose perception used, and the truth
-                    bag.write(frame, result.skeletons, odom, wf.robot,
+                    bag.write(frame, result.skeletons, result.robot, wf.robot,
                               {p.person_id: tuple(p.position_m) for p in wf.people})  # fmt: skip
-    if outputs is not None:
-        outputs.close()
-    if bag is not None:
-        bag.close()
+
+            try:
+                runner.run(frames, pace_hz=DEMO_CAMERA.fps, on_result=on_result)
+            finally:
+                if outputs is not None:
+                    outputs.close()
+                if bag is not None:
+                    bag.close()
     summary = {
         **score.summary(),
         "identifier": ident_name,
         "seconds_simulated": round(n_frames * world.dt_s, 2),
-        "perception_ms_median": round(float(np.median(timing)), 2),
+        "frames_processed": runner.processed,
+        "dropped_frames": runner.dropped_frames,
+        "watchdog_trips": runner.control.watchdog_trips,
+        "perception_ms_median": round(float(np.median(timing)), 2) if timing else None,
     }
     if output:
         plot_top_down(trajectory, output / "demo_top_down.png")
-        summary["outputs"] = [str(output / n) for n in ("demo.mp4", "demo_top_down.png",
-                                                       "demo.jsonl")  # fmt: skip
-                              if (output / n).exists()]
+        summary["outputs"] = [
+            str(output / n)
+            for n in ("demo.mp4", "demo_top_down.png", "demo.jsonl")  # fmt: skip
+            if (output / n).exists()
+        ]
     if bag_path:
         summary.setdefault("outputs", []).append(str(bag_path))
     return summary

@@ -134,9 +134,12 @@ class SimRover:
         self.packet_loss = 0.0
         self.latency_s = 0.0
         self.link_cut = False
+        self.telemetry_paused = False
         self.setpoints_accepted = 0
         self.setpoints_ignored = 0
         self.setpoint_log: deque[tuple[float, int, int]] = deque(maxlen=10_000)  # (t, frame, mask)
+        # The newest setpoint heard: (monotonic time, vx m/s, yaw rate rad/s), any mode.
+        self.last_setpoint: tuple[float, float, float] | None = None
         self.commands_received: list[int] = []
         self.companion_heartbeats = 0
 
@@ -184,6 +187,11 @@ class SimRover:
         """The pilot flips the mode switch (e.g. to MANUAL or HOLD)."""
         with self._lock:
             self._set_mode_locked(mode)
+
+    def pause_telemetry(self, paused: bool = True) -> None:
+        """Stop streaming LOCAL_POSITION_NED and ATTITUDE (heartbeats go on) until
+        called with False: an odometry source that fails while the link stays up."""
+        self.telemetry_paused = paused
 
     def cut_link(self, cut: bool = True) -> None:
         """Drop every packet both ways (radio out of range) until called with False."""
@@ -265,6 +273,7 @@ class SimRover:
             )
         elif kind == "SET_POSITION_TARGET_LOCAL_NED" and msg.target_system == self._system_id:
             self.setpoint_log.append((now, msg.coordinate_frame, msg.type_mask))
+            self.last_setpoint = (now, float(msg.vx), float(msg.yaw_rate))
             self._last_setpoint_heard_s = now
             if self._setpoint_px4(msg) if self._px4 else self._setpoint(msg):
                 self.setpoints_accepted += 1
@@ -406,7 +415,7 @@ class SimRover:
             )  # fmt: skip
             self._send(hb, now)
         for msg_id, interval_s in self._intervals_s.items():
-            if now < self._next_stream_s.get(msg_id, 0.0):
+            if self.telemetry_paused or now < self._next_stream_s.get(msg_id, 0.0):
                 continue
             self._next_stream_s[msg_id] = max(
                 self._next_stream_s.get(msg_id, now) + interval_s, now

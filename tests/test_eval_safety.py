@@ -1,0 +1,29 @@
+"""`follow eval safety` on a fast subset: the runner stops the simulated rover within
+the goals when the target leaves the view and on SIGTERM (the other faults have their
+own tests: watchdog, odometry policy, MAVLink link and mode)."""
+
+import numpy as np
+
+from follow.eval import safety
+
+
+def test_stop_and_distance_from_samples():
+    t = np.arange(0.0, 3.0, 0.01)
+    v = np.clip(1.0 - np.maximum(t - 1.0, 0.0) * 2.0, 0.0, None)  # brakes from 1 s to 1.5 s
+    x = np.cumsum(v) * 0.01
+    samples = [(ti, xi, 0.0, vi, 0.0) for ti, xi, vi in zip(t, x, v, strict=True)]
+    stop_s, driven_m = safety.stop_and_distance(samples, fault_s=1.0)
+    assert abs(stop_s - 0.48) < 0.02  # under 0.05 m/s from 1.475 s
+    assert abs(driven_m - 0.25) < 0.02
+    still_moving = samples[:140]  # cut off at 1.4 s, still at 0.2 m/s
+    assert safety.stop_and_distance(still_moving, fault_s=1.0)[0] is None
+
+
+def test_rover_stops_after_the_target_leaves_the_view_and_on_sigterm():
+    report = safety.run_cases(("target_leaves_view", "sigterm"), fault_at_s=4.0)
+    for name, case in report["cases"].items():
+        assert case["speed_at_fault_mps"] > 0.5, (name, case)  # it was following
+        assert case["stop_s"] is not None and case["stop_s"] <= safety.GOAL_STOP_S, (name, case)
+    assert report["cases"]["target_leaves_view"]["driven_m"] <= safety.GOAL_DRIVEN_AFTER_LOSS_M
+    assert report["cases"]["sigterm"]["signal"] == "SIGTERM"
+    assert report["all_goals_met"]

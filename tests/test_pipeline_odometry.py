@@ -1,0 +1,152 @@
+"""One odometry policy for every runner: no fresh odometry from a connected base means
+no target motion and a zero command (never the origin pose); odometry is sampled with
+each frame when it is captured."""
+
+import logging
+import threading
+import time
+
+import numpy as np
+
+from follow.capture import LatestSlot
+from follow.config import ControlConfig
+from follow.control.controller import FollowingController
+from follow.control.odometry import OdometryPolicy
+from follow.pipeline import ControlLoop, FrameResult, ThreadedRunner, run_offline
+from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
+
+
+class _Base:
+    """A connected base whose odometry can stop and whose pose can be set."""
+
+    def __init__(self):
+        self.commands = []
+        self.x_m = 0.0
+        self.fresh = True
+
+    def send(self, cmd):
+        self.commands.append(cmd)
+
+    def odometry(self):
+        return Odometry(self.x_m, 0.0, 0.0, time.monotonic()) if self.fresh else None
+
+    def close(self):
+        pass
+
+
+def _tracking(stamp_s: float) -> FrameResult:
+    track = TrackState(1, np.array([4.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s)
+    return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], [track],
+                       TargetEstimate(TargetStatus.TRACKING, 1, {1: 0.9}, stamp_s))  # fmt: skip
+
+
+def test_no_fresh_odometry_stops_logs_once_and_resumes(caplog):
+    now = [0.0]
+    base, slot = _Base(), LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=15.0,
+                       perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
+    for _ in range(10):
+        now[0] += 1 / 15
+        slot.put(_tracking(now[0]))
+        moving = loop.tick()
+    assert moving.forward_mps > 0.5
+    base.fresh = False
+    with caplog.at_level(logging.WARNING, logger="follow.control.odometry"):
+        for _ in range(10):
+            now[0] += 1 / 15
+            slot.put(_tracking(now[0]))  # perception still sees the target
+            assert loop.tick().is_stop
+        base.fresh = True
+        for _ in range(5):
+            now[0] += 1 / 15
+            slot.put(_tracking(now[0]))
+            resumed = loop.tick()
+    messages = [r.getMessage() for r in caplog.records]
+    assert sum("no fresh odometry" in m for m in messages) == 1
+    assert sum("back" in m for m in messages) == 1
+    assert resumed.forward_mps > 0
+    assert loop.odometry.losses == 1
+
+
+class _SlowPerception:
+    def __init__(self):
+        self.seen = []
+
+    def process(self, frame, robot, frame_index):
+        self.seen.append((frame_index, robot.x_m))
+        time.sleep(0.03)  # the source moves on (and the robot with it) meanwhile
+        return _tracking(frame.stamp_s)
+
+
+def test_threaded_runner_uses_the_odometry_sampled_when_the_frame_was_captured():
+    base = _Base()
+
+    def source():
+        for index in range(40):
+            base.x_m = float(index)  # the robot moves one metre per frame
+            base.fresh = index % 10 != 5  # and odometry drops out now and then
+            yield Frame(np.zeros((16, 16, 3), np.uint8), 0.0)
+
+    perception = _SlowPerception()
+    control = ControlLoop(FollowingController(ControlConfig()), base, LatestSlot(),
+                          rate_hz=30.0, perception_timeout_s=0.5)  # fmt: skip
+    runner = ThreadedRunner(perception, control, base)
+    runner.run(source(), pace_hz=100.0)
+    assert len(perception.seen) >= 10
+    assert all(x == float(index) for index, x in perception.seen)
+    assert all(index % 10 != 5 for index, _ in perception.seen)  # no pose: not processed
+    assert base.commands[-1].is_stop
+
+
+def test_offline_runner_stops_on_frames_without_odometry():
+    base = _Base()
+    policy = OdometryPolicy(base)
+
+    class _Perception:
+        def process(self, frame, robot, index):
+            return _tracking(frame.stamp_s)
+
+    def frames():
+        for index in range(20):
+            base.fresh = index < 10
+            yield Frame(np.zeros((16, 16, 3), np.uint8), index / 15)
+
+    out = list(run_offline(_Perception(), frames(), FollowingController(), policy))
+    assert all(result is not None for _, result, _ in out[:10])
+    assert out[9][2].forward_mps > 0
+    assert all(result is None and command.is_stop for _, result, command in out[10:])
+
+
+def test_a_capture_error_ends_the_run_and_is_raised():
+    base = _Base()
+
+    def source():
+        yield Frame(np.zeros((16, 16, 3), np.uint8), 0.0)
+        raise ValueError("frame 1 is 8x8")
+
+    control = ControlLoop(FollowingController(), base, LatestSlot(), rate_hz=30.0,
+                          perception_timeout_s=0.5)  # fmt: skip
+    runner = ThreadedRunner(_SlowPerception(), control, base)
+    done = threading.Event()
+    try:
+        runner.run(source())
+    except ValueError as exc:
+        done.set()
+        assert "8x8" in str(exc)
+    assert done.is_set() and base.commands[-1].is_stop
+
+
+def test_the_watchdog_has_its_own_timeout():
+    from follow.pipeline import build_runner
+
+    now = [0.0]
+    base = _Base()
+    config = ControlConfig(watchdog_timeout_s=0.3, target_timeout_s=1.0)
+    runner = build_runner(None, base, config, clock=lambda: now[0])
+    loop = runner.control
+    assert loop.perception_timeout_s == 0.3 and runner.odometry is loop.odometry
+    loop.results.put(_tracking(0.0))
+    now[0] = 0.2
+    assert loop.tick().forward_mps > 0  # 0.2 s old: fresh for both timeouts
+    now[0] = 0.4
+    assert loop.tick().is_stop and loop.watchdog_trips == 1  # past the watchdog only

@@ -1,0 +1,134 @@
+"""Bad runner input gets one clear line naming what is wrong, never a raw traceback: one
+test per row of the table in docs/system.md."""
+
+import json
+import logging
+
+import cv2
+import numpy as np
+import pytest
+
+from follow import cli
+from follow.camera import CameraModel, CameraPose
+from follow.capture import FrameSource
+from follow.config import MavlinkConfig
+from follow.pipeline import FrameResult
+from follow.run import TargetIdWatch, checked_frames
+from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
+
+
+def _video(path, frames=30, size=(64, 48)):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, size)
+    rng = np.random.default_rng(1)
+    for _ in range(frames):
+        writer.write(rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
+    writer.release()
+    return path
+
+
+def _camera(tmp_path, size=(64, 48)):
+    path = tmp_path / "cam.yaml"
+    CameraModel.from_fov(size, 70.0, CameraPose(height_m=1.0)).save(path)
+    return path
+
+
+def _error(capsys, argv) -> str:
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    return err
+
+
+def _log(path, header, records):
+    lines = [json.dumps({"log_version": 1, **header})] + records
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_max_frames_below_one(tmp_path, capsys):
+    err = _error(capsys, ["run", "x.avi", "--camera", "c.yaml", "--max-frames", "0"])
+    assert "--max-frames must be >= 1, got 0" in err
+
+
+def test_frame_size_change_mid_stream():
+    small = Frame(np.zeros((24, 32, 3), np.uint8), 0.0)
+    large = Frame(np.zeros((48, 64, 3), np.uint8), 0.1)
+    frames = checked_frames(small, iter([small, large]), "cam.avi")
+    with pytest.raises(ValueError, match="frame 2 is 64x48, but the stream started at 32x24"):
+        list(frames)
+
+
+def test_replay_of_another_source(tmp_path, capsys):
+    video = _video(tmp_path / "b.avi")
+    log = _log(tmp_path / "run.jsonl", {"source": str(tmp_path / "a.avi"),
+                                         "image_size": [64, 48]}, [])  # fmt: skip
+    err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)),
+                          "--replay", str(log)])  # fmt: skip
+    assert f"the log is of source {tmp_path / 'a.avi'}, not {video}" in err
+
+
+def test_replay_of_another_image_size(tmp_path, capsys):
+    video = _video(tmp_path / "a.avi")
+    record = json.dumps({"frame": 0, "stamp_s": 0.0, "skeletons": []})
+    log = _log(tmp_path / "run.jsonl", {"source": str(video), "image_size": [640, 480]},
+               [record])  # fmt: skip
+    err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)),
+                          "--replay", str(log)])  # fmt: skip
+    assert "the log is of 640x480 frames" in err and "has 64x48 frames" in err
+
+
+@pytest.mark.parametrize(
+    "record, message",
+    [(json.dumps({"frame": 0, "skeletons": []}), "line 2: frame record without the key 'stamp_s'"),
+     ('{"frame": 0, "stamp_s": ', "line 2 is not JSON"),
+     ("[1, 2]", "line 2: malformed frame record (a frame record must be a JSON object")],
+)  # fmt: skip
+def test_malformed_replay_log(tmp_path, capsys, record, message):
+    video = _video(tmp_path / "a.avi")
+    good = json.dumps({"frame": 1, "stamp_s": 0.1, "skeletons": []})
+    log = _log(tmp_path / "run.jsonl", {"source": str(video), "image_size": [64, 48]},
+               [record, good])  # fmt: skip
+    err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)),
+                          "--replay", str(log)])  # fmt: skip
+    assert f"run log {log}: {message}" in err
+
+
+def _result(stamp_s, track_ids):
+    tracks = [TrackState(i, np.array([3.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5), True, stamp_s)
+              for i in track_ids]  # fmt: skip
+    estimate = TargetEstimate(TargetStatus.INITIAL, None, {}, stamp_s)
+    return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], tracks, estimate)
+
+
+def test_unknown_target_id_warns_once(caplog):
+    watch = TargetIdWatch(999, warn_after_s=2.0)
+    with caplog.at_level(logging.WARNING, logger="follow.run"):
+        for k in range(60):
+            watch.check(_result(k / 15, [1, 2]))
+    warnings = [r.getMessage() for r in caplog.records]
+    assert (
+        len(warnings) == 1 and "--target-id 999: no track with this id after 2.0 s" in warnings[0]
+    )
+    found = TargetIdWatch(2, warn_after_s=2.0)
+    for k in range(60):
+        found.check(_result(k / 15, [1, 2]))
+    assert found.found and not found.warned
+
+
+def test_stream_ending_early_warns(tmp_path, caplog):
+    whole = _video(tmp_path / "whole.avi")
+    data = whole.read_bytes()
+    (tmp_path / "cut.avi").write_bytes(data[: len(data) // 2])
+    with caplog.at_level(logging.WARNING, logger="follow.capture"):
+        assert len(list(FrameSource(str(whole)))) == 30
+        assert not caplog.records
+        read = len(list(FrameSource(str(tmp_path / "cut.avi"))))
+    assert read < 30
+    assert f"ended after {read} of the 30 frames" in caplog.records[0].getMessage()
+
+
+def test_serial_link_needs_no_missing_module():
+    from follow.control.mavlink_base import MavlinkBase
+
+    with pytest.raises(OSError, match="could not open port /dev/ttyNONE0"):
+        MavlinkBase(MavlinkConfig(connection="/dev/ttyNONE0,115200"))
