@@ -94,15 +94,18 @@ class AppearanceModel:
         emb = self.reid.embed_crops(crops_bgr) if self.reid is not None else None
         return self._combine(maps, emb)
 
-    def synthetic_negatives(self, image_bgr: np.ndarray, roi: Roi, count: int) -> list:
-        """Feature maps of `count` colour-changed copies of the crop at `roi`: what the
+    def synthetic_negatives(self, crop_bgr: np.ndarray, count: int) -> list:
+        """Feature maps of `count` colour-changed copies of the target's crop: what the
         target would look like in other clothes, for a classifier with too few real
         negatives (it would otherwise call anyone the target)."""
         if self.extractor is None or count <= 0:
             return []
+        return self.extractor.extract_crops(recoloured_copies(crop_bgr)[:count])
+
+    def crop(self, image_bgr: np.ndarray, roi: Roi) -> np.ndarray:
+        """The ROI of an image at the classifier's crop size."""
         size = (self.config.crop_width_px, self.config.crop_height_px)
-        crop = cut_crops(image_bgr, [roi], size)[0]
-        return self.extractor.extract_crops(recoloured_copies(crop)[:count])
+        return cut_crops(image_bgr, [roi], size)[0]
 
     def learn(
         self,

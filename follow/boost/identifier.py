@@ -306,7 +306,13 @@ class TargetIdentifier:
         positives = [appearances[self.target_id]]
         negatives = [a for i, a in appearances.items() if i != self.target_id]
         missing = self.config.min_negatives_per_update - len(negatives)
-        synthetic = self.model.synthetic_negatives(image_bgr, self._rois[self.target_id], missing)
+        synthetic = (
+            self.model.synthetic_negatives(
+                self.model.crop(image_bgr, self._rois[self.target_id]), missing
+            )
+            if missing > 0
+            else []
+        )
         self.model.learn(positives, negatives, synthetic)
         return True
 
