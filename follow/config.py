@@ -153,13 +153,21 @@ class IdentifyConfig:
     # by `follow eval verification` on CUHK03's even identities (false accepts 1 % and
     # 0.1 % of other people's crops across two cameras).
     reid_accept_similarity: float = 0.60
-    reid_strict_similarity: float = 0.67
-    reid_strict_after_s: float = 30.0
+    reid_strict_similarity: float = 0.71
+    # The confidence bar (reid_confidence) rises the same way, to reid_strict_confidence:
+    # in simulation a stranger in the target's shirt scores 0.4-0.5 with ccf10, the
+    # target itself 0.8-1.0 (`follow eval identification-sim`).
+    reid_strict_confidence: float = 0.6
+    reid_strict_after_s: float = 15.0
+    # Clothes can match; stature rarely does: a candidate whose estimated neck height
+    # differs from the target's last estimate by more than this (plus twice the two
+    # estimates' combined std) is not the target.
+    reid_height_tolerance_m: float = 0.05
     # Online boosting never learns the target from positives alone (it would then call
     # anyone the target): a frame with fewer other people than this is topped up with
-    # colour-changed copies of the target's crop as negatives (hue turned half way
-    # round, brightness inverted), which teach it that the target's colours matter.
-    min_negatives_per_update: int = 2
+    # colour-changed copies of the target's crop as negatives (brightness inverted, hue
+    # turned in steps round the circle), which teach it that the target's colours matter.
+    min_negatives_per_update: int = 6
     seed: int = 0
     # Region of interest cut from a track's neck and ankle pixels.
     crop_height_px: int = 128  # every ROI is resized to this before feature extraction

@@ -343,3 +343,28 @@ def test_the_reid_bar_rises_with_the_time_the_target_is_gone(identifier):
     assert identifier.required_similarity(later) == pytest.approx(cfg.reid_strict_similarity)
     middle = identifier.required_similarity(0.2 + cfg.reid_strict_after_s / 2)
     assert cfg.reid_accept_similarity < middle < cfg.reid_strict_similarity
+    assert identifier.required_confidence(0.2) == pytest.approx(cfg.reid_confidence)
+    assert identifier.required_confidence(later) == pytest.approx(cfg.reid_strict_confidence)
+
+
+def test_a_look_alike_of_another_height_is_not_taken_for_the_target():
+    def height_frames(identifier, person, neck_height_m, n, rng, t0, std_m=0.02):
+        out = []
+        for k in range(n):
+            image, tracks = frame([person] if person else [], rng, t0 + k / 10.0)
+            tracks = [dataclasses.replace(t, mean=np.r_[t.mean[:4], neck_height_m],
+                                          cov=np.diag([0.1, 0.1, 0.1, 0.1, std_m**2]))
+                      for t in tracks]  # fmt: skip
+            out.append(identifier.update(image, tracks, t0 + k / 10.0))
+        return out
+
+    identifier = TargetIdentifier(
+        CFG, ChannelFeatureExtractor((CFG.crop_width_px, CFG.crop_height_px))
+    )
+    rng = np.random.default_rng(1)
+    height_frames(identifier, Person(1, 2.0, 320, RED), 1.45, 20, rng, 0.0)
+    height_frames(identifier, None, 1.45, 3, rng, 2.0)
+    taller = height_frames(identifier, Person(5, 2.0, 320, RED), 1.62, 15, rng, 2.3)
+    assert {e.target_id for e in taller} == {None}  # same clothes, 17 cm taller
+    back = height_frames(identifier, Person(6, 2.0, 320, RED), 1.46, 15, rng, 4.0)
+    assert back[-1].target_id == 6

@@ -100,7 +100,7 @@ class AppearanceModel:
         negatives (it would otherwise call anyone the target)."""
         if self.extractor is None or count <= 0:
             return []
-        return self.extractor.extract_crops(recoloured_copies(crop_bgr)[:count])
+        return self.extractor.extract_crops(recoloured_copies(crop_bgr, count))
 
     def crop(self, image_bgr: np.ndarray, roi: Roi) -> np.ndarray:
         """The ROI of an image at the classifier's crop size."""
@@ -149,12 +149,20 @@ class AppearanceModel:
         return np.clip(fused, -1.0, 1.0)
 
 
-def recoloured_copies(crop_bgr: np.ndarray) -> list[np.ndarray]:
-    """The crop with its hue turned half way round, and with its brightness inverted
-    (which changes dark or grey clothes, where hue means nothing)."""
+def recoloured_copies(crop_bgr: np.ndarray, count: int) -> list[np.ndarray]:
+    """`count` copies of the crop in other colours: its brightness inverted (which
+    changes dark or grey clothes, where hue means nothing), then its hue turned by
+    steps spread evenly round the circle."""
+    if count <= 0:
+        return []
     hsv = cv2.cvtColor(crop_bgr, cv2.COLOR_BGR2HSV)
-    turned = hsv.copy()
-    turned[..., 0] = (turned[..., 0].astype(np.int16) + 90) % 180  # OpenCV hue is 0..179
     inverted = hsv.copy()
     inverted[..., 2] = 255 - inverted[..., 2]
-    return [cv2.cvtColor(turned, cv2.COLOR_HSV2BGR), cv2.cvtColor(inverted, cv2.COLOR_HSV2BGR)]
+    copies = [inverted]
+    turns = count - 1
+    for k in range(turns):
+        turned = hsv.copy()
+        step = int(round(180 * (k + 1) / (turns + 1)))  # OpenCV hue runs 0..179
+        turned[..., 0] = (turned[..., 0].astype(np.int16) + step) % 180
+        copies.append(turned)
+    return [cv2.cvtColor(c, cv2.COLOR_HSV2BGR) for c in copies]

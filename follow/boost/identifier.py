@@ -17,8 +17,12 @@ initial -> initial training -> tracking <-> re-identification
   could have walked since it was last the target (`reid_reach_m` + `reid_reach_speed_mps`
   per second from its track's last position), becomes the target again. With a re-id
   cue the evidence must also be absolute: the candidate's similarity to the target's
-  gallery reaches `reid_accept_similarity` in each of those frames, a bar that rises to
-  `reid_strict_similarity` the longer the target is gone. A lead over nobody (a stranger
+  gallery reaches `reid_accept_similarity` in each of those frames. Both bars rise the
+  longer the target is gone (to `reid_strict_similarity` and `reid_strict_confidence`
+  at `reid_strict_after_s`): the more strangers have passed by, the more evidence.
+  Clothes can match where stature does not: the candidate's estimated neck height must
+  agree with the target's last estimate (`reid_height_tolerance_m` plus twice their
+  combined std). A lead over nobody (a stranger
   alone in view) is no evidence.
 
 Only a track seen in the current frame, and in `min_target_observations` frames so far,
@@ -75,12 +79,14 @@ class TargetIdentifier:
             raise ValueError("min_target_observations must be >= 1, min_negatives_per_update >= 0")
         if not (
             -1.0 <= config.reid_accept_similarity <= config.reid_strict_similarity <= 1.0
+            and config.reid_confidence <= config.reid_strict_confidence <= 1.0
             and config.reid_strict_after_s > 0.0
         ):
             raise ValueError(
-                "need -1 <= reid_accept_similarity <= reid_strict_similarity <= 1 and "
-                f"reid_strict_after_s > 0, got {config.reid_accept_similarity}, "
-                f"{config.reid_strict_similarity}, {config.reid_strict_after_s}"
+                "need -1 <= reid_accept_similarity <= reid_strict_similarity <= 1, "
+                "reid_confidence <= reid_strict_confidence <= 1 and reid_strict_after_s > 0, "
+                f"got {config.reid_accept_similarity}, {config.reid_strict_similarity}, "
+                f"{config.reid_strict_confidence}, {config.reid_strict_after_s}"
             )
         if config.reid_reach_m < 0.0 or config.reid_reach_speed_mps < 0.0:
             raise ValueError("reid_reach_m and reid_reach_speed_mps must be >= 0")
@@ -109,6 +115,7 @@ class TargetIdentifier:
         self._last_target_position_m: np.ndarray | None = None  # odom frame
         self._last_target_s = -math.inf
         self._last_target_seen_s = -math.inf  # when the target was last observed
+        self._target_height: tuple[float, float] | None = None  # neck height mean, var
         self._observed_frames: dict[int, int] = {}  # track id -> frames it was seen in
         self._rois: dict = {}  # this frame's ROIs by track id
 
@@ -203,6 +210,8 @@ class TargetIdentifier:
             self._last_target_s = stamp_s
             if by_id[self.target_id].observation is not None:
                 self._last_target_seen_s = stamp_s
+                track = by_id[self.target_id]
+                self._target_height = (track.neck_height_m, float(track.cov[4, 4]))
         appearances, boxes = self._appearances(image_bgr, tracks)
         if self.target_id is not None and self._identity_at_risk(by_id, stamp_s):
             self._identity_risk_s = stamp_s
@@ -330,19 +339,34 @@ class TargetIdentifier:
         )
         return float(np.linalg.norm(track.position_m - self._last_target_position_m)) <= reach_m
 
+    def _strictness(self, stamp_s: float) -> float:
+        """0 just after the target was last seen, rising to 1 at `reid_strict_after_s`."""
+        if not math.isfinite(self._last_target_seen_s):
+            return 1.0
+        gone_s = max(0.0, stamp_s - self._last_target_seen_s)
+        return min(1.0, gone_s / self.config.reid_strict_after_s)
+
     def required_similarity(self, stamp_s: float) -> float:
         """The re-id similarity a candidate needs, rising with the time the target has
         been unseen."""
         cfg = self.config
-        gone = (
-            max(0.0, stamp_s - self._last_target_seen_s)
-            if math.isfinite(self._last_target_seen_s)
-            else cfg.reid_strict_after_s
-        )
-        ramp = min(1.0, gone / cfg.reid_strict_after_s)
-        return cfg.reid_accept_similarity + ramp * (
-            cfg.reid_strict_similarity - cfg.reid_accept_similarity
-        )
+        span = cfg.reid_strict_similarity - cfg.reid_accept_similarity
+        return cfg.reid_accept_similarity + self._strictness(stamp_s) * span
+
+    def required_confidence(self, stamp_s: float) -> float:
+        """The confidence a candidate needs, rising the same way."""
+        cfg = self.config
+        span = cfg.reid_strict_confidence - cfg.reid_confidence
+        return cfg.reid_confidence + self._strictness(stamp_s) * span
+
+    def _same_height(self, track: TrackState) -> bool:
+        """Whether the track's estimated neck height could be the target's."""
+        if self._target_height is None:
+            return True
+        height, var = self._target_height
+        spread = 2.0 * math.sqrt(max(0.0, var) + max(0.0, float(track.cov[4, 4])))
+        limit = self.config.reid_height_tolerance_m + spread
+        return abs(track.neck_height_m - height) <= limit
 
     def _reidentify(
         self,
@@ -352,14 +376,16 @@ class TargetIdentifier:
         stamp_s: float,
     ) -> None:
         bar = self.required_similarity(stamp_s)
+        needed = self.required_confidence(stamp_s)
         for track_id, confidence in confidences.items():
             runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
             if (
-                confidence >= self.config.reid_confidence
+                confidence >= needed
                 and confidence - runner_up >= self.config.reid_margin
                 and (similarities is None or similarities[track_id] >= bar)
                 and self._established(by_id[track_id])
                 and self._reachable(by_id[track_id], stamp_s)
+                and self._same_height(by_id[track_id])
             ):
                 self._reid_streaks[track_id] = self._reid_streaks.get(track_id, 0) + 1
             else:
