@@ -28,6 +28,8 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("eval", "following"): ("follow.eval.following", "closed-loop following over the simulated MAVLink rover"),
     ("eval", "safety"): ("follow.eval.safety", "every fault against the simulated rover: time to standstill, distance driven"),
     ("eval", "identification"): ("follow.eval.identification", "CT/CL/WT/WL on PETS 2009"),
+    ("eval", "identification-sim"): ("follow.eval.strangers", "strangers walk in after the target left (simulation)"),
+    ("eval", "verification"): ("follow.eval.verification", "open-set target verification on real crops (strangers rejected)"),
     ("bench", None): ("follow.eval.bench", "per-stage latency and end-to-end fps"),
     ("bench", "pose"): ("follow.eval.bench_pose", "pose network runtimes side by side"),
     ("bench", "ros2"): ("follow.ros2.bench", "latency the ROS 2 node adds over perception"),

@@ -84,8 +84,7 @@ class Skeleton:
     def has(self, index: int, min_confidence: float = 0.0) -> bool:
         """Whether keypoint `index` was found with at least `min_confidence`."""
         return bool(
-            np.isfinite(self.keypoints_px[index]).all()
-            and self.confidences[index] > min_confidence
+            np.isfinite(self.keypoints_px[index]).all() and self.confidences[index] > min_confidence
         )
 
 
@@ -180,6 +179,9 @@ class TargetEstimate:
     target_id: int | None
     confidences: dict[int, float] = field(default_factory=dict)
     stamp_s: float = 0.0
+    # Whether the target's track was observed in this frame (not only predicted): the
+    # controller drives toward an unseen target only for a bounded time.
+    target_seen: bool = False
 
 
 @dataclass(frozen=True)

@@ -108,3 +108,16 @@ def test_factory_builds_every_configuration(model_path, name):
     model_path("ccf/ccf10")
     identifier = build_identifier(IdentifyConfig(identifier=name))
     assert identifier.name == name
+
+
+def test_a_full_gallery_drops_the_most_redundant_view_not_the_oldest():
+    cfg = IdentifyConfig(reid_gallery_size=3)
+    gallery = ReidGallery(cfg)
+    basis = np.eye(256, dtype=np.float32)
+    front, side = basis[0], basis[1]
+    back = (basis[2] + 0.05 * basis[3]) / np.linalg.norm(basis[2] + 0.05 * basis[3])
+    for e in (front, side, back):
+        gallery.add(e)
+    gallery.add(basis[2])  # nearly the back view again
+    sims = gallery.similarity(np.stack([front, side, basis[2]]))
+    assert len(gallery) == 3 and np.allclose(sims, 1.0, atol=1e-6)

@@ -14,7 +14,9 @@ from follow.types import InvalidInput, Observation, Odometry, TargetStatus, Trac
 
 IMAGE_SIZE = (640, 480)
 RED, BLUE, GREEN, GRAY = (40, 40, 200), (200, 60, 40), (40, 180, 40), (120, 120, 120)
-CFG = IdentifyConfig(identifier="channels", initial_training_frames=5, reid_frames=3)
+CFG = IdentifyConfig(
+    identifier="channels", initial_training_frames=5, reid_frames=3, min_target_observations=1
+)
 
 
 class Person:
@@ -186,9 +188,9 @@ def _count_learning(identifier):
     calls = []
     learn = identifier.model.learn
 
-    def spy(positives, negatives):
+    def spy(positives, negatives, synthetic=()):
         calls.append(len(negatives))
-        learn(positives, negatives)
+        learn(positives, negatives, synthetic)
 
     identifier.model.learn = spy
     return calls
@@ -281,3 +283,88 @@ def test_reach_parameters_must_not_be_negative():
     with pytest.raises(ValueError, match="reid_reach_m"):
         TargetIdentifier(dataclasses.replace(CFG, reid_reach_speed_mps=-1.0),
                          ChannelFeatureExtractor((CFG.crop_width_px, CFG.crop_height_px)))  # fmt: skip
+
+
+def test_a_stranger_alone_in_view_is_not_taken_for_the_target():
+    """The target leaves an empty view; people in other clothes then walk in one at a
+    time. With no other track to lead, only absolute evidence could name them: the
+    recoloured negatives give it to the boosted classifier."""
+    identifier = TargetIdentifier(
+        CFG, ChannelFeatureExtractor((CFG.crop_width_px, CFG.crop_height_px))
+    )
+    rng = np.random.default_rng(3)
+    target = Person(1, 2.0, 320, RED, trousers=(30, 30, 30))
+    est = run(identifier, [target], 20, rng)[-1]
+    assert est.status == TargetStatus.TRACKING and est.target_seen
+    assert run(identifier, [], 5, rng, t0=2.0)[-1].status == TargetStatus.REIDENTIFICATION
+    for k, shirt in enumerate((BLUE, GREEN, (200, 200, 200), (20, 160, 200))):
+        stranger = Person(10 + k, 2.0, 320, shirt, trousers=(200, 180, 150))
+        named = [e.target_id for e in run(identifier, [stranger], 15, rng, t0=3.0 + 2 * k)]
+        assert set(named) == {None}, f"stranger in {shirt} named the target"
+    back = Person(20, 2.0, 320, RED, trousers=(30, 30, 30))
+    ests = run(identifier, [back], 15, rng, t0=12.0)
+    assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 20
+
+
+def test_without_recoloured_negatives_a_lone_stranger_is_taken():
+    """The failure the recoloured negatives prevent: learnt from positives alone, the
+    classifier names a stranger alone in view as the target."""
+    cfg = dataclasses.replace(CFG, min_negatives_per_update=0)
+    identifier = TargetIdentifier(
+        cfg, ChannelFeatureExtractor((cfg.crop_width_px, cfg.crop_height_px))
+    )
+    rng = np.random.default_rng(3)
+    run(identifier, [Person(1, 2.0, 320, RED, trousers=(30, 30, 30))], 20, rng)
+    run(identifier, [], 5, rng, t0=2.0)
+    named = run(identifier, [Person(10, 2.0, 320, BLUE, trousers=(200, 180, 150))], 15, rng, t0=3.0)
+    assert named[-1].target_id == 10
+
+
+def test_a_track_seen_in_too_few_frames_is_not_made_the_target():
+    cfg = dataclasses.replace(CFG, min_target_observations=4)
+    identifier = TargetIdentifier(
+        cfg, ChannelFeatureExtractor((cfg.crop_width_px, cfg.crop_height_px))
+    )
+    rng = np.random.default_rng(0)
+    person = Person(1, 2.0, 320, RED)
+    ests = run(identifier, [person], 5, rng)
+    assert [e.target_id for e in ests] == [None, None, None, 1, 1]
+    person.observed = False  # coasting: seen, then predicted only
+    est = run(identifier, [person], 1, rng, t0=1.0)[0]
+    assert est.target_id == 1 and not est.target_seen
+
+
+def test_the_reid_bar_rises_with_the_time_the_target_is_gone(identifier):
+    rng = np.random.default_rng(0)
+    run(identifier, [Person(1, 2.0, 320, RED)], 3, rng)
+    cfg = identifier.config
+    assert identifier.required_similarity(0.2) == pytest.approx(cfg.reid_accept_similarity)
+    later = 0.2 + cfg.reid_strict_after_s
+    assert identifier.required_similarity(later) == pytest.approx(cfg.reid_strict_similarity)
+    middle = identifier.required_similarity(0.2 + cfg.reid_strict_after_s / 2)
+    assert cfg.reid_accept_similarity < middle < cfg.reid_strict_similarity
+    assert identifier.required_confidence(0.2) == pytest.approx(cfg.reid_confidence)
+    assert identifier.required_confidence(later) == pytest.approx(cfg.reid_strict_confidence)
+
+
+def test_a_look_alike_of_another_height_is_not_taken_for_the_target():
+    def height_frames(identifier, person, neck_height_m, n, rng, t0, std_m=0.02):
+        out = []
+        for k in range(n):
+            image, tracks = frame([person] if person else [], rng, t0 + k / 10.0)
+            tracks = [dataclasses.replace(t, mean=np.r_[t.mean[:4], neck_height_m],
+                                          cov=np.diag([0.1, 0.1, 0.1, 0.1, std_m**2]))
+                      for t in tracks]  # fmt: skip
+            out.append(identifier.update(image, tracks, t0 + k / 10.0))
+        return out
+
+    identifier = TargetIdentifier(
+        CFG, ChannelFeatureExtractor((CFG.crop_width_px, CFG.crop_height_px))
+    )
+    rng = np.random.default_rng(1)
+    height_frames(identifier, Person(1, 2.0, 320, RED), 1.45, 20, rng, 0.0)
+    height_frames(identifier, None, 1.45, 3, rng, 2.0)
+    taller = height_frames(identifier, Person(5, 2.0, 320, RED), 1.62, 15, rng, 2.3)
+    assert {e.target_id for e in taller} == {None}  # same clothes, 17 cm taller
+    back = height_frames(identifier, Person(6, 2.0, 320, RED), 1.46, 15, rng, 4.0)
+    assert back[-1].target_id == 6

@@ -11,11 +11,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from follow.boost.online_boosting import OnlineBoostingClassifier
 from follow.boost.reid import ReidEmbedder, ReidGallery
-from follow.ccf.features import FeatureExtractor, FeatureMaps, Roi
+from follow.ccf.features import FeatureExtractor, FeatureMaps, Roi, cut_crops
 from follow.config import IdentifyConfig
 
 
@@ -93,13 +94,42 @@ class AppearanceModel:
         emb = self.reid.embed_crops(crops_bgr) if self.reid is not None else None
         return self._combine(maps, emb)
 
-    def learn(self, positives: Sequence[Appearance], negatives: Sequence[Appearance]) -> None:
-        """One frame's samples: the target (positives) and others (negatives)."""
+    def synthetic_negatives(self, crop_bgr: np.ndarray, count: int) -> list:
+        """Feature maps of `count` colour-changed copies of the target's crop: what the
+        target would look like in other clothes, for a classifier with too few real
+        negatives (it would otherwise call anyone the target)."""
+        if self.extractor is None or count <= 0:
+            return []
+        return self.extractor.extract_crops(recoloured_copies(crop_bgr, count))
+
+    def crop(self, image_bgr: np.ndarray, roi: Roi) -> np.ndarray:
+        """The ROI of an image at the classifier's crop size."""
+        size = (self.config.crop_width_px, self.config.crop_height_px)
+        return cut_crops(image_bgr, [roi], size)[0]
+
+    def learn(
+        self,
+        positives: Sequence[Appearance],
+        negatives: Sequence[Appearance],
+        synthetic_negative_maps: Sequence[FeatureMaps] = (),
+    ) -> None:
+        """One frame's samples: the target (positives) and others (negatives); the
+        synthetic negatives train only the boosted classifier."""
         if self.classifier is not None:
-            self.classifier.train([a.maps for a in positives], [a.maps for a in negatives])
+            self.classifier.train(
+                [a.maps for a in positives],
+                [a.maps for a in negatives] + list(synthetic_negative_maps),
+            )
         if self.gallery is not None:
             for a in positives:
                 self.gallery.add(a.embedding)
+
+    def similarity(self, appearances: Sequence[Appearance]) -> np.ndarray | None:
+        """Each appearance's highest re-id similarity to the target's gallery; None
+        without a re-id cue or before anything was learnt."""
+        if self.gallery is None or len(self.gallery) == 0 or not appearances:
+            return None
+        return self.gallery.similarity(np.stack([a.embedding for a in appearances]))
 
     def confidence(self, appearances: Sequence[Appearance]) -> np.ndarray:
         """Confidence in [-1, 1] of each appearance being the target (0 before learning)."""
@@ -117,3 +147,22 @@ class AppearanceModel:
             return np.zeros(n)
         fused = sum(w * s for w, s in zip(weights, scores, strict=True)) / sum(weights)
         return np.clip(fused, -1.0, 1.0)
+
+
+def recoloured_copies(crop_bgr: np.ndarray, count: int) -> list[np.ndarray]:
+    """`count` copies of the crop in other colours: its brightness inverted (which
+    changes dark or grey clothes, where hue means nothing), then its hue turned by
+    steps spread evenly round the circle."""
+    if count <= 0:
+        return []
+    hsv = cv2.cvtColor(crop_bgr, cv2.COLOR_BGR2HSV)
+    inverted = hsv.copy()
+    inverted[..., 2] = 255 - inverted[..., 2]
+    copies = [inverted]
+    turns = count - 1
+    for k in range(turns):
+        turned = hsv.copy()
+        step = int(round(180 * (k + 1) / (turns + 1)))  # OpenCV hue runs 0..179
+        turned[..., 0] = (turned[..., 0].astype(np.int16) + step) % 180
+        copies.append(turned)
+    return [cv2.cvtColor(c, cv2.COLOR_HSV2BGR) for c in copies]

@@ -15,7 +15,19 @@ initial -> initial training -> tracking <-> re-identification
   `reid_confidence` and ahead of every other seen track's by `reid_margin`, in
   `reid_frames` consecutive frames in which it is seen, and that stands where the target
   could have walked since it was last the target (`reid_reach_m` + `reid_reach_speed_mps`
-  per second from its track's last position), becomes the target again.
+  per second from its track's last position), becomes the target again. With a re-id
+  cue the evidence must also be absolute: the candidate's similarity to the target's
+  gallery reaches `reid_accept_similarity` in each of those frames. Both bars rise the
+  longer the target is gone (to `reid_strict_similarity` and `reid_strict_confidence`
+  at `reid_strict_after_s`): the more strangers have passed by, the more evidence.
+  Clothes can match where stature does not: the candidate's estimated neck height must
+  agree with the target's last estimate (`reid_height_tolerance_m` plus twice their
+  combined std). A lead over nobody (a stranger
+  alone in view) is no evidence.
+
+Only a track seen in the current frame, and in `min_target_observations` frames so far,
+can become the target. Online boosting never learns from the target alone: a frame with
+too few other people is topped up with recoloured copies of the target's crop.
 
 A track's appearance is cut from the observation associated with it in this frame; a
 track without one (occluded, missed) has no appearance and no confidence this frame.
@@ -63,6 +75,19 @@ class TargetIdentifier:
                 f"reid_confidence ({config.reid_confidence}) must not be below "
                 f"id_switch_confidence ({config.id_switch_confidence})"
             )
+        if config.min_target_observations < 1 or config.min_negatives_per_update < 0:
+            raise ValueError("min_target_observations must be >= 1, min_negatives_per_update >= 0")
+        if not (
+            -1.0 <= config.reid_accept_similarity <= config.reid_strict_similarity <= 1.0
+            and config.reid_confidence <= config.reid_strict_confidence <= 1.0
+            and config.reid_strict_after_s > 0.0
+        ):
+            raise ValueError(
+                "need -1 <= reid_accept_similarity <= reid_strict_similarity <= 1, "
+                "reid_confidence <= reid_strict_confidence <= 1 and reid_strict_after_s > 0, "
+                f"got {config.reid_accept_similarity}, {config.reid_strict_similarity}, "
+                f"{config.reid_strict_confidence}, {config.reid_strict_after_s}"
+            )
         if config.reid_reach_m < 0.0 or config.reid_reach_speed_mps < 0.0:
             raise ValueError("reid_reach_m and reid_reach_speed_mps must be >= 0")
         if config.reid_margin < 0.0 or not 0.0 <= config.max_learning_overlap <= 1.0:
@@ -89,6 +114,10 @@ class TargetIdentifier:
         self._reid_streaks: dict[int, int] = {}
         self._last_target_position_m: np.ndarray | None = None  # odom frame
         self._last_target_s = -math.inf
+        self._last_target_seen_s = -math.inf  # when the target was last observed
+        self._target_height: tuple[float, float] | None = None  # neck height mean, var
+        self._observed_frames: dict[int, int] = {}  # track id -> frames it was seen in
+        self._rois: dict = {}  # this frame's ROIs by track id
 
     def select_target(self, track_id: int) -> None:
         """Follow this track id: learning starts afresh on the next frame it is present."""
@@ -132,6 +161,7 @@ class TargetIdentifier:
     def _appearances(self, image_bgr, tracks) -> tuple[dict[int, Appearance], dict]:
         h, w = image_bgr.shape[:2]
         rois = self.rois(tracks, (w, h))
+        self._rois = rois
         ids = list(rois)
         described = self.model.describe(image_bgr, [rois[i] for i in ids])
         return dict(zip(ids, described, strict=True)), self.person_boxes(tracks, rois, (w, h))
@@ -152,6 +182,10 @@ class TargetIdentifier:
         if len(by_id) != len(tracks):
             raise InvalidInput("identifier: duplicate track ids in one frame")
         self._reid_streaks = {k: v for k, v in self._reid_streaks.items() if k in by_id}
+        self._observed_frames = {
+            i: self._observed_frames.get(i, 0) + int(t.observation is not None)
+            for i, t in by_id.items()
+        }
 
         if self.status == TargetStatus.INITIAL:
             self.target_id = self._choose_initial(tracks, robot)
@@ -164,7 +198,9 @@ class TargetIdentifier:
         if self.target_id is not None and self.target_id not in by_id:
             if self.status == TargetStatus.INITIAL_TRAINING:
                 log.info("target track %d lost during initial training", self.target_id)
+                observed = self._observed_frames
                 self.reset()
+                self._observed_frames = observed
                 return TargetEstimate(self.status, None, {}, stamp_s)
             log.info("target track %d lost: re-identification", self.target_id)
             self._enter_reidentification()
@@ -172,6 +208,10 @@ class TargetIdentifier:
         if self.target_id is not None:
             self._last_target_position_m = by_id[self.target_id].position_m.copy()
             self._last_target_s = stamp_s
+            if by_id[self.target_id].observation is not None:
+                self._last_target_seen_s = stamp_s
+                track = by_id[self.target_id]
+                self._target_height = (track.neck_height_m, float(track.cov[4, 4]))
         appearances, boxes = self._appearances(image_bgr, tracks)
         if self.target_id is not None and self._identity_at_risk(by_id, stamp_s):
             self._identity_risk_s = stamp_s
@@ -184,7 +224,7 @@ class TargetIdentifier:
         confidences = {i: float(c) for i, c in zip(ids, scores, strict=True)}
 
         if self.status == TargetStatus.INITIAL_TRAINING:
-            if self.target_id in appearances and self._learn(appearances, boxes):
+            if self.target_id in appearances and self._learn(image_bgr, appearances, boxes):
                 self._training_frames += 1
                 if self._training_frames >= self.config.initial_training_frames:
                     log.info("target track %d learnt: tracking", self.target_id)
@@ -212,20 +252,26 @@ class TargetIdentifier:
                     )  # fmt: skip
                     self._enter_reidentification()
                 else:
-                    self._learn(appearances, boxes)
+                    self._learn(image_bgr, appearances, boxes)
         if self.status == TargetStatus.REIDENTIFICATION:
-            self._reidentify(confidences, by_id, stamp_s)
-        return TargetEstimate(self.status, self.target_id, confidences, stamp_s)
+            similarities = self.model.similarity([appearances[i] for i in ids])
+            if similarities is not None:
+                similarities = dict(zip(ids, similarities.tolist(), strict=True))
+            self._reidentify(confidences, similarities, by_id, stamp_s)
+        seen = self.target_id in by_id and by_id[self.target_id].observation is not None
+        return TargetEstimate(self.status, self.target_id, confidences, stamp_s, seen)
 
     # ----------------------------------------------------------------------- states
     def _choose_initial(self, tracks: Sequence[TrackState], robot: Odometry | None) -> int | None:
         if self._requested_id is not None:
-            present = any(t.track_id == self._requested_id for t in tracks)
+            present = any(
+                t.track_id == self._requested_id and t.observation is not None for t in tracks
+            )
             return self._requested_id if present else None
         robot = robot if robot is not None else Odometry.origin()
         best, best_distance = None, self.config.max_initial_distance_m
         for track in tracks:
-            if not track.confirmed:
+            if not (track.confirmed and self._established(track)):
                 continue
             x, y = odom_to_base(track.position_m, robot)
             distance = math.hypot(x, y)
@@ -254,13 +300,29 @@ class TargetIdentifier:
             if i != self.target_id
         )
 
-    def _learn(self, appearances: dict[int, Appearance], boxes: dict) -> bool:
-        """Learn the frame unless the target's crop shows someone else; whether it did."""
+    def _established(self, track: TrackState) -> bool:
+        """Whether a track may become the target: seen now, and in enough frames."""
+        return (
+            track.observation is not None
+            and self._observed_frames.get(track.track_id, 0) >= self.config.min_target_observations
+        )
+
+    def _learn(self, image_bgr, appearances: dict[int, Appearance], boxes: dict) -> bool:
+        """Learn the frame unless the target's crop shows someone else; whether it did.
+        Too few other people are topped up with recoloured copies of the target."""
         if self._crop_shows_another(boxes):
             return False
         positives = [appearances[self.target_id]]
         negatives = [a for i, a in appearances.items() if i != self.target_id]
-        self.model.learn(positives, negatives)
+        missing = self.config.min_negatives_per_update - len(negatives)
+        synthetic = (
+            self.model.synthetic_negatives(
+                self.model.crop(image_bgr, self._rois[self.target_id]), missing
+            )
+            if missing > 0
+            else []
+        )
+        self.model.learn(positives, negatives, synthetic)
         return True
 
     def _enter_reidentification(self) -> None:
@@ -277,13 +339,53 @@ class TargetIdentifier:
         )
         return float(np.linalg.norm(track.position_m - self._last_target_position_m)) <= reach_m
 
-    def _reidentify(self, confidences: dict[int, float], by_id: dict, stamp_s: float) -> None:
+    def _strictness(self, stamp_s: float) -> float:
+        """0 just after the target was last seen, rising to 1 at `reid_strict_after_s`."""
+        if not math.isfinite(self._last_target_seen_s):
+            return 1.0
+        gone_s = max(0.0, stamp_s - self._last_target_seen_s)
+        return min(1.0, gone_s / self.config.reid_strict_after_s)
+
+    def required_similarity(self, stamp_s: float) -> float:
+        """The re-id similarity a candidate needs, rising with the time the target has
+        been unseen."""
+        cfg = self.config
+        span = cfg.reid_strict_similarity - cfg.reid_accept_similarity
+        return cfg.reid_accept_similarity + self._strictness(stamp_s) * span
+
+    def required_confidence(self, stamp_s: float) -> float:
+        """The confidence a candidate needs, rising the same way."""
+        cfg = self.config
+        span = cfg.reid_strict_confidence - cfg.reid_confidence
+        return cfg.reid_confidence + self._strictness(stamp_s) * span
+
+    def _same_height(self, track: TrackState) -> bool:
+        """Whether the track's estimated neck height could be the target's."""
+        if self._target_height is None:
+            return True
+        height, var = self._target_height
+        spread = 2.0 * math.sqrt(max(0.0, var) + max(0.0, float(track.cov[4, 4])))
+        limit = self.config.reid_height_tolerance_m + spread
+        return abs(track.neck_height_m - height) <= limit
+
+    def _reidentify(
+        self,
+        confidences: dict[int, float],
+        similarities: dict[int, float] | None,
+        by_id: dict,
+        stamp_s: float,
+    ) -> None:
+        bar = self.required_similarity(stamp_s)
+        needed = self.required_confidence(stamp_s)
         for track_id, confidence in confidences.items():
             runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
             if (
-                confidence >= self.config.reid_confidence
+                confidence >= needed
                 and confidence - runner_up >= self.config.reid_margin
+                and (similarities is None or similarities[track_id] >= bar)
+                and self._established(by_id[track_id])
                 and self._reachable(by_id[track_id], stamp_s)
+                and self._same_height(by_id[track_id])
             ):
                 self._reid_streaks[track_id] = self._reid_streaks.get(track_id, 0) + 1
             else:

@@ -61,23 +61,36 @@ class ReidEmbedder:
 
 
 class ReidGallery:
-    """The target's most recent embeddings and the confidence that another is the same."""
+    """The target's embeddings, kept diverse, and how similar another person is to them.
+
+    A full gallery drops the most redundant embedding (one of the two most similar to
+    each other) rather than the oldest, so that views from long ago and from other sides
+    stay when the target has been seen from behind for a while.
+    """
 
     def __init__(self, config: IdentifyConfig):
-        if config.reid_gallery_size < 1 or config.reid_similarity_scale <= 0.0:
-            raise ValueError("reid_gallery_size must be >= 1 and reid_similarity_scale > 0")
+        if config.reid_gallery_size < 2 or config.reid_similarity_scale <= 0.0:
+            raise ValueError("reid_gallery_size must be >= 2 and reid_similarity_scale > 0")
         self.config = config
         self._embeddings = np.zeros((config.reid_gallery_size, EMBEDDING_SIZE), np.float32)
         self._size = 0
-        self._next = 0
 
     def __len__(self) -> int:
         return self._size
 
     def add(self, embedding: np.ndarray) -> None:
-        self._embeddings[self._next] = embedding
-        self._next = (self._next + 1) % len(self._embeddings)
-        self._size = min(self._size + 1, len(self._embeddings))
+        if self._size < len(self._embeddings):
+            self._embeddings[self._size] = embedding
+            self._size += 1
+            return
+        candidates = np.vstack([self._embeddings, embedding[None]])
+        sim = candidates @ candidates.T
+        np.fill_diagonal(sim, -np.inf)
+        i, j = np.unravel_index(int(np.argmax(sim)), sim.shape)
+        drop = min(i, j)  # of the most similar pair, the one in the gallery longer
+        if drop < len(self._embeddings):
+            self._embeddings[drop:-1] = self._embeddings[drop + 1 :]
+            self._embeddings[-1] = embedding
 
     def similarity(self, embeddings: np.ndarray) -> np.ndarray:
         """Highest cosine similarity of each embedding (N, 256) to the gallery."""

@@ -1,0 +1,211 @@
+"""`follow eval verification`: open-set target verification on real person crops.
+
+A following robot learns its target from a few seconds of views, then must accept that
+person again later and reject everybody else, also when nobody else is in view to
+compare with. Here each identity of CUHK03 (`$FOLLOW_DATA_DIR/cuhk03_val`: 100 people,
+each seen by two cameras) is enrolled in turn from one camera's crops, as the
+identifier learns a target (positives, with its recoloured copies as the only
+negatives); then the identity's crops from the other camera must be accepted and every
+crop of every other identity rejected. Both directions (A -> B, B -> A) count.
+
+Identities are split: the even ones calibrate the re-id similarity bar (the similarity
+that 1 % and 0.1 % of other people's crops reach, `reid_accept_similarity` and
+`reid_strict_similarity`), the odd ones are scored. The robot-camera crops
+(`ccf_crops`: p01-p05 enrol the target, p06-p14 are probes, the two hard negatives
+n*.jpg are the others) are scored too.
+
+The score of an identifier is its re-identification decision moved to 0: the boosted
+confidence over `reid_confidence` and, with re-id, the gallery similarity over the bar,
+whichever is lower; so `score >= 0` is what the shipped settings accept.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from follow.config import Config, IdentifyConfig
+from follow.eval.crops import roc_auc
+
+log = logging.getLogger(__name__)
+
+IDENTIFIERS = ("ccf10", "reid", "ccf10+reid")
+FARS = (0.01, 0.001)
+ENROL_CCF_CROPS = 5
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--data-dir", help="folder holding cuhk03_val/ and ccf_crops/ "
+                   "(default $FOLLOW_DATA_DIR)")  # fmt: skip
+    p.add_argument("--identifiers", default=",".join(IDENTIFIERS),
+                   help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
+    p.add_argument("--identities", type=int,
+                   help="use only the first N CUHK03 identities (a quick run)")  # fmt: skip
+    p.add_argument("--config", help="TOML configuration ([identify] section used)")
+
+
+@dataclasses.dataclass(frozen=True)
+class Person:
+    """One identity's crops from each camera."""
+
+    identity: int
+    views: tuple[list[np.ndarray], list[np.ndarray]]
+
+
+def _read(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path))
+    if image is None:
+        raise ValueError(f"crop {path} is not a readable image")
+    return image
+
+
+def load_cuhk03(folder: Path, limit: int | None = None) -> list[Person]:
+    """CUHK03 crops `NNNN_KK.jpg` (KK 00-04 camera A, 05-09 camera B) by identity."""
+    folder = Path(folder)
+    files = sorted(folder.glob("*_*.jpg")) if folder.is_dir() else []
+    if not files:
+        raise ValueError(f"no CUHK03 crops (NNNN_KK.jpg) in {folder}")
+    people: dict[int, tuple[list, list]] = {}
+    for path in files:
+        identity, view = path.stem.split("_")
+        people.setdefault(int(identity), ([], []))[int(view) >= 5].append(_read(path))
+    out = [Person(i, v) for i, v in sorted(people.items()) if v[0] and v[1]]
+    return out[:limit] if limit else out
+
+
+def decision_scores(model, enrol: list, probes: list, config: IdentifyConfig) -> np.ndarray:
+    """Enrol the target from `enrol` (appearances with their crops), then the score of
+    each probe appearance: >= 0 where the shipped settings accept it."""
+    model.reset()
+    updates = max(config.initial_training_frames, len(enrol))
+    for k in range(updates):
+        appearance, crop = enrol[k % len(enrol)]
+        synthetic = model.synthetic_negatives(crop, config.min_negatives_per_update)
+        model.learn([appearance], [], synthetic)
+    scores = []
+    if model.classifier is not None:
+        scores.append(model.confidence(probes) - config.reid_confidence)
+    similarity = model.similarity(probes)
+    if similarity is not None:
+        if model.classifier is None:  # re-id alone: its confidence is its similarity
+            scores.append(model.confidence(probes) - config.reid_confidence)
+        scores.append(similarity - config.reid_accept_similarity)
+    return np.min(scores, axis=0)
+
+
+def operating_figures(pos: np.ndarray, neg: np.ndarray) -> dict:
+    """AUC, true-accept rate at each false-accept rate, and at the shipped score 0."""
+    out = {"auc": roc_auc(pos, neg), "positives": len(pos), "negatives": len(neg)}
+    for far in FARS:
+        bar = np.quantile(neg, 1.0 - far)
+        out[f"tar_at_far_{far:g}"] = float((pos > bar).mean())
+    out["shipped_tar"] = float((pos >= 0).mean())
+    out["shipped_far"] = float((neg >= 0).mean())
+    return out
+
+
+def verify_cuhk03(model, people: list[Person], config: IdentifyConfig) -> tuple[dict, dict]:
+    """(figures, raw scores) over enrolments of every identity in `people`, both ways."""
+    from tqdm import tqdm
+
+    described = {p.identity: [model.describe_crops(v) for v in p.views] for p in people}
+    crops = {p.identity: p.views for p in people}
+    pos, neg = [], []
+    for person in tqdm(people, desc=f"enrolments ({model.name})", unit="id", leave=False):
+        for cam in (0, 1):
+            crops_size = (config.crop_width_px, config.crop_height_px)
+            enrol = [
+                (a, cv2.resize(c, crops_size, interpolation=cv2.INTER_AREA))
+                for a, c in zip(
+                    described[person.identity][cam], crops[person.identity][cam], strict=True
+                )  # fmt: skip
+            ]
+            probes = list(described[person.identity][1 - cam])
+            others = [a for p in people if p.identity != person.identity
+                      for view in described[p.identity] for a in view]  # fmt: skip
+            scores = decision_scores(model, enrol, probes + others, config)
+            pos.append(scores[: len(probes)])
+            neg.append(scores[len(probes) :])
+    pos, neg = np.concatenate(pos), np.concatenate(neg)
+    return operating_figures(pos, neg), {"positive": pos, "negative": neg}
+
+
+def calibrate_similarity(model, people: list[Person], config: IdentifyConfig) -> dict:
+    """The re-id similarity that other people reach at each false-accept rate (gallery
+    of one camera's crops, probes of everyone else), on `people`."""
+    embeddings = {p.identity: [model.reid.embed_crops(v) for v in p.views] for p in people}
+    negatives = []
+    for person in people:
+        for cam in (0, 1):
+            gallery = embeddings[person.identity][cam]
+            others = np.concatenate([e for p in people if p.identity != person.identity
+                                     for e in embeddings[p.identity]])  # fmt: skip
+            negatives.append((others @ gallery.T).max(axis=1))
+    negatives = np.concatenate(negatives)
+    return {f"similarity_at_far_{far:g}": float(np.quantile(negatives, 1 - far)) for far in FARS}
+
+
+def verify_robot_crops(model, folder: Path, config: IdentifyConfig) -> dict:
+    """Enrol p01-p05 of the robot-camera crops; p06-p14 must pass, n*.jpg must not."""
+    targets = [_read(folder / f"p{i:02d}.jpg") for i in range(1, 15)]
+    others = [_read(p) for p in sorted(folder.glob("n*.jpg"))]
+    if not others:
+        raise ValueError(f"no hard negatives n*.jpg in {folder}")
+    size = (config.crop_width_px, config.crop_height_px)
+    enrol_crops = targets[:ENROL_CCF_CROPS]
+    enrol = list(zip(model.describe_crops(enrol_crops),
+                     [cv2.resize(c, size, interpolation=cv2.INTER_AREA) for c in enrol_crops],
+                     strict=True))  # fmt: skip
+    probes = model.describe_crops(targets[ENROL_CCF_CROPS:])
+    scores = decision_scores(model, enrol, probes + model.describe_crops(others), config)
+    return operating_figures(scores[: len(probes)], scores[len(probes) :])
+
+
+def main(args) -> dict:
+    from follow.boost.factory import build_appearance_model, parse_identifier
+
+    config = Config.load(args.config).identify if args.config else IdentifyConfig()
+    root = Path(args.data_dir or os.environ.get("FOLLOW_DATA_DIR") or "")
+    if not str(root) or not root.is_dir():
+        raise ValueError("no --data-dir given and $FOLLOW_DATA_DIR is not set to a folder")
+    people = load_cuhk03(root / "cuhk03_val", args.identities)
+    calibration = [p for p in people if p.identity % 2 == 0]
+    test = [p for p in people if p.identity % 2 == 1]
+    if len(calibration) < 2 or len(test) < 2:
+        raise ValueError("need at least 2 even and 2 odd identities")
+    identifiers = [s.strip() for s in args.identifiers.split(",") if s.strip()]
+    results: dict = {"calibration": None, "identifiers": {}}
+    for name in identifiers:
+        parse_identifier(name)
+        model = build_appearance_model(dataclasses.replace(config, identifier=name))
+        if model.reid is not None and results["calibration"] is None:
+            results["calibration"] = calibrate_similarity(model, calibration, config)
+        cuhk, _ = verify_cuhk03(model, test, config)
+        robot = verify_robot_crops(model, root / "ccf_crops", config)
+        results["identifiers"][name] = {"cuhk03_test": cuhk, "robot_crops": robot}
+    if not args.json:
+        _print(results, len(calibration), len(test))
+    return results
+
+
+def _print(results: dict, n_calibration: int, n_test: int) -> None:
+    if results["calibration"]:
+        c = results["calibration"]
+        print(f"re-id similarity reached by other people, {n_calibration} calibration "
+              f"identities: {c['similarity_at_far_0.01']:.3f} at FAR 1 %, "
+              f"{c['similarity_at_far_0.001']:.3f} at FAR 0.1 %")  # fmt: skip
+    print(f"{'identifier':<12} {'set':<12} {'AUC':>6} {'TAR@1%':>7} {'TAR@0.1%':>9} "
+          f"{'shipped TAR':>12} {'FAR':>7}")  # fmt: skip
+    for name, sets in results["identifiers"].items():
+        for label, key in (
+            ("CUHK03 " + str(n_test), "cuhk03_test"),
+            ("robot crops", "robot_crops"),
+        ):
+            r = sets[key]
+            print(f"{name:<12} {label:<12} {r['auc']:6.3f} {r['tar_at_far_0.01']:7.3f} "
+                  f"{r['tar_at_far_0.001']:9.3f} {r['shipped_tar']:12.3f} {r['shipped_far']:7.4f}")  # fmt: skip

@@ -1,0 +1,25 @@
+"""The stranger scenario: nobody but the target is followed, and the target comes back."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from follow.config import Config
+from follow.eval.strangers import TARGET_ID, TWIN, run_scenario, scenario
+from follow.sim.demo import LOOKALIKE
+
+
+def test_the_scenario_brings_strangers_one_at_a_time_then_the_target():
+    walkers, looks, back_s, end_s = scenario(4, np.random.default_rng(0))
+    assert [w.person_id for w in walkers] == [TARGET_ID, 10, 11, 12, 13]
+    assert looks[11] == LOOKALIKE and looks[13] == TWIN
+    assert back_s < end_s
+
+
+def test_strangers_are_never_followed_and_the_target_is_reacquired(model_path):
+    model_path("ccf/ccf10")
+    config = Config().replace("identify", identifier="ccf10")
+    # a stranger in other clothes, then one in the target's shirt
+    out = run_scenario(config, strangers=2, seed=0)
+    assert out["wrong_person_s"] == 0.0 and out["driving_toward_stranger_s"] == 0.0
+    assert out["reacquired_after_s"] is not None and out["reacquired_after_s"] <= 3.0

@@ -1,0 +1,48 @@
+"""Open-set verification on real crops: strangers rejected, the target accepted."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import pytest
+
+from follow.eval.verification import load_cuhk03, main, operating_figures
+
+
+def test_operating_figures_count_accepts_at_zero_and_at_each_false_accept_rate():
+    neg = np.linspace(-1.0, 0.0, 1000, endpoint=False)  # none accepted at score >= 0
+    pos = np.array([-0.5, 0.1, 0.2, 0.3])
+    figures = operating_figures(pos, neg)
+    assert figures["shipped_far"] == 0.0 and figures["shipped_tar"] == 0.75
+    assert figures["tar_at_far_0.01"] == 0.75  # -0.5 lies below the 99th percentile
+    assert figures["auc"] == pytest.approx((0.5 + 3) / 4, abs=1e-3)  # -0.5 beats half the negatives
+
+
+def test_cuhk03_reader_groups_views_by_camera(data_path):
+    people = load_cuhk03(data_path("cuhk03_val"), limit=3)
+    assert [p.identity for p in people] == sorted(p.identity for p in people)
+    assert all(len(p.views[0]) >= 1 and len(p.views[1]) >= 1 for p in people)
+
+
+def test_reid_rejects_every_hard_negative_and_accepts_the_target_on_robot_crops(
+    data_path, model_path
+):
+    model_path("reid/person-reidentification-retail-0248.onnx")
+    root = data_path("cuhk03_val").parent
+    args = argparse.Namespace(data_dir=str(root), identifiers="reid,ccf10+reid",
+                              identities=12, config=None, json=True)  # fmt: skip
+    out = main(args)
+    cal = out["calibration"]
+    assert 0.3 < cal["similarity_at_far_0.01"] < cal["similarity_at_far_0.001"] < 1.0
+    for name in ("reid", "ccf10+reid"):
+        robot = out["identifiers"][name]["robot_crops"]
+        assert robot["shipped_far"] == 0.0, name
+        assert robot["shipped_tar"] >= 0.9, name
+        cuhk = out["identifiers"][name]["cuhk03_test"]
+        assert cuhk["auc"] > 0.8 and cuhk["shipped_far"] < 0.05, name
+
+
+def test_missing_data_is_a_clear_error(tmp_path):
+    with pytest.raises(ValueError, match="no CUHK03 crops"):
+        load_cuhk03(tmp_path)
