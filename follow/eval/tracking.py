@@ -9,9 +9,20 @@ from scipy.optimize import linear_sum_assignment
 
 from follow.config import Config
 from follow.eval.mot import GroundPlaneMot
-from follow.eval.pets_setup import PETS_FPS, PetsSetup, add_evaluation_arguments, load_evaluation
+from follow.eval.perturb import add_perturb_arguments, plot_spread, print_suite, run_suite
+from follow.eval.perturb import selected_variants as perturb_variants
+from follow.eval.pets_setup import (
+    PETS_FPS,
+    PetsSetup,
+    add_evaluation_arguments,
+    load_pets,
+    variant_inputs,
+)
 
 METHODS = ("ours", "direct", "norfair", "bytetrack")
+# Figures summarised over the perturbation suite: metric -> higher is better.
+SUITE_METRICS = {"mota": True, "idf1": True, "motp_m": False, "id_switches": False,
+                 "misses": False, "false_positives": False}  # fmt: skip
 
 
 def add_arguments(p) -> None:
@@ -20,7 +31,9 @@ def add_arguments(p) -> None:
     p.add_argument("--score-from-frame", type=int, default=0,
                    help="run from the start but score only frames from this one on "
                         "(e.g. 400: the half not used to fit pets2009.toml)")  # fmt: skip
-    p.add_argument("--plot", help="write a PNG of MOTA and IDF1 per method here")
+    p.add_argument("--plot", help="write a PNG of MOTA and IDF1 per method here "
+                                  "(with --perturb: their spread over the variants)")  # fmt: skip
+    add_perturb_arguments(p)
 
 
 class HungarianIds:
@@ -118,13 +131,24 @@ def plot(results: dict, path: str) -> None:
     plt.close(fig)
 
 
+def evaluate(args, config: Config, setup: PetsSetup, variant=None) -> tuple[dict, list[int]]:
+    """Every method's figures on the sequence (seen through `variant`), and the frames."""
+    setup, frames, skeletons = variant_inputs(args, config, setup, variant)
+    if args.score_from_frame and not frames[0] <= args.score_from_frame <= frames[-1]:
+        raise ValueError(
+            f"--score-from-frame {args.score_from_frame} is outside {frames[0]}..{frames[-1]}"
+        )
+    hypotheses = run_methods(setup, frames, skeletons, config)
+    return score(setup, frames, hypotheses, args.match_threshold_m, args.score_from_frame), frames
+
+
 def main(args) -> dict:
-    config, setup, frames, skeletons = load_evaluation(args)
+    config, setup = load_pets(args)
+    variants = perturb_variants(args)
+    if variants is not None:
+        return main_perturbed(args, config, setup, variants)
+    results, frames = evaluate(args, config, setup)
     n = len(frames)
-    if not 0 <= args.score_from_frame < n:
-        raise ValueError(f"--score-from-frame {args.score_from_frame} is outside 0..{n - 1}")
-    results = score(setup, frames, run_methods(setup, frames, skeletons, config),
-                    args.match_threshold_m, args.score_from_frame)  # fmt: skip
     if args.plot:
         plot(results, args.plot)
     if not args.json:
@@ -136,4 +160,25 @@ def main(args) -> dict:
             print(f"{m:10s} {r['mota']:6.3f} {r['motp_m']:7.3f} {r['idf1']:6.3f} "
                   f"{r['id_switches']:5d} {r['misses']:5d} {r['false_positives']:5d}")  # fmt: skip
     return {**results, "frames": n, "scored_from_frame": args.score_from_frame,
+            "match_threshold_m": args.match_threshold_m}  # fmt: skip
+
+
+def main_perturbed(args, config: Config, setup: PetsSetup, variants) -> dict:
+    frames_run: dict[str, int] = {}
+
+    def one(variant) -> dict:
+        results, frames = evaluate(args, config, setup, variant)
+        frames_run[variant.name] = len(frames)
+        return results
+
+    suite = run_suite(variants, one, SUITE_METRICS)
+    if args.plot:
+        plot_spread(suite, ["mota", "idf1"], args.plot,
+                    "PETS 2009 S2.L1 under perturbation, ground plane, 1 m threshold")  # fmt: skip
+    if not args.json:
+        scored = f", scored from frame {args.score_from_frame}" if args.score_from_frame else ""
+        print(f"PETS 2009 S2.L1 under {len(variants)} perturbations{scored}, "
+              f"match threshold {args.match_threshold_m} m")  # fmt: skip
+        print_suite(suite, ["mota", "idf1", "id_switches", "misses", "false_positives"])
+    return {**suite, "frames": frames_run, "scored_from_frame": args.score_from_frame,
             "match_threshold_m": args.match_threshold_m}  # fmt: skip
