@@ -177,11 +177,14 @@ def pets_skeletons(
         out[index] = detector.detect(image)
     rows = [(i, s) for i in frames for s in out[i]]
     path.parent.mkdir(parents=True, exist_ok=True)
+    # Written aside, then renamed: a reader (or a second run) never sees half a file.
+    partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.npz")
     np.savez_compressed(
-        path,
+        partial,
         frame=np.array([i for i, _ in rows], int),
         kp=np.array([s.keypoints_px for _, s in rows]).reshape(-1, 18, 2),
         conf=np.array([s.confidences for _, s in rows]).reshape(-1, 18),
         score=np.array([s.score for _, s in rows], float),
     )
+    os.replace(partial, path)
     return out
