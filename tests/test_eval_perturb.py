@@ -249,3 +249,14 @@ def test_pose_and_identification_under_perturbation(small_pose, capsys):
 def test_an_unknown_variant_is_a_clear_error(small_pose, capsys):
     assert cli.main(["eval", "tracking", "--frames", "5", "--variants", "fog"]) != 0
     assert "unknown perturbation variant 'fog'" in capsys.readouterr().err
+
+
+def test_scoring_can_stop_before_the_end_of_the_run(small_pose, capsys):
+    args = ["eval", "tracking", "--frames", "12", "--config", small_pose, "--json"]
+    whole = _run(capsys, *args)
+    first = _run(capsys, *args, "--score-until-frame", "6")
+    second = _run(capsys, *args, "--score-from-frame", "6")
+    counts = [r["ours"]["gt_objects"] for r in (first, second, whole)]
+    assert counts[0] + counts[1] == counts[2] and 0 < counts[0] < counts[2]
+    assert cli.main([*args[:-1], "--score-from-frame", "6", "--score-until-frame", "6"]) != 0
+    assert "--score-until-frame 6 leaves no frame to score" in capsys.readouterr().err
