@@ -14,11 +14,15 @@ variant gives the same pixels on every run and in any frame order.
 from __future__ import annotations
 
 import dataclasses
+import json
+import logging
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 NOISE_SEED = 2009  # with the frame index, seeds each frame's sensor noise
 MID_GREY = 128.0  # the contrast changes scale around this level
@@ -165,7 +169,14 @@ def run_suite(variants: list[Variant], evaluate: Callable[[Variant], dict],
     for v in bar:
         bar.set_postfix_str(v.name)
         per_variant[v.name] = evaluate(v)
+        # Each variant's figures as soon as they are known: a long run is never all lost.
+        log.info("variant %s: %s", v.name, json.dumps(per_variant[v.name], default=_plain))
     return {"variants": per_variant, **summarise(per_variant, metrics)}
+
+
+def _plain(value):
+    """numpy scalars and arrays as JSON numbers and lists."""
+    return value.tolist() if isinstance(value, np.ndarray | np.generic) else str(value)
 
 
 def summarise(per_variant: dict[str, dict], metrics: Metrics) -> dict:
