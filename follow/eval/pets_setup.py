@@ -9,12 +9,16 @@ import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from follow.camera import CameraModel
 from follow.config import Config, PoseConfig
 from follow.types import Skeleton
+
+if TYPE_CHECKING:
+    from follow.eval.perturb import Variant
 
 log = logging.getLogger(__name__)
 
@@ -27,7 +31,9 @@ PETS_SETTINGS = Path(__file__).with_name("pets2009.toml")
 def data_dir() -> Path:
     env = os.environ.get("FOLLOW_DATA_DIR")
     if not env:
-        raise ValueError("$FOLLOW_DATA_DIR is not set: point it at the folder holding pets2009_s2l1/")
+        raise ValueError(
+            "$FOLLOW_DATA_DIR is not set: point it at the folder holding pets2009_s2l1/"
+        )
     path = Path(env) / PETS_DIR
     if not path.is_dir():
         raise ValueError(f"PETS 2009 data not found: {path} is not a folder")
@@ -79,7 +85,7 @@ def add_evaluation_arguments(p) -> None:
 
 
 def load_evaluation(
-    args, variant=None
+    args, variant: Variant | None = None
 ) -> tuple[Config, PetsSetup, list[int], dict[int, list[Skeleton]]]:
     """What every PETS evaluation starts from: the configuration (the PETS settings in
     `pets2009.toml`, then `--config` over them), the sequence (seen through a
@@ -98,7 +104,7 @@ def load_pets(args) -> tuple[Config, PetsSetup]:
 
 
 def variant_inputs(
-    args, config: Config, setup: PetsSetup, variant=None
+    args, config: Config, setup: PetsSetup, variant: Variant | None = None
 ) -> tuple[PetsSetup, list[int], dict[int, list[Skeleton]]]:
     """The setup seen through `variant` (None: as it is), the frames it runs on (from the
     variant's first frame, at most `--frames`) and their skeletons. A later start shows
