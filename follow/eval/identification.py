@@ -23,11 +23,21 @@ import numpy as np
 
 from follow.config import Config
 from follow.eval.identification_metrics import OUTCOMES, OutcomeTally, classify
-from follow.eval.pets_setup import PETS_FPS, PetsSetup, add_evaluation_arguments, load_evaluation
+from follow.eval.perturb import add_perturb_arguments, plot_spread, print_suite, run_suite
+from follow.eval.perturb import selected_variants as perturb_variants
+from follow.eval.pets_setup import (
+    PETS_FPS,
+    PetsSetup,
+    add_evaluation_arguments,
+    load_pets,
+    variant_inputs,
+)
 from follow.types import TargetStatus
 
 IDENTIFIERS = ("ccf10", "ccf10+reid", "reid")
 NAMING_STATES = (TargetStatus.INITIAL_TRAINING, TargetStatus.TRACKING)
+# Figures summarised over the perturbation suite: metric -> higher is better.
+SUITE_METRICS = {"ct": True, "cl": True, "ct_cl": True, "wt": False, "wl": False}
 
 
 def add_arguments(p) -> None:
@@ -43,7 +53,9 @@ def add_arguments(p) -> None:
                    help="score every target to the end of the sequence, not only until its "
                         "last annotated frame (people who return get new ids in the ground "
                         "truth, so re-identifying them counts as wrong)")  # fmt: skip
-    p.add_argument("--plot", help="write a PNG timeline of outcomes per target here")
+    p.add_argument("--plot", help="write a PNG timeline of outcomes per target here "
+                                  "(with --perturb: the spread of CT+CL and WT over the variants)")  # fmt: skip
+    add_perturb_arguments(p)
 
 
 class _CachedDescribe:
@@ -154,10 +166,28 @@ def plot(per_identifier: dict, path: str) -> None:
 
 
 def main(args) -> dict:
+    config, setup = load_pets(args)
+    variants = perturb_variants(args)
+    if variants is not None:
+        return main_perturbed(args, config, setup, variants)
+    result, per_identifier, targets, n = evaluate_variant(args, config, setup)
+    if args.plot:
+        plot(per_identifier, args.plot)
+    if not args.json:
+        print(f"PETS 2009 S2.L1, {n} frames, {len(targets)} targets: {targets}")
+        print(f"{'identifier':12s} " + " ".join(f"{k.upper():>6s}" for k in OUTCOMES))
+        for name, r in result.items():
+            print(f"{name:12s} " + " ".join(f"{r[k]:6.3f}" for k in OUTCOMES))
+    return {**result, "targets": targets, "frames": n}
+
+
+def evaluate_variant(args, config: Config, setup: PetsSetup, variant=None):
+    """(per identifier its fractions, per identifier per target its tally, the targets,
+    the number of frames) on the sequence seen through `variant`."""
     from follow.pose.observations import skeletons_to_observations
     from follow.ukf.tracker import PeopleTracker
 
-    config, setup, frames, skeletons = load_evaluation(args)
+    setup, frames, skeletons = variant_inputs(args, config, setup, variant)
     n = len(frames)
     tracker = PeopleTracker(setup.camera, config.tracker)
     tracks_per_frame, gt_per_frame = [], []
@@ -191,14 +221,29 @@ def main(args) -> dict:
         result[name] = {
             **{k: round(v, 4) for k, v in total.fractions().items()},
             "seconds": {k: round(v, 1) for k, v in total.seconds.items()},
-            "per_target": {str(t): {k: round(v, 4) for k, v in tally.fractions().items()}
-                           for t, tally in per_target.items()},  # fmt: skip
+            "per_target": {
+                str(t): {k: round(v, 4) for k, v in tally.fractions().items()}
+                for t, tally in per_target.items()
+            },  # fmt: skip
         }
+    return result, per_identifier, targets, n
+
+
+def main_perturbed(args, config: Config, setup: PetsSetup, variants) -> dict:
+    runs: dict[str, dict] = {}
+
+    def one(variant) -> dict:
+        result, _, targets, n = evaluate_variant(args, config, setup, variant)
+        runs[variant.name] = {"frames": n, "targets": targets}
+        for r in result.values():
+            r["ct_cl"] = round(r["ct"] + r["cl"], 4)
+        return result
+
+    suite = run_suite(variants, one, SUITE_METRICS)
     if args.plot:
-        plot(per_identifier, args.plot)
+        plot_spread(suite, ["ct_cl", "ct"], args.plot,
+                    "Target identification on PETS 2009 S2.L1 under perturbation")  # fmt: skip
     if not args.json:
-        print(f"PETS 2009 S2.L1, {n} frames, {len(targets)} targets: {targets}")
-        print(f"{'identifier':12s} " + " ".join(f"{k.upper():>6s}" for k in OUTCOMES))
-        for name, r in result.items():
-            print(f"{name:12s} " + " ".join(f"{r[k]:6.3f}" for k in OUTCOMES))
-    return {**result, "targets": targets, "frames": n}
+        print(f"PETS 2009 S2.L1 under {len(variants)} perturbations")
+        print_suite(suite, list(SUITE_METRICS), method_label="identifier")
+    return {**suite, "runs": runs}

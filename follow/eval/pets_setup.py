@@ -9,12 +9,16 @@ import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from follow.camera import CameraModel
 from follow.config import Config, PoseConfig
 from follow.types import Skeleton
+
+if TYPE_CHECKING:
+    from follow.eval.perturb import Variant
 
 log = logging.getLogger(__name__)
 
@@ -27,7 +31,9 @@ PETS_SETTINGS = Path(__file__).with_name("pets2009.toml")
 def data_dir() -> Path:
     env = os.environ.get("FOLLOW_DATA_DIR")
     if not env:
-        raise ValueError("$FOLLOW_DATA_DIR is not set: point it at the folder holding pets2009_s2l1/")
+        raise ValueError(
+            "$FOLLOW_DATA_DIR is not set: point it at the folder holding pets2009_s2l1/"
+        )
     path = Path(env) / PETS_DIR
     if not path.is_dir():
         raise ValueError(f"PETS 2009 data not found: {path} is not a folder")
@@ -78,26 +84,75 @@ def add_evaluation_arguments(p) -> None:
     p.add_argument("--no-cache", action="store_true", help="run the pose network again")
 
 
-def load_evaluation(args) -> tuple[Config, PetsSetup, list[int], dict[int, list[Skeleton]]]:
+def load_evaluation(
+    args, variant: Variant | None = None
+) -> tuple[Config, PetsSetup, list[int], dict[int, list[Skeleton]]]:
     """What every PETS evaluation starts from: the configuration (the PETS settings in
-    `pets2009.toml`, then `--config` over them), the sequence, its first `--frames`
-    frame indices and their skeletons (`--no-cache`)."""
+    `pets2009.toml`, then `--config` over them), the sequence (seen through a
+    `follow.eval.perturb.Variant` when one is given), its first `--frames` frame indices
+    and their skeletons (`--no-cache`)."""
+    config, setup = load_pets(args)
+    return (config, *variant_inputs(args, config, setup, variant))
+
+
+def load_pets(args) -> tuple[Config, PetsSetup]:
+    """The configuration (pets2009.toml, then `--config`) and the unperturbed sequence."""
     config = Config.load(PETS_SETTINGS)
     if args.config:
         config = Config.load(args.config, base=config)
-    setup = PetsSetup.load()
-    n = setup.frame_count if args.frames is None else min(args.frames, setup.frame_count)
-    frames = list(range(n))
-    return config, setup, frames, pets_skeletons(setup, frames, config.pose, not args.no_cache)
+    return config, PetsSetup.load()
 
 
-def _cache_path(pose_config: PoseConfig, frames: list[int]) -> Path:
+def variant_inputs(
+    args, config: Config, setup: PetsSetup, variant: Variant | None = None
+) -> tuple[PetsSetup, list[int], dict[int, list[Skeleton]]]:
+    """The setup seen through `variant` (None: as it is), the frames it runs on (from the
+    variant's first frame, at most `--frames`) and their skeletons. A later start shows
+    the same pixels as the whole run, so it shares the whole run's detections."""
+    from follow.eval.perturb import SUITE, perturbed_setup
+
+    variant = variant or SUITE[0]
+    seen = perturbed_setup(setup, variant)
+    frames = variant.frame_range(setup.frame_count, args.frames)
+    detected = list(range(frames[-1] + 1))
+    skeletons = pets_skeletons(seen, detected, config.pose, not args.no_cache)
+    return seen, frames, {i: skeletons[i] for i in frames}
+
+
+def frames_digest(sequence, frames: list[int]) -> str:
+    """A hash of the decoded pixels of the given frames (as the sequence shows them), so
+    that detections cached for one video or variant are never served for another."""
+    from tqdm import tqdm
+
+    digest = hashlib.blake2b(digest_size=16)
+    for _, image in tqdm(sequence.frames(frames), total=len(frames), leave=False,
+                         desc="hashing frames", unit="frame"):  # fmt: skip
+        digest.update(repr(image.shape).encode())
+        digest.update(np.ascontiguousarray(image).data)
+    return digest.hexdigest()
+
+
+_MODEL_DIGESTS: dict[tuple[str, int, int], str] = {}
+
+
+def _model_digest(path: Path) -> str:
+    """sha256 of a model file, computed once per file version."""
+    from follow.models import sha256_of
+
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    if key not in _MODEL_DIGESTS:
+        _MODEL_DIGESTS[key] = sha256_of(path)
+    return _MODEL_DIGESTS[key]
+
+
+def _cache_path(pose_config: PoseConfig, frames: list[int], pixels_digest: str) -> Path:
     from follow.models import cache_dir
     from follow.pose.detector import model_file_for
 
     model = model_file_for(pose_config)  # "auto" precision differs between machines
-    key = json.dumps({"pose": pose_config.__dict__, "frames": frames, "model": str(model),
-                      "model_bytes": model.stat().st_size}, sort_keys=True)  # fmt: skip
+    key = json.dumps({"pose": pose_config.__dict__, "frames": frames, "pixels": pixels_digest,
+                      "model_sha256": _model_digest(model)}, sort_keys=True)  # fmt: skip
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]
     return cache_dir().parent / "eval" / f"pets_skeletons_{digest}.npz"
 
@@ -105,9 +160,10 @@ def _cache_path(pose_config: PoseConfig, frames: list[int]) -> Path:
 def pets_skeletons(
     setup: PetsSetup, frames: list[int], pose_config: PoseConfig, use_cache: bool = True
 ) -> dict[int, list[Skeleton]]:
-    """Skeletons of the given frames, from the pose network; cached on disk so that every
-    method of an evaluation, and every later run, sees the same detections."""
-    path = _cache_path(pose_config, frames)
+    """Skeletons of the given frames, from the pose network; cached on disk, keyed by the
+    frames' pixels, the pose settings and the model file's hash, so that every method of
+    an evaluation, and every later run on the same frames, sees the same detections."""
+    path = _cache_path(pose_config, frames, frames_digest(setup.sequence, frames))
     if use_cache and path.exists():
         data = np.load(path)
         out: dict[int, list[Skeleton]] = {i: [] for i in frames}
@@ -123,15 +179,18 @@ def pets_skeletons(
     detector = PoseDetector(pose_config)
     out = {}
     for index, image in tqdm(setup.sequence.frames(frames), total=len(frames),
-                             desc="pose network on PETS", unit="frame"):  # fmt: skip
+                             desc="pose network on PETS", unit="frame", leave=False):  # fmt: skip
         out[index] = detector.detect(image)
     rows = [(i, s) for i in frames for s in out[i]]
     path.parent.mkdir(parents=True, exist_ok=True)
+    # Written aside, then renamed: a reader (or a second run) never sees half a file.
+    partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.npz")
     np.savez_compressed(
-        path,
+        partial,
         frame=np.array([i for i, _ in rows], int),
         kp=np.array([s.keypoints_px for _, s in rows]).reshape(-1, 18, 2),
         conf=np.array([s.confidences for _, s in rows]).reshape(-1, 18),
         score=np.array([s.score for _, s in rows], float),
     )
+    os.replace(partial, path)
     return out

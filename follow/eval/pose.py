@@ -23,6 +23,8 @@ from scipy.optimize import linear_sum_assignment
 from tqdm import tqdm
 
 from follow.config import PoseConfig
+from follow.eval.perturb import PerturbedSequence, add_perturb_arguments, plot_spread, print_suite
+from follow.eval.perturb import selected_variants as perturb_variants
 from follow.eval.pets import GtBox, PetsSequence, evenly_spaced_frames
 from follow.types import Observation
 
@@ -33,6 +35,8 @@ DEFAULT_FRAMES = 60
 MAX_HIDDEN_FRACTION = 0.5
 ANKLE_ZONE_FRACTION = 0.2  # the lower fifth of the box
 NECK_EXPECTED_REL_Y = 0.15  # typical neck height in a box, from the top (for matching)
+# Figures summarised over the perturbation suite: metric -> higher is better.
+SUITE_METRICS = {"neck_recall": True, "ankle_recall": True, "precision": True}
 
 
 @dataclass
@@ -162,6 +166,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--config", type=Path, default=None, help="a follow TOML config")
     parser.add_argument("--plot", type=Path, default=None, help="write a PNG of the results")
+    add_perturb_arguments(parser)
 
 
 def data_dir(arg: Path | None) -> Path:
@@ -182,6 +187,9 @@ def main(args: argparse.Namespace) -> dict:
     if args.precision:
         base = dataclasses.replace(base, precision=args.precision)
     sequence = PetsSequence(data_dir(args.data_dir))
+    variants = perturb_variants(args)
+    if variants is not None:
+        return main_perturbed(args, base, sequence, variants)
     frames = evenly_spaced_frames(sequence.frame_count, args.frames)
     results = []
     for height in tqdm(args.sizes, desc="input sizes"):
@@ -199,6 +207,42 @@ def main(args: argparse.Namespace) -> dict:
     if args.plot:
         write_plot(results, args.plot)
     return {"sizes": results, "frames": len(frames), "default_height": base.input_height_px}
+
+
+def variant_frames(frame_count: int, count: int, variant) -> list[int]:
+    """`count` evenly spaced frames from the variant's first frame on."""
+    first = variant.first_frame
+    if first >= frame_count:
+        raise ValueError(f"variant {variant.name} starts after the last frame {frame_count - 1}")
+    return [first + i for i in evenly_spaced_frames(frame_count - first, count)]
+
+
+def main_perturbed(args: argparse.Namespace, base: PoseConfig, sequence, variants) -> dict:
+    """Every input size on every variant of the suite; per size the mean and the worst."""
+    from follow.eval.perturb import run_suite
+
+    frames_run: dict[str, int] = {}
+
+    def one(variant) -> dict:
+        seen = PerturbedSequence(sequence, variant) if variant.changes_pixels else sequence
+        frames = variant_frames(sequence.frame_count, args.frames, variant)
+        frames_run[variant.name] = len(frames)
+        out = {}
+        for height in args.sizes:
+            config = dataclasses.replace(base, input_height_px=height)
+            out[str(height)] = evaluate_size(seen, frames, config, args.model_file)
+        return out
+
+    suite = run_suite(variants, one, SUITE_METRICS)
+    if not args.json:
+        print(f"PETS 2009 S2.L1 under {len(variants)} perturbations, "
+              f"{args.frames} evenly spaced frames, by network input height")  # fmt: skip
+        print_suite(suite, list(SUITE_METRICS), method_label="height px")
+    if args.plot:
+        plot_spread(suite, list(SUITE_METRICS), str(args.plot),
+                    "Pose detector on PETS 2009 S2.L1 under perturbation, by input height")  # fmt: skip
+    model = next(iter(next(iter(suite["variants"].values())).values()))["model"]
+    return {**suite, "frames": frames_run, "default_height": base.input_height_px, "model": model}
 
 
 def write_plot(results: list[dict], path: Path) -> None:

@@ -9,9 +9,20 @@ from scipy.optimize import linear_sum_assignment
 
 from follow.config import Config
 from follow.eval.mot import GroundPlaneMot
-from follow.eval.pets_setup import PETS_FPS, PetsSetup, add_evaluation_arguments, load_evaluation
+from follow.eval.perturb import add_perturb_arguments, plot_spread, print_suite, run_suite
+from follow.eval.perturb import selected_variants as perturb_variants
+from follow.eval.pets_setup import (
+    PETS_FPS,
+    PetsSetup,
+    add_evaluation_arguments,
+    load_pets,
+    variant_inputs,
+)
 
 METHODS = ("ours", "direct", "norfair", "bytetrack")
+# Figures summarised over the perturbation suite: metric -> higher is better.
+SUITE_METRICS = {"mota": True, "idf1": True, "motp_m": False, "id_switches": False,
+                 "misses": False, "false_positives": False}  # fmt: skip
 
 
 def add_arguments(p) -> None:
@@ -20,7 +31,12 @@ def add_arguments(p) -> None:
     p.add_argument("--score-from-frame", type=int, default=0,
                    help="run from the start but score only frames from this one on "
                         "(e.g. 400: the half not used to fit pets2009.toml)")  # fmt: skip
-    p.add_argument("--plot", help="write a PNG of MOTA and IDF1 per method here")
+    p.add_argument("--score-until-frame", type=int, default=None,
+                   help="score only frames before this one (e.g. 400: the half settings "
+                        "are chosen on; the run and its cached detections stay whole)")  # fmt: skip
+    p.add_argument("--plot", help="write a PNG of MOTA and IDF1 per method here "
+                                  "(with --perturb: their spread over the variants)")  # fmt: skip
+    add_perturb_arguments(p)
 
 
 class HungarianIds:
@@ -83,12 +99,13 @@ def run_methods(setup: PetsSetup, frames: list[int], skeletons, config: Config):
 
 
 def score(setup: PetsSetup, frames: list[int], hypotheses, threshold_m: float,
-          first_scored_frame: int = 0) -> dict:  # fmt: skip
+          first_scored_frame: int = 0, end_scored_frame: int | None = None) -> dict:  # fmt: skip
     results = {}
     for method, per_frame in hypotheses.items():
         mot = GroundPlaneMot(threshold_m)
         for index, (hyp_ids, hyp_xy) in zip(frames, per_frame, strict=True):
-            if index < first_scored_frame:
+            if index < first_scored_frame or (end_scored_frame is not None
+                                              and index >= end_scored_frame):  # fmt: skip
                 continue
             gt_ids, gt_xy, _ = setup.ground_truth(index)
             mot.add_frame(gt_ids, gt_xy, hyp_ids, hyp_xy)
@@ -118,17 +135,32 @@ def plot(results: dict, path: str) -> None:
     plt.close(fig)
 
 
+def evaluate(args, config: Config, setup: PetsSetup, variant=None) -> tuple[dict, list[int]]:
+    """Every method's figures on the sequence (seen through `variant`), and the frames."""
+    setup, frames, skeletons = variant_inputs(args, config, setup, variant)
+    if args.score_from_frame and not frames[0] <= args.score_from_frame <= frames[-1]:
+        raise ValueError(
+            f"--score-from-frame {args.score_from_frame} is outside {frames[0]}..{frames[-1]}"
+        )
+    end = args.score_until_frame
+    if end is not None and not max(frames[0], args.score_from_frame) < end:
+        raise ValueError(f"--score-until-frame {end} leaves no frame to score")
+    hypotheses = run_methods(setup, frames, skeletons, config)
+    results = score(setup, frames, hypotheses, args.match_threshold_m, args.score_from_frame, end)
+    return results, frames
+
+
 def main(args) -> dict:
-    config, setup, frames, skeletons = load_evaluation(args)
+    config, setup = load_pets(args)
+    variants = perturb_variants(args)
+    if variants is not None:
+        return main_perturbed(args, config, setup, variants)
+    results, frames = evaluate(args, config, setup)
     n = len(frames)
-    if not 0 <= args.score_from_frame < n:
-        raise ValueError(f"--score-from-frame {args.score_from_frame} is outside 0..{n - 1}")
-    results = score(setup, frames, run_methods(setup, frames, skeletons, config),
-                    args.match_threshold_m, args.score_from_frame)  # fmt: skip
     if args.plot:
         plot(results, args.plot)
     if not args.json:
-        scored = f", scored from frame {args.score_from_frame}" if args.score_from_frame else ""
+        scored = _scored_frames(args)
         print(f"PETS 2009 S2.L1, {n} frames{scored}, match threshold {args.match_threshold_m} m")
         print(f"{'method':10s} {'MOTA':>6s} {'MOTP m':>7s} {'IDF1':>6s} {'IDsw':>5s} "
               f"{'miss':>5s} {'FP':>5s}")  # fmt: skip
@@ -136,4 +168,35 @@ def main(args) -> dict:
             print(f"{m:10s} {r['mota']:6.3f} {r['motp_m']:7.3f} {r['idf1']:6.3f} "
                   f"{r['id_switches']:5d} {r['misses']:5d} {r['false_positives']:5d}")  # fmt: skip
     return {**results, "frames": n, "scored_from_frame": args.score_from_frame,
+            "scored_until_frame": args.score_until_frame,
+            "match_threshold_m": args.match_threshold_m}  # fmt: skip
+
+
+def _scored_frames(args) -> str:
+    """The scored frames as said after the frame count (empty when all are scored)."""
+    text = f" from frame {args.score_from_frame}" if args.score_from_frame else ""
+    if args.score_until_frame is not None:
+        text += f" until frame {args.score_until_frame}"
+    return f", scored{text}" if text else ""
+
+
+def main_perturbed(args, config: Config, setup: PetsSetup, variants) -> dict:
+    frames_run: dict[str, int] = {}
+
+    def one(variant) -> dict:
+        results, frames = evaluate(args, config, setup, variant)
+        frames_run[variant.name] = len(frames)
+        return results
+
+    suite = run_suite(variants, one, SUITE_METRICS)
+    if args.plot:
+        plot_spread(suite, ["mota", "idf1"], args.plot,
+                    "PETS 2009 S2.L1 under perturbation, ground plane, 1 m threshold")  # fmt: skip
+    if not args.json:
+        scored = _scored_frames(args)
+        print(f"PETS 2009 S2.L1 under {len(variants)} perturbations{scored}, "
+              f"match threshold {args.match_threshold_m} m")  # fmt: skip
+        print_suite(suite, ["mota", "idf1", "id_switches", "misses", "false_positives"])
+    return {**suite, "frames": frames_run, "scored_from_frame": args.score_from_frame,
+            "scored_until_frame": args.score_until_frame,
             "match_threshold_m": args.match_threshold_m}  # fmt: skip
