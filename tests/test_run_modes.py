@@ -72,6 +72,7 @@ def test_a_file_without_a_base_is_processed_frame_by_frame(monkeypatch):
 
 
 def test_memory_stays_flat_over_a_synthetic_run():
-    result = bench_memory.measure(frames=700, warmup_frames=300)
-    assert result["frames"] == 700
-    assert result["growth_mib"] < 2.0, result  # keeping every result: 4.6 MiB here
+    result = bench_memory.measure(frames=1100, warmup_frames=300)
+    assert result["frames"] == 1100
+    # Keeping every result grows 4.6 MiB per 400 frames on this path (~9 MiB here).
+    assert result["growth_mib"] < 4.0, result
