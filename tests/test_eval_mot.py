@@ -42,7 +42,18 @@ def _camera() -> CameraModel:
 def _skeleton(camera: CameraModel, x: float, y: float) -> Skeleton:
     kp = np.full((18, 2), np.nan)
     conf = np.zeros(18)
-    joints = {0: 1.65, 1: 1.45, 2: 1.4, 5: 1.4, 8: 0.9, 11: 0.9, 9: 0.5, 12: 0.5, 10: 0.05, 13: 0.05}
+    joints = {
+        0: 1.65,
+        1: 1.45,
+        2: 1.4,
+        5: 1.4,
+        8: 0.9,
+        11: 0.9,
+        9: 0.5,
+        12: 0.5,
+        10: 0.05,
+        13: 0.05,
+    }
     for k, z in joints.items():
         dy = -0.18 if k in (2, 8, 9, 10) else (0.18 if k in (5, 11, 12, 13) else 0.0)
         kp[k] = camera.project(np.array([x, y + dy, z]))
