@@ -11,13 +11,16 @@ target's annotated position.
 By default each target is scored only until its last annotated frame: the ground truth
 gives a person who leaves the view and comes back a new id, so after a trajectory ends
 it cannot tell whether a person named later is the target returning (right) or someone
-else (wrong). `--whole-sequence` scores to the end anyway, counting any later naming as
-wrong tracking.
+else (wrong). `--whole-sequence` scores to the end, with the ids that are one physical
+person joined (`pets2009_same_person.toml`, built by looking at their crops): naming
+the returning target is right, naming anyone else while it is away is wrong tracking.
+Each person is then one target, under the id they are first annotated with.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
@@ -51,8 +54,8 @@ def add_arguments(p) -> None:
     p.add_argument("--max-hidden-fraction", type=float, default=0.5)
     p.add_argument("--whole-sequence", action="store_true",
                    help="score every target to the end of the sequence, not only until its "
-                        "last annotated frame (people who return get new ids in the ground "
-                        "truth, so re-identifying them counts as wrong)")  # fmt: skip
+                        "last annotated frame; the ids of one person who leaves and returns "
+                        "(pets2009_same_person.toml) are one target")  # fmt: skip
     p.add_argument("--plot", help="write a PNG timeline of outcomes per target here "
                                   "(with --perturb: the spread of CT+CL and WT over the variants)")  # fmt: skip
     add_perturb_arguments(p)
@@ -94,6 +97,7 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
     from follow.boost.factory import build_identifier
 
     section = dataclasses.replace(config.identify, identifier=identifier_name)
+    same_person = load_same_person() if whole_sequence else {}
     cache = None
     out = {}
     for target in target_ids:
@@ -107,7 +111,7 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
         for position, (index, image) in enumerate(setup.sequence.frames(frames[: last + 1])):
             tracks = tracks_per_frame[position]
             people = gt_per_frame[position]
-            target_box = people.get(target)
+            target_box = _person_box(people, same_person.get(target, (target,)))
             visible = target_box is not None and target_box[1] <= max_hidden
             if not selected:
                 if not visible:
@@ -128,6 +132,55 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
                 )
             tally.add(classify(visible, named, named_is_target), 1.0 / PETS_FPS)
         out[target] = tally
+    return out
+
+
+SAME_PERSON_FILE = Path(__file__).with_name("pets2009_same_person.toml")
+
+
+def load_same_person(path: Path = SAME_PERSON_FILE) -> dict[int, tuple[int, ...]]:
+    """GT id -> every GT id of the same physical person (itself included), from the
+    `[[same_person]] ids = [...]` tables of `path`; ids not listed map to themselves."""
+    from follow.config import tomllib
+
+    try:
+        data = tomllib.loads(Path(path).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ValueError(f"same-person map {path}: {exc}") from None
+    out: dict[int, tuple[int, ...]] = {}
+    for k, group in enumerate(data.get("same_person", [])):
+        ids = group.get("ids") if isinstance(group, dict) else None
+        if (
+            not isinstance(ids, list)
+            or len(ids) < 2
+            or not all(isinstance(i, int) and not isinstance(i, bool) for i in ids)
+        ):
+            raise ValueError(
+                f"same-person map {path}: group {k + 1} needs ids = [two or more ints]"
+            )
+        for i in ids:
+            if i in out:
+                raise ValueError(f"same-person map {path}: id {i} is in two groups")
+            out[i] = tuple(ids)
+    return out
+
+
+def _person_box(people: dict, ids: tuple[int, ...]):
+    """The annotation of whichever of the person's ids is present in this frame."""
+    return next((people[i] for i in ids if i in people), None)
+
+
+def first_of_each_person(targets: list[int], gt_per_frame, same_person: dict) -> list[int]:
+    """One target per physical person: the id under which they are first annotated."""
+
+    def first(i: int) -> int:
+        return min((k for k, people in enumerate(gt_per_frame) if i in people), default=-1)
+
+    out = []
+    for t in targets:
+        earlier = [o for o in same_person.get(t, ()) if o in targets and first(o) < first(t)]
+        if not earlier:
+            out.append(t)
     return out
 
 
@@ -206,6 +259,8 @@ def evaluate_variant(args, config: Config, setup: PetsSetup, variant=None):
     targets = sorted(i for i, c in visible_frames.items() if c >= min_frames)
     if args.max_targets:
         targets = targets[: args.max_targets]
+    if args.whole_sequence:
+        targets = first_of_each_person(targets, gt_per_frame, load_same_person())
     if not targets:
         raise ValueError(f"no person is visible for {args.min_visible_s} s in {n} frames")
     names = [s.strip() for s in args.identifiers.split(",") if s.strip()]
