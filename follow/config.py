@@ -2,7 +2,8 @@
 
 Defaults follow Koide et al. (RAS 2020) where the paper gives a value. A TOML file
 holds the same sections and keys (`[tracker]`, `gate_chi2_quantile = 0.99`, ...); an
-unknown section or key, or a value of the wrong type, is an error naming it.
+unknown section or key, a value of the wrong type, or one outside its allowed range
+(follow/config_bounds.py, docs/config.md) is an error naming it.
 """
 
 from __future__ import annotations
@@ -50,6 +51,14 @@ class PoseConfig:
     paf_min_sample_score: float = 0.05
     paf_min_sample_fraction: float = 0.5
     min_person_mean_score: float = 0.05
+    # One skeleton per body: a skeleton is dropped as a duplicate of a larger one when
+    # at least duplicate_shared_keypoints of its keypoints lie within
+    # duplicate_keypoint_distance (a fraction of the larger skeleton's extent) of the
+    # same keypoints of the larger one, or when duplicate_box_containment of its
+    # keypoints lie inside the larger one's keypoint box (a fragment of the same body).
+    duplicate_keypoint_distance: float = 0.1
+    duplicate_shared_keypoints: int = 2
+    duplicate_box_containment: float = 0.8
 
 
 @dataclass(frozen=True)
@@ -209,6 +218,22 @@ class Config:
     control: ControlConfig = field(default_factory=ControlConfig)
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
 
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ConfigError listing, one line each, every key outside its allowed range
+        (follow/config_bounds.py); every Config, the defaults included, passes here."""
+        from follow.config_bounds import section_errors
+
+        errors = [
+            line
+            for f in dataclasses.fields(self)
+            for line in section_errors(f.name, getattr(self, f.name))
+        ]
+        if errors:
+            raise ConfigError("\n".join(errors))
+
     @classmethod
     def from_dict(cls, data: dict, source: str = "config", base: Config | None = None) -> Config:
         """The config `data` describes; keys it leaves out keep `base`'s values (the
@@ -222,7 +247,12 @@ class Config:
             if not isinstance(values, dict):
                 raise ConfigError(f"{source}: [{name}] must be a table")
             kwargs[name] = _build_section(getattr(base, name), values, f"{source} [{name}]")
-        return dataclasses.replace(base, **kwargs)
+        try:
+            return dataclasses.replace(base, **kwargs)
+        except ConfigError as exc:
+            raise ConfigError(
+                "\n".join(f"{source}: {line}" for line in str(exc).splitlines())
+            ) from None
 
     @classmethod
     def load(cls, path: str | Path, base: Config | None = None) -> Config:
