@@ -27,7 +27,9 @@ PETS_SETTINGS = Path(__file__).with_name("pets2009.toml")
 def data_dir() -> Path:
     env = os.environ.get("FOLLOW_DATA_DIR")
     if not env:
-        raise ValueError("$FOLLOW_DATA_DIR is not set: point it at the folder holding pets2009_s2l1/")
+        raise ValueError(
+            "$FOLLOW_DATA_DIR is not set: point it at the folder holding pets2009_s2l1/"
+        )
     path = Path(env) / PETS_DIR
     if not path.is_dir():
         raise ValueError(f"PETS 2009 data not found: {path} is not a folder")
@@ -93,11 +95,13 @@ def load_evaluation(args) -> tuple[Config, PetsSetup, list[int], dict[int, list[
 
 def _cache_path(pose_config: PoseConfig, frames: list[int]) -> Path:
     from follow.models import cache_dir
+    from follow.pose.decode import DECODER_VERSION
     from follow.pose.detector import model_file_for
 
     model = model_file_for(pose_config)  # "auto" precision differs between machines
     key = json.dumps({"pose": pose_config.__dict__, "frames": frames, "model": str(model),
-                      "model_bytes": model.stat().st_size}, sort_keys=True)  # fmt: skip
+                      "model_bytes": model.stat().st_size, "decoder": DECODER_VERSION},
+                     sort_keys=True)  # fmt: skip
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]
     return cache_dir().parent / "eval" / f"pets_skeletons_{digest}.npz"
 

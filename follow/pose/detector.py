@@ -33,6 +33,9 @@ def decode_params(config: PoseConfig) -> DecodeParams:
         paf_min_sample_fraction=config.paf_min_sample_fraction,
         min_keypoints_per_person=config.min_keypoints_per_person,
         min_person_mean_score=config.min_person_mean_score,
+        duplicate_keypoint_distance=config.duplicate_keypoint_distance,
+        duplicate_shared_keypoints=config.duplicate_shared_keypoints,
+        duplicate_box_containment=config.duplicate_box_containment,
     )
 
 
@@ -82,9 +85,7 @@ def _source_model_file(config: PoseConfig) -> Path:
             )
         return path
     if config.precision != "fp32":
-        raise ValueError(
-            f"pose precision '{config.precision}' unknown; choose auto, fp32 or int8"
-        )
+        raise ValueError(f"pose precision '{config.precision}' unknown; choose auto, fp32 or int8")
     return models.resolve(config.model)
 
 
