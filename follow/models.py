@@ -7,7 +7,9 @@ use: a file whose hash does not match is refused, never loaded.
 `fetch(name)` downloads a model's official files into the user cache (progress bar,
 hash check; a file whose hash does not match is deleted and the fetch fails). Models
 with no official download (the ONNX conversions) say how to produce them.
-The command line: `follow models list | fetch [NAME...] | verify [NAME...]`.
+Files made here from a registry model (the INT8 model, the initial-stage cut) carry
+an integrity record instead (follow/model_manifest.py); `verify` with no names checks
+them too. The command line: `follow models list | fetch [NAME...] | verify [NAME...]`.
 """
 
 from __future__ import annotations
@@ -231,6 +233,19 @@ def verify(name: str) -> list[FileStatus]:
     return out
 
 
+def verify_derived_files() -> list[FileStatus]:
+    """Each model file made on this machine (INT8, initial-stage cut) in the user cache,
+    checked against its integrity record (follow/model_manifest.py)."""
+    from follow import model_manifest
+
+    out = []
+    for path in model_manifest.derived_files(cache_dir()):
+        detail = model_manifest.check(path)
+        out.append(FileStatus("(derived)", str(path.relative_to(cache_dir())), path,
+                              detail == "ok", detail))  # fmt: skip
+    return out
+
+
 def fetch(name: str, source: str | None = None, force: bool = False) -> Path:
     """Download model `name` into the user cache and return its main path.
 
@@ -358,6 +373,8 @@ def main(args: argparse.Namespace) -> dict | int:
             print(json.dumps(result))
         return 1 if failed else 0
     rows = [s for n in names for s in verify(n)]
+    if not args.names:
+        rows += verify_derived_files()
     if not args.json:
         for s in rows:
             print(f"{'ok' if s.ok else 'FAIL':4s}  {s.model:38s} {s.relpath:50s} {s.detail}")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from follow import models
+from follow import model_manifest, models
 from follow.config import PoseConfig
 from follow.pose.decode import DecodedPerson, DecodeParams, decode
 from follow.pose.preprocess import (
@@ -23,6 +23,8 @@ from follow.pose.stages import STAGE_CHOICES, initial_stage_file
 from follow.types import Skeleton
 
 log = logging.getLogger(__name__)
+
+REBUILD_INT8 = "Delete it and make it again with `python tools/quantize_pose.py`."
 
 
 def decode_params(config: PoseConfig) -> DecodeParams:
@@ -71,6 +73,7 @@ def _source_model_file(config: PoseConfig) -> Path:
         from follow.pose.quantize import default_int8_path
 
         if default_int8_path().exists():
+            model_manifest.verify_derived(default_int8_path(), REBUILD_INT8)
             return default_int8_path()
         log.info("pose: no INT8 model in the cache (tools/quantize_pose.py makes one): FP32")
         config = dataclasses.replace(config, precision="fp32")
@@ -83,6 +86,7 @@ def _source_model_file(config: PoseConfig) -> Path:
                 f"pose precision 'int8': {path} does not exist; make it with "
                 "`python tools/quantize_pose.py` (calibrates on PETS 2009 frames)"
             )
+        model_manifest.verify_derived(path, REBUILD_INT8)
         return path
     if config.precision != "fp32":
         raise ValueError(f"pose precision '{config.precision}' unknown; choose auto, fp32 or int8")
@@ -108,7 +112,8 @@ class PoseDetector:
         self.backend = create_backend(config.provider, self.model_path, config.cpu_threads)
         self.params = decode_params(config)
         self.last_timing_ms: dict[str, float] = {}
-        log.info("pose: %s on %s", self.model_path.name, self.backend.name)
+        log.info("pose: running %s (sha256 %s) on %s", self.model_path,
+                 models.sha256_of(self.model_path)[:16], self.backend.name)  # fmt: skip
         self.warm_up()
 
     @property

@@ -8,13 +8,14 @@ INT8. It is written to the user cache (or a given path), never into the reposito
 from __future__ import annotations
 
 import logging
+import shutil
 import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
-from follow import models
+from follow import model_manifest, models
 from follow.pose.preprocess import prepare_input
 
 log = logging.getLogger(__name__)
@@ -42,9 +43,11 @@ def quantize_pose_model(
     calibration_frames: Iterable[np.ndarray],
     input_height_px: int,
     output_path: Path | None = None,
+    calibration: str = "",
 ) -> Path:
     """Write an INT8 QDQ copy of `fp32_path`, calibrated on BGR `calibration_frames`
-    preprocessed exactly as the detector does at `input_height_px`."""
+    preprocessed exactly as the detector does at `input_height_px`, with its integrity
+    record (`calibration` names the frames)."""
     import onnxruntime as ort
     from onnxruntime.quantization import (
         CalibrationMethod,
@@ -66,10 +69,11 @@ def quantize_pose_model(
     )
     with tempfile.TemporaryDirectory() as tmp:
         prepared = Path(tmp) / "prepared.onnx"
+        written = Path(tmp) / "int8.onnx"
         quant_pre_process(str(fp32_path), str(prepared), skip_symbolic_shape=True)
         quantize_static(
             str(prepared),
-            str(output_path),
+            str(written),
             _FrameReader(tensors, input_name),
             quant_format=QuantFormat.QDQ,
             per_channel=True,
@@ -79,5 +83,9 @@ def quantize_pose_model(
             calibrate_method=CalibrationMethod.MinMax,
             extra_options={"CalibTensorRangeSymmetric": False},
         )
+        made_from = {"calibration": calibration, "calibration_frames": len(tensors),
+                     "input_height_px": input_height_px, "method": "static QDQ, MinMax"}  # fmt: skip
+        model_manifest.write_manifest(output_path, fp32_path, made_from, written=written)
+        shutil.move(str(written), str(output_path))
     log.info("INT8 pose model written to %s (%d calibration frames)", output_path, len(tensors))
     return output_path
