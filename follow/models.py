@@ -9,7 +9,7 @@ hash check; a file whose hash does not match is deleted and the fetch fails). Mo
 with no official download (the ONNX conversions) say how to produce them.
 Files made here from a registry model (the INT8 model, the initial-stage cut) carry
 an integrity record instead (follow/model_manifest.py); `verify` with no names checks
-them too. The command line: `follow models list | fetch [NAME...] | verify [NAME...]`.
+them too. The command line: `follow models list | fetch [NAME...] | verify [NAME...] | prepare`.
 """
 
 from __future__ import annotations
@@ -315,7 +315,8 @@ def _download(url: str, target: Path, sha256: str) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("action", choices=("list", "fetch", "verify"), help="what to do")
+    parser.add_argument("action", choices=("list", "fetch", "verify", "prepare"),
+                        help="what to do (prepare: make the INT8 pose model)")  # fmt: skip
     parser.add_argument("names", nargs="*", help="model names (default: all)")
     parser.add_argument(
         "--from",
@@ -323,10 +324,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="fetch from this base URL or local folder (a mirror) instead of the official sites",
     )
-    parser.add_argument("--force", action="store_true", help="fetch even if already cached")
+    parser.add_argument("--force", action="store_true",
+                        help="fetch (or prepare) even if already cached")  # fmt: skip
 
 
 def main(args: argparse.Namespace) -> dict | int:
+    if args.action == "prepare":
+        from follow import model_manifest
+        from follow.pose.prepare import prepare_int8
+
+        path = prepare_int8(force=args.force)
+        record = model_manifest.read_manifest(path) or {}
+        if not args.json:
+            print(f"{path}  sha256 {record.get('sha256')}")
+        return {"int8": str(path), "record": record}
     names = args.names or list(REGISTRY)
     for n in names:
         get_spec(n)

@@ -81,7 +81,7 @@ def test_a_corrupted_int8_model_is_refused_with_how_to_rebuild(cache, tmp_path, 
     model_manifest.write_manifest(int8, source, {"calibration": "test"})
     assert _source_model_file(PoseConfig(precision=precision)) == int8
     _corrupt(int8)
-    with pytest.raises(models.ModelError, match="refusing to run it.*quantize_pose.py"):
+    with pytest.raises(models.ModelError, match="refusing to run it.*follow models prepare"):
         _source_model_file(PoseConfig(precision=precision))
 
 
@@ -91,3 +91,34 @@ def test_an_int8_model_without_a_record_is_refused(cache):
     int8.write_bytes(b"not a model")
     with pytest.raises(models.ModelError, match="no integrity record"):
         _source_model_file(PoseConfig(precision="int8"))
+
+
+def test_the_int8_file_is_keyed_by_its_recipe(cache, monkeypatch):
+    from follow.pose import prepare
+
+    before = default_int8_path()
+    monkeypatch.setitem(prepare.INT8_RECIPE, "near_frames", prepare.INT8_RECIPE["near_frames"] + 1)
+    assert default_int8_path() != before
+    assert default_int8_path().parent == before.parent
+
+
+@pytest.mark.slow  # quantises the real network (two calibration frames)
+def test_prepare_makes_a_recorded_int8_model_calibrated_on_both_kinds_of_frames(
+    tmp_path, monkeypatch, model_path, data_path
+):
+    from follow.pose import prepare
+
+    model_path("pose/human-pose-estimation-0001.onnx")  # skips without the assets
+    data_path("pets2009_s2l1/View_001.avi")
+    data_path("ccf_crops")
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path / "models"))
+    monkeypatch.setitem(prepare.INT8_RECIPE, "pets_frames", 1)
+    monkeypatch.setitem(prepare.INT8_RECIPE, "near_frames", 1)
+    monkeypatch.setitem(prepare.INT8_RECIPE, "input_height_px", 128)
+    frames = prepare.calibration_frames()
+    assert len(frames) == 2 and frames[0].shape != frames[1].shape  # a PETS and a pasted frame
+    path = prepare.prepare_int8()
+    assert path == default_int8_path() and model_manifest.check(path) == "ok"
+    record = model_manifest.read_manifest(path)
+    assert "ccf_crops" in record["made_from"]["calibration"]
+    assert record["source_sha256"] == models.get_spec("human-pose-estimation-0001").files[0].sha256

@@ -72,8 +72,12 @@ def make_int8_model(
 
 
 def ensure_int8_model(path: Path | None, sequence: PetsSequence, height: int) -> Path:
-    """The INT8 model, calibrated on PETS frames (not the timed ones) if not there yet."""
-    path = path or default_int8_path()
+    """The INT8 model at `path` (calibrated on PETS frames, not the timed ones, if not
+    there yet), else the one `follow models prepare` makes."""
+    if path is None:
+        from follow.pose.prepare import prepare_int8
+
+        return prepare_int8()  # the model `precision = "auto"` runs
     if path.exists():
         return path
     log.info("no INT8 pose model at %s: calibrating one on PETS frames", path)

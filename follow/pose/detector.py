@@ -24,7 +24,7 @@ from follow.types import Skeleton
 
 log = logging.getLogger(__name__)
 
-REBUILD_INT8 = "Delete it and make it again with `python tools/quantize_pose.py`."
+REBUILD_INT8 = "Delete it and make it again with `follow models prepare`."
 
 
 def decode_params(config: PoseConfig) -> DecodeParams:
@@ -75,7 +75,7 @@ def _source_model_file(config: PoseConfig) -> Path:
         if default_int8_path().exists():
             model_manifest.verify_derived(default_int8_path(), REBUILD_INT8)
             return default_int8_path()
-        log.info("pose: no INT8 model in the cache (tools/quantize_pose.py makes one): FP32")
+        log.info("pose: no INT8 model in the cache (`follow models prepare` makes it): FP32")
         config = dataclasses.replace(config, precision="fp32")
     if config.precision == "int8":
         from follow.pose.quantize import default_int8_path
@@ -84,7 +84,7 @@ def _source_model_file(config: PoseConfig) -> Path:
         if not path.exists():
             raise models.ModelError(
                 f"pose precision 'int8': {path} does not exist; make it with "
-                "`python tools/quantize_pose.py` (calibrates on PETS 2009 frames)"
+                "`follow models prepare` (calibrates on PETS 2009 and robot-distance frames)"
             )
         model_manifest.verify_derived(path, REBUILD_INT8)
         return path

@@ -20,22 +20,33 @@ from follow.pose.preprocess import prepare_input
 
 log = logging.getLogger(__name__)
 
-INT8_FILE = "pose/human-pose-estimation-0001-int8.onnx"
-
 
 def default_int8_path() -> Path:
-    """Where the quantised pose model lives in the user cache."""
-    return models.cache_dir() / INT8_FILE
+    """Where the quantised pose model lives in the user cache: keyed by what it is made
+    from (follow/pose/prepare.py), so an older recipe's file is never picked up."""
+    from follow.pose.prepare import int8_key
+
+    return models.cache_dir() / "pose" / f"human-pose-estimation-0001-int8-{int8_key()}.onnx"
 
 
 class _FrameReader:
     """onnxruntime CalibrationDataReader over preprocessed frames."""
 
-    def __init__(self, tensors: list[np.ndarray], input_name: str):
+    def __init__(self, tensors: list[np.ndarray], input_name: str, progress: bool = False):
         self._items = iter([{input_name: t} for t in tensors])
+        self._bar = None
+        if progress:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=len(tensors), desc="INT8 calibration", unit="frame")
 
     def get_next(self):
-        return next(self._items, None)
+        item = next(self._items, None)
+        if self._bar is not None:
+            self._bar.update(item is not None)
+            if item is None:
+                self._bar.close()
+        return item
 
 
 def quantize_pose_model(
@@ -44,6 +55,7 @@ def quantize_pose_model(
     input_height_px: int,
     output_path: Path | None = None,
     calibration: str = "",
+    progress: bool = False,
 ) -> Path:
     """Write an INT8 QDQ copy of `fp32_path`, calibrated on BGR `calibration_frames`
     preprocessed exactly as the detector does at `input_height_px`, with its integrity
@@ -74,7 +86,7 @@ def quantize_pose_model(
         quantize_static(
             str(prepared),
             str(written),
-            _FrameReader(tensors, input_name),
+            _FrameReader(tensors, input_name, progress),
             quant_format=QuantFormat.QDQ,
             per_channel=True,
             activation_type=QuantType.QUInt8,
