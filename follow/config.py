@@ -26,27 +26,30 @@ class ConfigError(ValueError):
 @dataclass(frozen=True)
 class PoseConfig:
     model: str = "human-pose-estimation-0001"
+    # The defaults are for a robot following one person 1-8 m away with a 480p-720p
+    # camera 0.5-1.5 m up: people 100-450 px tall (docs/pose.md, `follow eval
+    # pose-near`). PETS 2009's ~50 px surveillance people need other settings, kept in
+    # follow/eval/pets2009.toml.
     # Network input height; the width follows the frame's aspect ratio (multiple of 8).
-    # 576 finds the ~50 px tall people of a 360p surveillance view (PETS 2009); for
-    # following at a few metres with a 480p camera, 256-368 is enough and 2-5x faster.
-    input_height_px: int = 576
+    input_height_px: int = 368
     provider: str = "auto"  # auto | cpu | cuda | tensorrt | openvino
     # int8: the INT8 model made by tools/quantize_pose.py (user cache), the fast CPU path;
     # auto: that model when it has been made, else fp32.
     precision: str = "auto"  # auto | fp32 | int8
     # An explicit model file (e.g. an INT8 ONNX from tools/quantize_pose.py); empty = `model`.
     model_file: str = ""
-    # 1: the network's initial stage only (follow/pose/stages.py: finds more small people
-    # on PETS, 0.65x the time); 2: with the refinement stage, the published outputs.
-    network_stages: int = 1
+    # 2: the whole network (its refinement stage finds the ankles of people seen large);
+    # 1: the initial stage only (follow/pose/stages.py: more small, far people, 0.65x the
+    # time; the PETS setting).
+    network_stages: int = 2
     cpu_threads: int = 0  # 0 = the runtime's default
     warmup_runs: int = 1
     keypoint_min_confidence: float = 0.05  # keypoints below this are not used as observations
     min_keypoints_per_person: int = 2  # e.g. neck + one shoulder, joined by their PAF
     border_margin_px: float = 4.0
-    # Decoding (heatmap cells are 8 network-input pixels).
-    # Low thresholds keep small, far people; the PAF check removes the spurious peaks.
-    heatmap_peak_threshold: float = 0.03
+    # Decoding (heatmap cells are 8 network-input pixels). The network's published peak
+    # threshold; PETS uses 0.03 to keep its small, faint people.
+    heatmap_peak_threshold: float = 0.1
     paf_samples: int = 10
     paf_min_sample_score: float = 0.05
     paf_min_sample_fraction: float = 0.5
