@@ -73,8 +73,11 @@ def detection_rates(detector, frames) -> tuple[float, float, float]:
     on the person per person)."""
     from follow.pose.observations import skeletons_to_observations
 
+    from tqdm import tqdm
+
     necks = ankles = extra = 0
-    for frame, (x0, y0, w, h) in frames:
+    for frame, (x0, y0, w, h) in tqdm(frames, desc=f"pose-near h={detector.config.input_height_px}",
+                                      unit="frame", leave=False):  # fmt: skip
         observations = skeletons_to_observations(detector.detect(frame), FRAME_SIZE,
                                                  detector.config)  # fmt: skip
         on_person = [o for o in observations
