@@ -71,9 +71,9 @@ def frames_with_people(crop_paths, person_height_px: int):
 def detection_rates(detector, frames) -> tuple[float, float, float]:
     """(share with the neck found, share with neck and ankle found, extra skeletons
     on the person per person)."""
-    from follow.pose.observations import skeletons_to_observations
-
     from tqdm import tqdm
+
+    from follow.pose.observations import skeletons_to_observations
 
     necks = ankles = extra = 0
     for frame, (x0, y0, w, h) in tqdm(frames, desc=f"pose-near h={detector.config.input_height_px}",
