@@ -47,14 +47,15 @@ def _rot_z(a: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-# Physically possible mounting poses: (lowest, highest) per field. Tilting more than
-# straight down (|pitch| > pi/2) or rolling past the vertical (|roll| > pi/2) would put
-# the camera upside down, which the ground-plane geometry does not model; a
-# surveillance view (PETS 2009) sits up to tens of metres off the robot's origin.
+# Physically possible mounting poses: (lowest, highest) per field. A pitch beyond
+# straight down or straight up (|pitch| > pi/2) is no camera orientation of its own
+# (the same one is written with |pitch| <= pi/2 and the roll and yaw turned by pi);
+# roll and yaw are angles within one turn; a surveillance view (PETS 2009) sits up to
+# tens of metres off the robot's origin, no camera 50 m over the floor.
 POSE_BOUNDS: dict[str, tuple[float, float]] = {
     "height_m": (1e-3, 50.0),
     "pitch_rad": (-math.pi / 2, math.pi / 2),
-    "roll_rad": (-math.pi / 2, math.pi / 2),
+    "roll_rad": (-math.pi, math.pi),
     "yaw_rad": (-2 * math.pi, 2 * math.pi),
     "x_m": (-100.0, 100.0),
     "y_m": (-100.0, 100.0),

@@ -149,7 +149,8 @@ def test_camera_for_another_image_size():
         ("height_m", True, "'pose.height_m' must be a number, got True"),
         ("height_m", -0.5, "height_m = -0.5 is not a possible mounting"),
         ("height_m", 1000.0, "height_m = 1000.0"),
-        ("roll_rad", -2.0, "roll_rad"),
+        ("roll_rad", -4.0, "roll_rad"),
+        ("pitch_rad", float("nan"), "pitch_rad"),
     ],
 )
 def test_impossible_camera_poses_are_refused_naming_the_field(tmp_path, field, value, match):
