@@ -58,7 +58,9 @@ def _normalized_sample_rays(
     lattice = np.column_stack([uc.ravel(), vc.ravel()]).reshape(-1, 1, 2)
     if dist.size:
         criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-        norm = cv2.undistortPoints(lattice, K, dist, criteria=criteria).reshape(uc.shape + (2,))
+        norm = cv2.undistortPointsIter(lattice, K, dist, None, None, criteria).reshape(
+            uc.shape + (2,)
+        )
     else:
         Kinv = np.linalg.inv(K)
         flat = lattice.reshape(-1, 2) @ Kinv[:2, :2].T + Kinv[:2, 2]

@@ -218,9 +218,11 @@ class CameraModel:
         """Unit viewing rays (N, 3) in `base` through undistorted pixels (N, 2)."""
         px = np.atleast_2d(np.asarray(pixels, dtype=np.float64)).reshape(-1, 1, 2)
         if self.dist.size:
-            norm = cv2.undistortPoints(
-                px, self.K, self.dist,
-                criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10),
+            # The iterative form takes the stopping criteria positionally (OpenCV 4.x
+            # builds differ on whether undistortPoints accepts them by keyword).
+            norm = cv2.undistortPointsIter(
+                px, self.K, self.dist, None, None,
+                (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10),
             ).reshape(-1, 2)  # fmt: skip
         else:
             Kinv = np.linalg.inv(self.K)
