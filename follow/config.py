@@ -2,7 +2,8 @@
 
 Defaults follow Koide et al. (RAS 2020) where the paper gives a value. A TOML file
 holds the same sections and keys (`[tracker]`, `gate_chi2_quantile = 0.99`, ...); an
-unknown section or key, or a value of the wrong type, is an error naming it.
+unknown section or key, a value of the wrong type, or one outside its allowed range
+(follow/config_bounds.py, docs/config.md) is an error naming it.
 """
 
 from __future__ import annotations
@@ -25,31 +26,42 @@ class ConfigError(ValueError):
 @dataclass(frozen=True)
 class PoseConfig:
     model: str = "human-pose-estimation-0001"
+    # The defaults are for a robot following one person 1-8 m away with a 480p-720p
+    # camera 0.5-1.5 m up: people 100-450 px tall (docs/pose.md, `follow eval
+    # pose-near`). PETS 2009's ~50 px surveillance people need other settings, kept in
+    # follow/eval/pets2009.toml.
     # Network input height; the width follows the frame's aspect ratio (multiple of 8).
-    # 576 finds the ~50 px tall people of a 360p surveillance view (PETS 2009); for
-    # following at a few metres with a 480p camera, 256-368 is enough and 2-5x faster.
-    input_height_px: int = 576
+    input_height_px: int = 368
     provider: str = "auto"  # auto | cpu | cuda | tensorrt | openvino
     # int8: the INT8 model made by tools/quantize_pose.py (user cache), the fast CPU path;
     # auto: that model when it has been made, else fp32.
     precision: str = "auto"  # auto | fp32 | int8
     # An explicit model file (e.g. an INT8 ONNX from tools/quantize_pose.py); empty = `model`.
     model_file: str = ""
-    # 1: the network's initial stage only (follow/pose/stages.py: finds more small people
-    # on PETS, 0.65x the time); 2: with the refinement stage, the published outputs.
-    network_stages: int = 1
+    # 2: the whole network (its refinement stage finds the ankles of people seen large);
+    # 1: the initial stage only (follow/pose/stages.py: more small, far people, 0.65x the
+    # time; the PETS setting).
+    network_stages: int = 2
     cpu_threads: int = 0  # 0 = the runtime's default
     warmup_runs: int = 1
     keypoint_min_confidence: float = 0.05  # keypoints below this are not used as observations
     min_keypoints_per_person: int = 2  # e.g. neck + one shoulder, joined by their PAF
     border_margin_px: float = 4.0
-    # Decoding (heatmap cells are 8 network-input pixels).
-    # Low thresholds keep small, far people; the PAF check removes the spurious peaks.
-    heatmap_peak_threshold: float = 0.03
+    # Decoding (heatmap cells are 8 network-input pixels). The network's published peak
+    # threshold; PETS uses 0.03 to keep its small, faint people.
+    heatmap_peak_threshold: float = 0.1
     paf_samples: int = 10
     paf_min_sample_score: float = 0.05
     paf_min_sample_fraction: float = 0.5
     min_person_mean_score: float = 0.05
+    # One skeleton per body: a skeleton is dropped as a duplicate of a larger one when
+    # at least duplicate_shared_keypoints of its keypoints lie within
+    # duplicate_keypoint_distance (a fraction of the larger skeleton's extent) of the
+    # same keypoints of the larger one, or when duplicate_box_containment of its
+    # keypoints lie inside the larger one's keypoint box (a fragment of the same body).
+    duplicate_keypoint_distance: float = 0.1
+    duplicate_shared_keypoints: int = 2
+    duplicate_box_containment: float = 0.8
 
 
 @dataclass(frozen=True)
@@ -268,6 +280,22 @@ class Config:
     mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
     ros: RosConfig = field(default_factory=RosConfig)
 
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ConfigError listing, one line each, every key outside its allowed range
+        (follow/config_bounds.py); every Config, the defaults included, passes here."""
+        from follow.config_bounds import section_errors
+
+        errors = [
+            line
+            for f in dataclasses.fields(self)
+            for line in section_errors(f.name, getattr(self, f.name))
+        ]
+        if errors:
+            raise ConfigError("\n".join(errors))
+
     @classmethod
     def from_dict(cls, data: dict, source: str = "config", base: Config | None = None) -> Config:
         """The config `data` describes; keys it leaves out keep `base`'s values (the
@@ -281,7 +309,12 @@ class Config:
             if not isinstance(values, dict):
                 raise ConfigError(f"{source}: [{name}] must be a table")
             kwargs[name] = _build_section(getattr(base, name), values, f"{source} [{name}]")
-        return dataclasses.replace(base, **kwargs)
+        try:
+            return dataclasses.replace(base, **kwargs)
+        except ConfigError as exc:
+            raise ConfigError(
+                "\n".join(f"{source}: {line}" for line in str(exc).splitlines())
+            ) from None
 
     @classmethod
     def load(cls, path: str | Path, base: Config | None = None) -> Config:

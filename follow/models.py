@@ -7,7 +7,9 @@ use: a file whose hash does not match is refused, never loaded.
 `fetch(name)` downloads a model's official files into the user cache (progress bar,
 hash check; a file whose hash does not match is deleted and the fetch fails). Models
 with no official download (the ONNX conversions) say how to produce them.
-The command line: `follow models list | fetch [NAME...] | verify [NAME...]`.
+Files made here from a registry model (the INT8 model, the initial-stage cut) carry
+an integrity record instead (follow/model_manifest.py); `verify` with no names checks
+them too. The command line: `follow models list | fetch [NAME...] | verify [NAME...] | prepare`.
 """
 
 from __future__ import annotations
@@ -231,6 +233,19 @@ def verify(name: str) -> list[FileStatus]:
     return out
 
 
+def verify_derived_files() -> list[FileStatus]:
+    """Each model file made on this machine (INT8, initial-stage cut) in the user cache,
+    checked against its integrity record (follow/model_manifest.py)."""
+    from follow import model_manifest
+
+    out = []
+    for path in model_manifest.derived_files(cache_dir()):
+        detail = model_manifest.check(path)
+        out.append(FileStatus("(derived)", str(path.relative_to(cache_dir())), path,
+                              detail == "ok", detail))  # fmt: skip
+    return out
+
+
 def fetch(name: str, source: str | None = None, force: bool = False) -> Path:
     """Download model `name` into the user cache and return its main path.
 
@@ -300,7 +315,8 @@ def _download(url: str, target: Path, sha256: str) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("action", choices=("list", "fetch", "verify"), help="what to do")
+    parser.add_argument("action", choices=("list", "fetch", "verify", "prepare"),
+                        help="what to do (prepare: make the INT8 pose model)")  # fmt: skip
     parser.add_argument("names", nargs="*", help="model names (default: all)")
     parser.add_argument(
         "--from",
@@ -308,10 +324,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="fetch from this base URL or local folder (a mirror) instead of the official sites",
     )
-    parser.add_argument("--force", action="store_true", help="fetch even if already cached")
+    parser.add_argument("--force", action="store_true",
+                        help="fetch (or prepare) even if already cached")  # fmt: skip
 
 
 def main(args: argparse.Namespace) -> dict | int:
+    if args.action == "prepare":
+        from follow import model_manifest
+        from follow.pose.prepare import prepare_int8
+
+        path = prepare_int8(force=args.force)
+        record = model_manifest.read_manifest(path) or {}
+        if not args.json:
+            print(f"{path}  sha256 {record.get('sha256')}")
+        return {"int8": str(path), "record": record}
     names = args.names or list(REGISTRY)
     for n in names:
         get_spec(n)
@@ -358,6 +384,8 @@ def main(args: argparse.Namespace) -> dict | int:
             print(json.dumps(result))
         return 1 if failed else 0
     rows = [s for n in names for s in verify(n)]
+    if not args.names:
+        rows += verify_derived_files()
     if not args.json:
         for s in rows:
             print(f"{'ok' if s.ok else 'FAIL':4s}  {s.model:38s} {s.relpath:50s} {s.detail}")

@@ -140,3 +140,21 @@ def test_camera_for_another_image_size():
     np.testing.assert_allclose(half.K, cam.scaled(320, 180).K)
     with pytest.raises(ValueError, match="another aspect ratio"):
         cam.for_image_size(640, 480)
+
+
+@pytest.mark.parametrize(
+    "field,value,match",
+    [
+        ("pitch_rad", 3.0, "pitch_rad = 3.0 is not a possible mounting"),
+        ("height_m", True, "'pose.height_m' must be a number, got True"),
+        ("height_m", -0.5, "height_m = -0.5 is not a possible mounting"),
+        ("height_m", 1000.0, "height_m = 1000.0"),
+        ("roll_rad", -4.0, "roll_rad"),
+        ("pitch_rad", float("nan"), "pitch_rad"),
+    ],
+)
+def test_impossible_camera_poses_are_refused_naming_the_field(tmp_path, field, value, match):
+    data = CameraModel.from_fov((640, 480), 70.0, CameraPose(height_m=1.0)).to_dict()
+    data["pose"][field] = value
+    with pytest.raises(CameraFileError, match=match):
+        CameraModel.from_dict(data, source="cam.yaml")

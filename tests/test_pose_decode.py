@@ -7,10 +7,12 @@ import numpy as np
 from follow.pose.decode import (
     LIMB_KEYPOINTS,
     LIMB_PAF_CHANNELS,
+    DecodedPerson,
     DecodeParams,
     decode,
     find_peaks,
     match_limb,
+    suppress_duplicates,
 )
 
 H, W = 40, 60
@@ -129,3 +131,31 @@ def test_ten_people_in_two_rows_decode_into_ten_skeletons():
     heatmaps, pafs = render(truth)
     found = decode(heatmaps, pafs, DecodeParams())
     assert len(found) == count
+
+
+def _decoded(kps: np.ndarray, score: float = 5.0) -> DecodedPerson:
+    return DecodedPerson(kps, np.where(np.isfinite(kps[:, 0]), 0.5, 0.0), score)
+
+
+def test_a_second_skeleton_on_the_same_keypoints_is_suppressed():
+    whole = person(20, 10, size=2.0)
+    upper = np.full((18, 2), np.nan)
+    upper[[1, 2, 5]] = whole[[1, 2, 5]] + 0.6  # neck and shoulders a fraction of a cell off
+    upper[[3]] = whole[[3]] + (8.0, 0.0)  # an elbow placed elsewhere keeps it out of the box
+    kept = suppress_duplicates([_decoded(upper, 9.0), _decoded(whole)], DecodeParams())
+    assert len(kept) == 1 and np.isfinite(kept[0].keypoints_cells[10]).all()  # the whole one
+
+
+def test_a_fragment_inside_a_larger_skeleton_is_suppressed():
+    whole = person(20, 10, size=2.0)
+    fragment = np.full((18, 2), np.nan)
+    fragment[[9, 10]] = whole[[9, 10]] + (1.5, -1.0)  # a second knee-ankle chain on the leg
+    kept = suppress_duplicates([_decoded(whole), _decoded(fragment)], DecodeParams())
+    assert len(kept) == 1
+
+
+def test_neighbours_and_overlapping_people_at_other_places_are_kept():
+    a, b = person(10, 5), person(16, 5)  # side by side, boxes apart
+    c = person(13, 8)  # overlapping both boxes but no keypoint near theirs
+    kept = suppress_duplicates([_decoded(a), _decoded(b), _decoded(c)], DecodeParams())
+    assert len(kept) == 3

@@ -64,7 +64,7 @@ def test_int8_model_is_quantised_and_close_to_fp32(int8_model, model_path, data_
 
 def test_int8_precision_without_the_model_explains_how_to_make_it(tmp_path, monkeypatch):
     monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path))
-    with pytest.raises(models.ModelError, match="tools/quantize_pose.py"):
+    with pytest.raises(models.ModelError, match="follow models prepare"):
         PoseDetector(PoseConfig(precision="int8"))
 
 

@@ -67,12 +67,17 @@ def make_int8_model(
     """Quantise the registry's FP32 pose model, calibrated on `count` PETS frames."""
     frames = [img for _, img in sequence.frames(calibration_indices(sequence.frame_count, count))]
     fp32 = models.resolve("human-pose-estimation-0001")
-    return quantize_pose_model(fp32, frames, height, path or default_int8_path())
+    return quantize_pose_model(fp32, frames, height, path or default_int8_path(),
+                               calibration=f"PETS 2009 S2.L1, {len(frames)} frames")  # fmt: skip
 
 
 def ensure_int8_model(path: Path | None, sequence: PetsSequence, height: int) -> Path:
-    """The INT8 model, calibrated on PETS frames (not the timed ones) if not there yet."""
-    path = path or default_int8_path()
+    """The INT8 model at `path` (calibrated on PETS frames, not the timed ones, if not
+    there yet), else the one `follow models prepare` makes."""
+    if path is None:
+        from follow.pose.prepare import prepare_int8
+
+        return prepare_int8()  # the model `precision = "auto"` runs
     if path.exists():
         return path
     log.info("no INT8 pose model at %s: calibrating one on PETS frames", path)
@@ -94,7 +99,9 @@ def main(args: argparse.Namespace) -> dict:
     if openvino_installed():
         runtimes["fast_path"] = OpenVinoBackend(int8, args.threads)
         # What the detector runs by default (network_stages = 1): the same, initial stage only.
-        runtimes["fast_path_initial_stage"] = OpenVinoBackend(initial_stage_file(int8), args.threads)
+        runtimes["fast_path_initial_stage"] = OpenVinoBackend(
+            initial_stage_file(int8), args.threads
+        )
         runtimes["reference_openvino_int8"] = OpenVinoBackend(
             models.resolve("human-pose-estimation-0001-ir"), args.threads
         )

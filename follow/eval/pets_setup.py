@@ -148,11 +148,13 @@ def _model_digest(path: Path) -> str:
 
 def _cache_path(pose_config: PoseConfig, frames: list[int], pixels_digest: str) -> Path:
     from follow.models import cache_dir
+    from follow.pose.decode import DECODER_VERSION
     from follow.pose.detector import model_file_for
 
     model = model_file_for(pose_config)  # "auto" precision differs between machines
     key = json.dumps({"pose": pose_config.__dict__, "frames": frames, "pixels": pixels_digest,
-                      "model_sha256": _model_digest(model)}, sort_keys=True)  # fmt: skip
+                      "model_sha256": _model_digest(model), "decoder": DECODER_VERSION},
+                     sort_keys=True)  # fmt: skip
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]
     return cache_dir().parent / "eval" / f"pets_skeletons_{digest}.npz"
 

@@ -164,7 +164,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="folder with View_001.avi and PETS2009-S2L1.xml "
         "(default: $FOLLOW_DATA_DIR/pets2009_s2l1)",
     )
-    parser.add_argument("--config", type=Path, default=None, help="a follow TOML config")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="TOML configuration, over the PETS settings (pets2009.toml)")  # fmt: skip
     parser.add_argument("--plot", type=Path, default=None, help="write a PNG of the results")
     add_perturb_arguments(parser)
 
@@ -180,8 +181,10 @@ def data_dir(arg: Path | None) -> Path:
 
 def main(args: argparse.Namespace) -> dict:
     from follow.config import Config
+    from follow.eval.pets_setup import PETS_SETTINGS
 
-    base = Config.load(args.config).pose if args.config else PoseConfig()
+    config = Config.load(PETS_SETTINGS)
+    base = (Config.load(args.config, base=config) if args.config else config).pose
     if args.provider:
         base = dataclasses.replace(base, provider=args.provider)
     if args.precision:

@@ -5,7 +5,9 @@ PETS 2009 shows people 35-95 px tall; a robot 1.5-4 m behind its target sees the
 several times larger. This pastes the 42 real person crops of `ccf_crops/` (about 128 px
 tall, tightly cut) at a given height into the middle of a grey 640x480 frame and counts
 the crops whose neck the detector finds in the upper 40 % of the person and whose ankle
-it finds in the lower quarter, for each network input height and stage count. The grey
+it finds in the lower quarter, for each network input height and stage count, and the
+skeletons beyond the first whose neck lies on the person (duplicates: one body must
+give one skeleton, or the tracker makes a ghost track of the second). The grey
 surround is plainer than a real scene, so the rates are an upper bound on clutter but a
 fair comparison between settings.
 """
@@ -30,7 +32,9 @@ def add_arguments(p) -> None:
                    help="network input heights in px (multiples of 8)")  # fmt: skip
     p.add_argument("--stages", type=int, nargs="+", default=[1, 2], help="network_stages")
     p.add_argument("--config", help="TOML configuration (pose settings)")
-    p.add_argument("--crops-dir", help="folder of person crops (default $FOLLOW_DATA_DIR/ccf_crops)")
+    p.add_argument(
+        "--crops-dir", help="folder of person crops (default $FOLLOW_DATA_DIR/ccf_crops)"
+    )
 
 
 def crop_files(given: str | None) -> list[Path]:
@@ -64,20 +68,25 @@ def frames_with_people(crop_paths, person_height_px: int):
     return out
 
 
-def detection_rates(detector, frames) -> tuple[float, float]:
-    """(share with the neck found, share with neck and ankle found)."""
+def detection_rates(detector, frames) -> tuple[float, float, float]:
+    """(share with the neck found, share with neck and ankle found, extra skeletons
+    on the person per person)."""
+    from tqdm import tqdm
+
     from follow.pose.observations import skeletons_to_observations
 
-    necks = ankles = 0
-    for frame, (x0, y0, w, h) in frames:
+    necks = ankles = extra = 0
+    for frame, (x0, y0, w, h) in tqdm(frames, desc=f"pose-near h={detector.config.input_height_px}",
+                                      unit="frame", leave=False):  # fmt: skip
         observations = skeletons_to_observations(detector.detect(frame), FRAME_SIZE,
                                                  detector.config)  # fmt: skip
         on_person = [o for o in observations
                      if x0 <= o.neck_px[0] <= x0 + w and y0 <= o.neck_px[1] <= y0 + NECK_ZONE * h]  # fmt: skip
         necks += bool(on_person)
+        extra += max(len(on_person) - 1, 0)
         ankles += any(o.ankle_px is not None and o.ankle_px[1] >= y0 + ANKLE_ZONE * h
                       for o in on_person)  # fmt: skip
-    return necks / len(frames), ankles / len(frames)
+    return necks / len(frames), ankles / len(frames), extra / len(frames)
 
 
 def main(args) -> dict:
@@ -93,13 +102,15 @@ def main(args) -> dict:
             for size in args.sizes:
                 pose = dataclasses.replace(config.pose, input_height_px=size,
                                            network_stages=stages, warmup_runs=0)  # fmt: skip
-                neck, ankle = detection_rates(PoseDetector(pose), frames)
+                neck, ankle, dup = detection_rates(PoseDetector(pose), frames)
                 rows.append({"person_px": person_px, "network_stages": stages,
-                             "input_height_px": size, "neck": neck, "ankle": ankle})  # fmt: skip
+                             "input_height_px": size, "neck": neck, "ankle": ankle,
+                             "duplicates_per_person": dup})  # fmt: skip
     if not args.json:
         print(f"{len(crop_paths)} real person crops pasted into a 640x480 frame")
-        print(f"{'person px':>9s} {'stages':>6s} {'input':>5s} {'neck':>6s} {'ankle':>6s}")
+        print(f"{'person px':>9s} {'stages':>6s} {'input':>5s} {'neck':>6s} {'ankle':>6s} "
+              f"{'dup':>5s}")  # fmt: skip
         for r in rows:
             print(f"{r['person_px']:9d} {r['network_stages']:6d} {r['input_height_px']:5d} "
-                  f"{r['neck']:6.2f} {r['ankle']:6.2f}")  # fmt: skip
+                  f"{r['neck']:6.2f} {r['ankle']:6.2f} {r['duplicates_per_person']:5.2f}")  # fmt: skip
     return {"crops": len(crop_paths), "rows": rows}

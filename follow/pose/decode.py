@@ -33,6 +33,8 @@ LIMB_PAF_CHANNELS: tuple[tuple[int, int], ...] = (
     (26, 27),
 )  # fmt: skip
 REDUNDANT_LIMBS = frozenset({17, 18})
+# Changes whenever the same maps decode into different skeletons (keys cached results).
+DECODER_VERSION = 2  # 2: duplicate skeletons of one body suppressed
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,9 @@ class DecodeParams:
     paf_min_sample_fraction: float = PoseConfig.paf_min_sample_fraction
     min_keypoints_per_person: int = PoseConfig.min_keypoints_per_person
     min_person_mean_score: float = PoseConfig.min_person_mean_score
+    duplicate_keypoint_distance: float = PoseConfig.duplicate_keypoint_distance
+    duplicate_shared_keypoints: int = PoseConfig.duplicate_shared_keypoints
+    duplicate_box_containment: float = PoseConfig.duplicate_box_containment
 
 
 @dataclass(frozen=True)
@@ -213,7 +218,42 @@ def decode(heatmaps: np.ndarray, pafs: np.ndarray, params: DecodeParams) -> list
             kps[k] = peaks[k][slot[k], :2]
             conf[k] = peaks[k][slot[k], 2]
         people.append(DecodedPerson(kps, conf, float(scores[p])))
-    return people
+    return suppress_duplicates(people, params)
+
+
+def suppress_duplicates(people: list[DecodedPerson], params: DecodeParams) -> list[DecodedPerson]:
+    """One skeleton per body. A person seen large gives wide heatmap blobs with two
+    peaks per keypoint, which greedy assembly can join into two skeletons (or a
+    skeleton and a fragment); the tracker would make two tracks of them. Skeletons
+    are kept largest first (most keypoints, then score); a later one is dropped when
+    it repeats keypoints of a kept one at nearly the same place, or lies inside a kept
+    one's keypoint box."""
+    order = sorted(
+        people, key=lambda p: (-int(np.isfinite(p.keypoints_cells[:, 0]).sum()), -p.score)
+    )
+    kept: list[DecodedPerson] = []
+    for person in order:
+        if not any(_is_duplicate(person, big, params) for big in kept):
+            kept.append(person)
+    return kept
+
+
+def _is_duplicate(small: DecodedPerson, big: DecodedPerson, params: DecodeParams) -> bool:
+    big_pts = big.keypoints_cells[np.isfinite(big.keypoints_cells[:, 0])]
+    small_present = np.isfinite(small.keypoints_cells[:, 0])
+    lo, hi = big_pts.min(axis=0), big_pts.max(axis=0)
+    extent = float(max(hi - lo))
+    if extent <= 0:
+        return False
+    both = small_present & np.isfinite(big.keypoints_cells[:, 0])
+    gaps = np.hypot(*(small.keypoints_cells[both] - big.keypoints_cells[both]).T)
+    if (
+        gaps <= params.duplicate_keypoint_distance * extent
+    ).sum() >= params.duplicate_shared_keypoints:
+        return True
+    pts = small.keypoints_cells[small_present]
+    inside = ((pts >= lo) & (pts <= hi)).all(axis=1).mean()
+    return bool(inside >= params.duplicate_box_containment)
 
 
 def _assign(slots, scores, owner, person: int, keypoint: int, cand: int, gain: float) -> None:

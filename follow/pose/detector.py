@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from follow import models
+from follow import model_manifest, models
 from follow.config import PoseConfig
 from follow.pose.decode import DecodedPerson, DecodeParams, decode
 from follow.pose.preprocess import (
@@ -24,6 +24,8 @@ from follow.types import Skeleton
 
 log = logging.getLogger(__name__)
 
+REBUILD_INT8 = "Delete it and make it again with `follow models prepare`."
+
 
 def decode_params(config: PoseConfig) -> DecodeParams:
     return DecodeParams(
@@ -33,6 +35,9 @@ def decode_params(config: PoseConfig) -> DecodeParams:
         paf_min_sample_fraction=config.paf_min_sample_fraction,
         min_keypoints_per_person=config.min_keypoints_per_person,
         min_person_mean_score=config.min_person_mean_score,
+        duplicate_keypoint_distance=config.duplicate_keypoint_distance,
+        duplicate_shared_keypoints=config.duplicate_shared_keypoints,
+        duplicate_box_containment=config.duplicate_box_containment,
     )
 
 
@@ -68,8 +73,9 @@ def _source_model_file(config: PoseConfig) -> Path:
         from follow.pose.quantize import default_int8_path
 
         if default_int8_path().exists():
+            model_manifest.verify_derived(default_int8_path(), REBUILD_INT8)
             return default_int8_path()
-        log.info("pose: no INT8 model in the cache (tools/quantize_pose.py makes one): FP32")
+        log.info("pose: no INT8 model in the cache (`follow models prepare` makes it): FP32")
         config = dataclasses.replace(config, precision="fp32")
     if config.precision == "int8":
         from follow.pose.quantize import default_int8_path
@@ -78,13 +84,12 @@ def _source_model_file(config: PoseConfig) -> Path:
         if not path.exists():
             raise models.ModelError(
                 f"pose precision 'int8': {path} does not exist; make it with "
-                "`python tools/quantize_pose.py` (calibrates on PETS 2009 frames)"
+                "`follow models prepare` (calibrates on PETS 2009 and robot-distance frames)"
             )
+        model_manifest.verify_derived(path, REBUILD_INT8)
         return path
     if config.precision != "fp32":
-        raise ValueError(
-            f"pose precision '{config.precision}' unknown; choose auto, fp32 or int8"
-        )
+        raise ValueError(f"pose precision '{config.precision}' unknown; choose auto, fp32 or int8")
     return models.resolve(config.model)
 
 
@@ -107,7 +112,8 @@ class PoseDetector:
         self.backend = create_backend(config.provider, self.model_path, config.cpu_threads)
         self.params = decode_params(config)
         self.last_timing_ms: dict[str, float] = {}
-        log.info("pose: %s on %s", self.model_path.name, self.backend.name)
+        log.info("pose: running %s (sha256 %s) on %s", self.model_path,
+                 models.sha256_of(self.model_path)[:16], self.backend.name)  # fmt: skip
         self.warm_up()
 
     @property

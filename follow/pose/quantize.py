@@ -8,33 +8,45 @@ INT8. It is written to the user cache (or a given path), never into the reposito
 from __future__ import annotations
 
 import logging
+import shutil
 import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
-from follow import models
+from follow import model_manifest, models
 from follow.pose.preprocess import prepare_input
 
 log = logging.getLogger(__name__)
 
-INT8_FILE = "pose/human-pose-estimation-0001-int8.onnx"
-
 
 def default_int8_path() -> Path:
-    """Where the quantised pose model lives in the user cache."""
-    return models.cache_dir() / INT8_FILE
+    """Where the quantised pose model lives in the user cache: keyed by what it is made
+    from (follow/pose/prepare.py), so an older recipe's file is never picked up."""
+    from follow.pose.prepare import int8_key
+
+    return models.cache_dir() / "pose" / f"human-pose-estimation-0001-int8-{int8_key()}.onnx"
 
 
 class _FrameReader:
     """onnxruntime CalibrationDataReader over preprocessed frames."""
 
-    def __init__(self, tensors: list[np.ndarray], input_name: str):
+    def __init__(self, tensors: list[np.ndarray], input_name: str, progress: bool = False):
         self._items = iter([{input_name: t} for t in tensors])
+        self._bar = None
+        if progress:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=len(tensors), desc="INT8 calibration", unit="frame")
 
     def get_next(self):
-        return next(self._items, None)
+        item = next(self._items, None)
+        if self._bar is not None:
+            self._bar.update(item is not None)
+            if item is None:
+                self._bar.close()
+        return item
 
 
 def quantize_pose_model(
@@ -42,9 +54,12 @@ def quantize_pose_model(
     calibration_frames: Iterable[np.ndarray],
     input_height_px: int,
     output_path: Path | None = None,
+    calibration: str = "",
+    progress: bool = False,
 ) -> Path:
     """Write an INT8 QDQ copy of `fp32_path`, calibrated on BGR `calibration_frames`
-    preprocessed exactly as the detector does at `input_height_px`."""
+    preprocessed exactly as the detector does at `input_height_px`, with its integrity
+    record (`calibration` names the frames)."""
     import onnxruntime as ort
     from onnxruntime.quantization import (
         CalibrationMethod,
@@ -66,11 +81,12 @@ def quantize_pose_model(
     )
     with tempfile.TemporaryDirectory() as tmp:
         prepared = Path(tmp) / "prepared.onnx"
+        written = Path(tmp) / "int8.onnx"
         quant_pre_process(str(fp32_path), str(prepared), skip_symbolic_shape=True)
         quantize_static(
             str(prepared),
-            str(output_path),
-            _FrameReader(tensors, input_name),
+            str(written),
+            _FrameReader(tensors, input_name, progress),
             quant_format=QuantFormat.QDQ,
             per_channel=True,
             activation_type=QuantType.QUInt8,
@@ -79,5 +95,9 @@ def quantize_pose_model(
             calibrate_method=CalibrationMethod.MinMax,
             extra_options={"CalibTensorRangeSymmetric": False},
         )
+        made_from = {"calibration": calibration, "calibration_frames": len(tensors),
+                     "input_height_px": input_height_px, "method": "static QDQ, MinMax"}  # fmt: skip
+        model_manifest.write_manifest(output_path, fp32_path, made_from, written=written)
+        shutil.move(str(written), str(output_path))
     log.info("INT8 pose model written to %s (%d calibration frames)", output_path, len(tensors))
     return output_path

@@ -18,7 +18,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from follow import models
+from follow import model_manifest, models
+from follow.model_manifest import manifest_path
 from follow.pose.runtime import HEATMAP_CHANNELS, PAF_CHANNELS
 
 # Nodes that pass a tensor through without changing what it means.
@@ -82,7 +83,8 @@ def _before_quantization(tensor: str, producers: dict) -> str:
 
 def initial_stage_file(model_path: Path) -> Path:
     """A copy of the ONNX at `model_path` that ends after its initial stage, made once
-    and kept in the user cache (keyed by the source file's hash)."""
+    and kept in the user cache (keyed by the source file's hash, its own hash recorded
+    beside it and checked on every later use; a cut without a record is made again)."""
     import onnx
     import onnx.utils
 
@@ -94,7 +96,10 @@ def initial_stage_file(model_path: Path) -> Path:
         )
     digest = models.sha256_of(model_path)[:16]
     target = models.cache_dir() / "pose" / f"{model_path.stem}-initial-stage-{digest}.onnx"
-    if target.exists():
+    if target.exists() and model_manifest.read_manifest(target) is not None:
+        model_manifest.verify_derived(
+            target, f"Delete it and {manifest_path(target).name}: it is cut again on the next run."
+        )
         return target
     model = onnx.load(str(model_path))
     outputs = initial_stage_outputs(model)
@@ -103,5 +108,6 @@ def initial_stage_file(model_path: Path) -> Path:
     target.parent.mkdir(parents=True, exist_ok=True)
     partial = target.with_suffix(f".{os.getpid()}.partial")
     onnx.utils.extract_model(str(model_path), str(partial), inputs, list(outputs))
+    model_manifest.write_manifest(target, model_path, {"cut": "initial stage"}, written=partial)
     partial.replace(target)  # atomic: a concurrent reader never sees half a file
     return target

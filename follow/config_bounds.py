@@ -1,0 +1,236 @@
+"""The allowed range of every configuration key, as one table per section.
+
+A value outside its range is refused when a configuration is made (`Config.validate`),
+so a typo such as `max_forward_speed_mps = 1e9` or `gate_chi2_quantile = 1.5` stops the
+program with one line naming the section and key instead of driving the robot. The
+ranges bound what keeps a following robot safe (speeds, timeouts, rates) and what the
+code can run at all (sizes, probabilities); docs/config.md lists them.
+
+Adding a key to a section of follow/config.py means adding one line here: a numeric key
+without a range, or a text key without its choices, is itself an error.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+# Text keys that take one of a fixed set of values.
+POSE_PROVIDERS = ("auto", "cpu", "cuda", "tensorrt", "openvino")
+POSE_PRECISIONS = ("auto", "fp32", "int8")
+IDENTIFIERS = ("ccf10", "ccf25", "channels", "reid", "ccf10+reid", "ccf25+reid", "channels+reid")
+AUTOPILOTS = ("ardupilot", "px4")
+# Text keys with free values (a model name is checked by the model registry, a file
+# path when it is opened, a connection string by pymavlink).
+FREE_TEXT = {("pose", "model"), ("pose", "model_file"), ("mavlink", "connection")}
+
+
+@dataclass(frozen=True)
+class Range:
+    """lo .. hi; an open end (`lo_open`/`hi_open`) excludes the bound itself."""
+
+    lo: float
+    hi: float
+    lo_open: bool = False
+    hi_open: bool = False
+    multiple_of: int = 0  # integers only: the value must be a multiple of this
+
+    def contains(self, value: float) -> bool:
+        if not math.isfinite(value):
+            return False
+        above = value > self.lo if self.lo_open else value >= self.lo
+        below = value < self.hi if self.hi_open else value <= self.hi
+        return above and below and (not self.multiple_of or value % self.multiple_of == 0)
+
+    def describe(self) -> str:
+        lo = f"{self.lo:g} {'<' if self.lo_open else '<='}"
+        hi = f"{'<' if self.hi_open else '<='} {self.hi:g}"
+        extra = f", a multiple of {self.multiple_of}" if self.multiple_of else ""
+        return f"{lo} value {hi}{extra}"
+
+
+def closed(lo: float, hi: float) -> Range:
+    return Range(lo, hi)
+
+
+def positive(hi: float) -> Range:
+    """0 < value <= hi."""
+    return Range(0.0, hi, lo_open=True)
+
+
+def fraction_open() -> Range:
+    """0 < value < 1 (a probability or quantile that must not be 0 or 1)."""
+    return Range(0.0, 1.0, lo_open=True, hi_open=True)
+
+
+UNIT = closed(0.0, 1.0)
+THREADS = closed(0, 256)  # 0 = the runtime's default
+
+BOUNDS: dict[str, dict[str, Range]] = {
+    "pose": {
+        # Up to a 1080p frame at full size; the network needs multiples of its stride 8.
+        "input_height_px": Range(96, 1088, multiple_of=8),
+        "network_stages": closed(1, 2),
+        "cpu_threads": THREADS,
+        "warmup_runs": closed(0, 100),
+        "keypoint_min_confidence": UNIT,
+        "min_keypoints_per_person": closed(1, 18),
+        "border_margin_px": closed(0.0, 100.0),
+        "heatmap_peak_threshold": fraction_open(),
+        "paf_samples": closed(2, 100),
+        "paf_min_sample_score": UNIT,
+        "paf_min_sample_fraction": UNIT,
+        "min_person_mean_score": closed(0.0, 2.0),
+        "duplicate_keypoint_distance": closed(0.0, 1.0),
+        "duplicate_shared_keypoints": closed(1, 18),
+        "duplicate_box_containment": Range(0.0, 1.0, lo_open=True),
+    },
+    "tracker": {
+        "accel_noise_mps2": positive(20.0),
+        "height_noise_mps": closed(0.0, 1.0),
+        "neck_noise_px": positive(100.0),
+        "ankle_noise_px": positive(100.0),
+        "detection_height_px": closed(32, 4320),
+        "neck_position_noise_m": closed(0.0, 1.0),
+        "ankle_position_noise_m": closed(0.0, 1.0),
+        "single_ankle_position_noise_m": closed(0.0, 2.0),
+        "ankle_height_m": closed(0.0, 0.5),
+        "ankle_height_per_neck_height": closed(0.0, 0.2),
+        "walking_ankle_lift_m": closed(0.0, 0.3),
+        "full_gait_speed_mps": positive(5.0),
+        "init_velocity_std_mps": positive(10.0),
+        "init_height_std_m": positive(1.0),
+        "default_neck_height_m": closed(0.5, 2.5),
+        "min_neck_height_m": closed(0.1, 2.5),
+        "max_neck_height_m": closed(0.5, 3.5),
+        "min_projection_depth_m": positive(5.0),
+        "sigma_alpha": positive(10.0),
+        "sigma_beta": closed(0.0, 10.0),
+        "sigma_kappa": closed(-10.0, 10.0),
+        "gate_chi2_quantile": fraction_open(),
+        "min_updates_to_confirm": closed(1, 100),
+        "max_position_std_m": positive(10.0),
+        "max_position_std_per_range": closed(0.0, 1.0),
+        "max_unseen_s": positive(10.0),
+        "tentative_max_unseen_s": positive(10.0),
+        "max_outside_image_px": closed(0.0, 1000.0),
+    },
+    "identify": {
+        "num_selectors": closed(1, 200),
+        "weak_classifiers_per_selector": closed(1, 200),
+        "sample_bank_size": closed(1, 10000),
+        "rect_min_fraction": positive(1.0),
+        "rect_max_fraction": positive(1.0),
+        "replace_probability": UNIT,
+        "gaussian_memory_samples": closed(1.0, 1e6),
+        "min_feature_std": positive(1.0),
+        "selector_error_decay": positive(1.0),
+        "initial_training_frames": closed(1, 1000),
+        "max_initial_distance_m": positive(50.0),
+        "id_switch_confidence": closed(-1.0, 1.0),
+        "reid_confidence": closed(-1.0, 1.0),
+        "reid_frames": closed(1, 1000),
+        "reid_margin": closed(0.0, 2.0),
+        "reid_reach_m": closed(0.0, 50.0),
+        "reid_reach_speed_mps": closed(0.0, 10.0),
+        "max_learning_overlap": UNIT,
+        "identity_trust_s": closed(0.0, 60.0),
+        "identity_risk_distance_m": closed(0.0, 20.0),
+        "identity_risk_unseen_s": closed(0.0, 60.0),
+        "seed": closed(0, 2**32 - 1),
+        "crop_height_px": closed(16, 1024),
+        "crop_width_px": closed(8, 1024),
+        "feature_threads": THREADS,
+        "roi_height_per_neck_ankle": positive(10.0),
+        "roi_width_per_neck_ankle": positive(10.0),
+        "roi_center_offset_per_neck_ankle": closed(-1.0, 1.0),
+        "neck_ankle_per_neck_hip": positive(10.0),
+        "min_roi_height_px": closed(1.0, 4096.0),
+        "min_roi_visible_fraction": UNIT,
+        "reid_gallery_size": closed(1, 10000),
+        "reid_same_similarity": closed(-1.0, 1.0),
+        "reid_similarity_scale": positive(2.0),
+        "reid_weight": UNIT,
+        "reid_threads": THREADS,
+    },
+    "control": {
+        "following_distance_m": closed(0.5, 10.0),
+        # A person-following ground robot never needs more than a run (3 m/s).
+        "max_forward_speed_mps": positive(3.0),
+        "max_backward_speed_mps": closed(0.0, 1.0),
+        "max_yaw_rate_radps": positive(3.0),
+        "max_forward_accel_mps2": positive(5.0),
+        "max_forward_decel_mps2": positive(10.0),
+        "max_yaw_accel_radps2": positive(20.0),
+        "distance_gain_per_s": closed(0.0, 10.0),
+        "bearing_gain_per_s": closed(0.0, 10.0),
+        "velocity_feedforward_gain": closed(0.0, 2.0),
+        "turn_in_place_bearing_rad": positive(math.pi),
+        # Stale targets must stop the robot within a couple of seconds at most.
+        "target_timeout_s": positive(2.0),
+        "search_duration_s": closed(0.0, 10.0),
+        "search_yaw_rate_radps": closed(0.0, 3.0),
+        "control_rate_hz": closed(1.0, 100.0),
+    },
+    "mavlink": {
+        "heartbeat_timeout_s": positive(10.0),
+        # ArduPilot and PX4 drop out of guided/offboard below a few setpoints a second.
+        "stream_rate_hz": closed(10.0, 100.0),
+        "telemetry_rate_hz": positive(200.0),
+        "connect_timeout_s": positive(120.0),
+        "command_timeout_s": positive(2.0),
+        "odometry_timeout_s": positive(2.0),
+        "source_system": closed(1, 255),
+        "source_component": closed(0, 255),
+        "px4_turn_horizon_s": positive(5.0),
+    },
+}
+
+CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
+    "pose": {"provider": POSE_PROVIDERS, "precision": POSE_PRECISIONS},
+    "identify": {"identifier": IDENTIFIERS},
+    "mavlink": {"autopilot": AUTOPILOTS},
+}
+
+# (section, smaller key, larger key): pairs whose order matters.
+ORDERED: tuple[tuple[str, str, str], ...] = (
+    ("tracker", "min_neck_height_m", "max_neck_height_m"),
+    ("tracker", "tentative_max_unseen_s", "max_unseen_s"),
+    ("identify", "rect_min_fraction", "rect_max_fraction"),
+    ("control", "search_yaw_rate_radps", "max_yaw_rate_radps"),
+)
+
+
+def section_errors(name: str, section) -> list[str]:
+    """One line per key of `section` (a config section instance) that is out of range."""
+    import dataclasses
+
+    bounds, choices = BOUNDS.get(name, {}), CHOICES.get(name, {})
+    errors = []
+    for f in dataclasses.fields(section):
+        value = getattr(section, f.name)
+        where = f"[{name}] {f.name}"
+        if isinstance(value, bool):
+            continue
+        if isinstance(value, str):
+            if f.name in choices:
+                if value not in choices[f.name]:
+                    errors.append(
+                        f"{where} = {value!r}: must be one of {', '.join(choices[f.name])}"
+                    )
+            elif (name, f.name) not in FREE_TEXT:
+                errors.append(f"{where}: no allowed values declared (follow/config_bounds.py)")
+            continue
+        if f.name not in bounds:
+            errors.append(f"{where}: no allowed range declared (follow/config_bounds.py)")
+        elif not bounds[f.name].contains(value):
+            errors.append(f"{where} = {value!r} is out of range: {bounds[f.name].describe()}")
+    for sec, small, large in ORDERED:
+        if sec != name or any(f"{key} =" in e for e in errors for key in (small, large)):
+            continue  # unordered pairs are only reported when both values are in range
+        if getattr(section, small) > getattr(section, large):
+            errors.append(
+                f"[{name}] {small} ({getattr(section, small)}) must not exceed "
+                f"{large} ({getattr(section, large)})"
+            )
+    return errors

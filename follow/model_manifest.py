@@ -1,0 +1,80 @@
+"""Integrity records of derived model files (the INT8 pose model, the initial-stage cut).
+
+A registry model has a pinned sha256 (follow/models.py). A file made on this machine
+from one has none to pin, so when it is made a JSON sidecar (`<file>.json`) records its
+own sha256, the file and sha256 it was made from and how (`made_from`: calibration
+frames, input height, ...). Before such a file is run, its bytes are checked against
+the record: a truncated or corrupted cache file is refused with a message that says
+how to make it again, instead of running and finding nobody.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from follow.models import ModelError, sha256_of
+
+MANIFEST_SUFFIX = ".json"
+
+
+def manifest_path(model_path: Path) -> Path:
+    return Path(str(model_path) + MANIFEST_SUFFIX)
+
+
+def write_manifest(
+    model_path: Path, source_path: Path, made_from: dict | None = None, written: Path | None = None
+) -> dict:
+    """Record `model_path`'s hash and what it was made from; returns the record.
+    `written`: the file holding the bytes, when it is renamed to `model_path` only after
+    the record exists (so a reader never finds a file without its record)."""
+    record = {
+        "file": Path(model_path).name,
+        "sha256": sha256_of(Path(written or model_path)),
+        "source": str(source_path),
+        "source_sha256": sha256_of(Path(source_path)),
+        "made_from": made_from or {},
+    }
+    manifest_path(model_path).write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
+    return record
+
+
+def read_manifest(model_path: Path) -> dict | None:
+    path = manifest_path(model_path)
+    if not path.exists():
+        return None
+    try:
+        record = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    return record if isinstance(record, dict) and "sha256" in record else None
+
+
+def check(model_path: Path) -> str:
+    """ "ok", or what is wrong with a derived file against its record."""
+    model_path = Path(model_path)
+    if not model_path.exists():
+        return "missing"
+    record = read_manifest(model_path)
+    if record is None:
+        return f"no integrity record ({manifest_path(model_path).name} missing or unreadable)"
+    actual = sha256_of(model_path)
+    if actual != record["sha256"]:
+        return f"sha256 {actual} != recorded {record['sha256']} (corrupted or changed)"
+    return "ok"
+
+
+def verify_derived(model_path: Path, how_to_rebuild: str) -> dict:
+    """The record of a derived file whose bytes match it; else ModelError naming the
+    file, what is wrong and how to rebuild it."""
+    status = check(model_path)
+    if status != "ok":
+        raise ModelError(f"model file {model_path}: {status}; refusing to run it. {how_to_rebuild}")
+    return read_manifest(model_path)  # type: ignore[return-value]
+
+
+def derived_files(root: Path) -> list[Path]:
+    """Every derived model file recorded under `root` (the user cache)."""
+    return sorted(
+        Path(str(m)[: -len(MANIFEST_SUFFIX)]) for m in Path(root).rglob(f"*.onnx{MANIFEST_SUFFIX}")
+    )

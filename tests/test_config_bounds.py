@@ -1,0 +1,89 @@
+import dataclasses
+import math
+
+import pytest
+
+from follow.config import Config, ConfigError
+from follow.config_bounds import BOUNDS, CHOICES, FREE_TEXT
+
+
+def test_the_defaults_pass_validation():
+    Config().validate()
+
+
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        (
+            "[control]\ntarget_timeout_s = 1e9\n",
+            r"\[control\] target_timeout_s = 1000000000.0 is out of range: 0 < value <= 2",
+        ),
+        ("[control]\ncontrol_rate_hz = 1e9\n", r"\[control\] control_rate_hz .* 1 <= value <= 100"),
+        ("[control]\nmax_forward_speed_mps = 1e9\n", r"\[control\] max_forward_speed_mps"),
+        (
+            "[tracker]\ngate_chi2_quantile = 1.5\n",
+            r"\[tracker\] gate_chi2_quantile = 1.5 .* 0 < value < 1",
+        ),
+        ("[tracker]\nmax_unseen_s = -5\n", r"\[tracker\] max_unseen_s = -5.0"),
+        ("[pose]\nheatmap_peak_threshold = nan\n", r"\[pose\] heatmap_peak_threshold = nan"),
+        (
+            "[pose]\ninput_height_px = 100000\n",
+            r"\[pose\] input_height_px = 100000 .* multiple of 8",
+        ),
+        ("[pose]\ninput_height_px = 366\n", r"\[pose\] input_height_px = 366"),
+        ("[pose]\nprovider = 'gpu'\n", r"\[pose\] provider = 'gpu': must be one of auto, cpu"),
+        ("[pose]\nprecision = 'fp16'\n", r"\[pose\] precision"),
+        ("[identify]\nidentifier = 'ccf11'\n", r"\[identify\] identifier"),
+        ("[mavlink]\nautopilot = 'dji'\n", r"\[mavlink\] autopilot"),
+        ("[mavlink]\nstream_rate_hz = 2\n", r"\[mavlink\] stream_rate_hz"),
+        (
+            "[tracker]\nmin_neck_height_m = 2.0\nmax_neck_height_m = 1.0\n",
+            "min_neck_height_m .* must not exceed max_neck_height_m",
+        ),
+    ],
+)
+def test_out_of_range_values_are_refused_naming_the_key(tmp_path, text, match):
+    path = tmp_path / "c.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=match) as caught:
+        Config.load(path)
+    assert str(caught.value).startswith(f"config {path}: ")
+
+
+def test_every_error_is_one_line_each():
+    with pytest.raises(ConfigError) as caught:
+        Config.from_dict({"control": {"max_forward_speed_mps": 9.0, "control_rate_hz": 0.0}})
+    lines = str(caught.value).splitlines()
+    assert len(lines) == 2
+    assert "max_forward_speed_mps" in lines[0] and "control_rate_hz" in lines[1]
+
+
+def test_a_replaced_config_is_validated_too():
+    with pytest.raises(ConfigError, match="max_yaw_rate_radps"):
+        Config().replace("control", max_yaw_rate_radps=100.0)
+
+
+def test_values_at_the_bounds_are_accepted():
+    cfg = Config.from_dict({"control": {"max_forward_speed_mps": 3.0, "control_rate_hz": 100}})
+    assert cfg.control.max_forward_speed_mps == 3.0
+
+
+def test_every_key_has_a_declared_range_or_choice():
+    """A new key without a line in follow/config_bounds.py fails validation; and no line
+    there names a key that does not exist."""
+    for section in dataclasses.fields(Config):
+        instance = getattr(Config(), section.name)
+        keys = {f.name for f in dataclasses.fields(instance)}
+        declared = set(BOUNDS.get(section.name, {})) | set(CHOICES.get(section.name, {}))
+        declared |= {k for s, k in FREE_TEXT if s == section.name}
+        numeric_or_text = {k for k in keys if not isinstance(getattr(instance, k), bool)}
+        assert numeric_or_text == declared, section.name
+        for key, rng in BOUNDS.get(section.name, {}).items():
+            assert rng.contains(getattr(instance, key)), (section.name, key)
+            assert not rng.contains(math.inf) and not rng.contains(math.nan)
+
+
+def test_identifier_choices_match_the_factory():
+    from follow.boost.factory import IDENTIFIERS
+
+    assert set(CHOICES["identify"]["identifier"]) == set(IDENTIFIERS)

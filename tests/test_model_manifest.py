@@ -1,0 +1,124 @@
+"""Derived model files carry an integrity record, checked before they run."""
+
+import argparse
+
+import onnx
+import pytest
+from onnx import TensorProto, helper
+from test_pose_stages import _two_stage_graph
+
+from follow import model_manifest, models
+from follow.config import PoseConfig
+from follow.pose.detector import _source_model_file
+from follow.pose.quantize import default_int8_path
+from follow.pose.stages import initial_stage_file
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path / "models"))
+    monkeypatch.delenv("FOLLOW_MODEL_DIR", raising=False)
+    return tmp_path / "models"
+
+
+def _save_graph(path, quantized: bool = False) -> None:
+    """The miniature two-stage OpenPose with typed outputs (1x1 convolutions keep 16x16)."""
+    model = _two_stage_graph(quantized)
+    del model.graph.output[:]
+    for name, channels in (("out_paf", 38), ("out_heat", 19)):
+        model.graph.output.append(
+            helper.make_tensor_value_info(name, TensorProto.FLOAT, [1, channels, 16, 16])
+        )
+    onnx.save(model, str(path))
+
+
+def _corrupt(path):
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def _verify_all(capsys) -> tuple[int, str]:
+    code = models.main(argparse.Namespace(action="verify", names=[], json=False, source=None))
+    return code, capsys.readouterr().out
+
+
+def test_the_stage_cut_is_recorded_and_a_corrupted_one_is_refused(cache, tmp_path, capsys):
+    source = tmp_path / "net.onnx"
+    _save_graph(source)
+    cut = initial_stage_file(source)
+    record = model_manifest.read_manifest(cut)
+    assert record["sha256"] == models.sha256_of(cut)
+    assert record["source_sha256"] == models.sha256_of(source)
+    assert initial_stage_file(source) == cut  # verified and reused
+    code, out = _verify_all(capsys)
+    assert "ok" in out and cut.name in out
+
+    _corrupt(cut)
+    with pytest.raises(models.ModelError, match="corrupted or changed.*cut again"):
+        initial_stage_file(source)
+    code, out = _verify_all(capsys)
+    assert code == 1 and "FAIL" in out and cut.name in out
+
+
+def test_a_cut_without_a_record_is_made_again(cache, tmp_path):
+    source = tmp_path / "net.onnx"
+    _save_graph(source)
+    cut = initial_stage_file(source)
+    model_manifest.manifest_path(cut).unlink()
+    _corrupt(cut)
+    assert initial_stage_file(source) == cut
+    assert model_manifest.check(cut) == "ok"
+
+
+@pytest.mark.parametrize("precision", ["auto", "int8"])
+def test_a_corrupted_int8_model_is_refused_with_how_to_rebuild(cache, tmp_path, precision):
+    source = tmp_path / "fp32.onnx"
+    _save_graph(source, quantized=True)
+    int8 = default_int8_path()
+    int8.parent.mkdir(parents=True)
+    int8.write_bytes(source.read_bytes())
+    model_manifest.write_manifest(int8, source, {"calibration": "test"})
+    assert _source_model_file(PoseConfig(precision=precision)) == int8
+    _corrupt(int8)
+    with pytest.raises(models.ModelError, match="refusing to run it.*follow models prepare"):
+        _source_model_file(PoseConfig(precision=precision))
+
+
+def test_an_int8_model_without_a_record_is_refused(cache):
+    int8 = default_int8_path()
+    int8.parent.mkdir(parents=True)
+    int8.write_bytes(b"not a model")
+    with pytest.raises(models.ModelError, match="no integrity record"):
+        _source_model_file(PoseConfig(precision="int8"))
+
+
+def test_the_int8_file_is_keyed_by_its_recipe(cache, monkeypatch):
+    from follow.pose import prepare
+
+    before = default_int8_path()
+    monkeypatch.setitem(prepare.INT8_RECIPE, "near_frames", prepare.INT8_RECIPE["near_frames"] + 1)
+    assert default_int8_path() != before
+    assert default_int8_path().parent == before.parent
+
+
+@pytest.mark.slow  # quantises the real network (two calibration frames)
+def test_prepare_makes_a_recorded_int8_model_calibrated_on_both_kinds_of_frames(
+    tmp_path, monkeypatch, model_path, data_path
+):
+    from follow.pose import prepare
+
+    model_path("pose/human-pose-estimation-0001.onnx")  # skips without the assets
+    data_path("pets2009_s2l1/View_001.avi")
+    data_path("ccf_crops")
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path / "models"))
+    monkeypatch.setitem(prepare.INT8_RECIPE, "pets_frames", 1)
+    monkeypatch.setitem(prepare.INT8_RECIPE, "near_frames", 1)
+    monkeypatch.setitem(prepare.INT8_RECIPE, "input_height_px", 128)
+    frames = prepare.calibration_frames()
+    assert len(frames) == 2 and frames[0].shape != frames[1].shape  # a PETS and a pasted frame
+    path = prepare.prepare_int8()
+    assert path == default_int8_path() and model_manifest.check(path) == "ok"
+    record = model_manifest.read_manifest(path)
+    assert "ccf_crops" in record["made_from"]["calibration"]
+    assert record["source_sha256"] == models.get_spec("human-pose-estimation-0001").files[0].sha256
