@@ -22,7 +22,10 @@ IDENTIFIERS = ("ccf10", "ccf25", "channels", "reid", "ccf10+reid", "ccf25+reid",
 AUTOPILOTS = ("ardupilot", "px4")
 # Text keys with free values (a model name is checked by the model registry, a file
 # path when it is opened, a connection string by pymavlink).
-FREE_TEXT = {("pose", "model"), ("pose", "model_file"), ("mavlink", "connection")}
+FREE_TEXT = {("pose", "model"), ("pose", "model_file"), ("mavlink", "connection")} | {
+    ("ros", name)
+    for name in ("image_topic", "camera_info_topic", "odom_topic", "cmd_vel_topic", "odom_frame")
+}
 
 
 @dataclass(frozen=True)
@@ -147,7 +150,14 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "neck_ankle_per_neck_hip": positive(10.0),
         "min_roi_height_px": closed(1.0, 4096.0),
         "min_roi_visible_fraction": UNIT,
-        "reid_gallery_size": closed(1, 10000),
+        "reid_gallery_size": closed(2, 10000),
+        "min_target_observations": closed(1, 1000),
+        "reid_accept_similarity": closed(-1.0, 1.0),
+        "reid_strict_similarity": closed(-1.0, 1.0),
+        "reid_strict_confidence": closed(-1.0, 1.0),
+        "reid_strict_after_s": positive(600.0),
+        "reid_height_tolerance_m": closed(0.0, 1.0),
+        "min_negatives_per_update": closed(0, 64),
         "reid_same_similarity": closed(-1.0, 1.0),
         "reid_similarity_scale": positive(2.0),
         "reid_weight": UNIT,
@@ -168,6 +178,10 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "turn_in_place_bearing_rad": positive(math.pi),
         # Stale targets must stop the robot within a couple of seconds at most.
         "target_timeout_s": positive(2.0),
+        # Driving toward an unseen target, and a stalled perception, are bounded hard.
+        "max_blind_drive_s": positive(1.0),
+        "watchdog_timeout_s": positive(2.0),
+        "missing_target_warn_s": positive(600.0),
         "search_duration_s": closed(0.0, 10.0),
         "search_yaw_rate_radps": closed(0.0, 3.0),
         "control_rate_hz": closed(1.0, 100.0),
@@ -184,6 +198,11 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "source_component": closed(0, 255),
         "px4_turn_horizon_s": positive(5.0),
     },
+    "ros": {
+        "max_image_age_s": positive(2.0),
+        "max_odometry_age_s": positive(2.0),
+        "diagnostics_period_s": positive(60.0),
+    },
 }
 
 CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
@@ -198,6 +217,8 @@ ORDERED: tuple[tuple[str, str, str], ...] = (
     ("tracker", "tentative_max_unseen_s", "max_unseen_s"),
     ("identify", "rect_min_fraction", "rect_max_fraction"),
     ("control", "search_yaw_rate_radps", "max_yaw_rate_radps"),
+    ("identify", "reid_confidence", "reid_strict_confidence"),
+    ("identify", "reid_accept_similarity", "reid_strict_similarity"),
 )
 
 
@@ -234,3 +255,41 @@ def section_errors(name: str, section) -> list[str]:
                 f"{large} ({getattr(section, large)})"
             )
     return errors
+
+
+def markdown_tables() -> str:
+    """The key tables of docs/config.md: every section, key, default and allowed range
+    (`python -m follow.config_bounds` prints them)."""
+    import dataclasses
+
+    from follow.config import Config
+
+    out = []
+    for f in dataclasses.fields(Config):
+        section = getattr(Config(), f.name)
+        out += [f"## [{f.name}]", "", "| key | default | allowed |", "|---|---|---|"]
+        for key in dataclasses.fields(section):
+            value = getattr(section, key.name)
+            if isinstance(value, bool):
+                allowed = "`true` \\| `false`"
+            elif isinstance(value, str):
+                choices = CHOICES.get(f.name, {}).get(key.name)
+                allowed = " \\| ".join(f"`{c}`" for c in choices) if choices else "any text"
+            else:
+                allowed = f"`{BOUNDS[f.name][key.name].describe()}`"
+            default = (
+                f'"{value}"'
+                if isinstance(value, str)
+                else str(value).lower()
+                if isinstance(value, bool)
+                else f"{value:g}"
+                if isinstance(value, float)
+                else str(value)
+            )
+            out.append(f"| `{key.name}` | `{default}` | {allowed} |")
+        out.append("")
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    print(markdown_tables())

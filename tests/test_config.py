@@ -49,3 +49,16 @@ def test_the_shipped_example_configs_load():
     for path in examples:
         cfg = Config.load(path)
         assert cfg != Config(), path  # each one changes something
+
+
+def test_docs_list_every_key_with_its_range():
+    """docs/config.md holds the tables `python -m follow.config_bounds` prints."""
+    from pathlib import Path
+
+    from follow.config_bounds import markdown_tables
+
+    docs = (Path(__file__).parents[1] / "docs" / "config.md").read_text()
+    missing = [line for line in markdown_tables().splitlines() if line and line not in docs]
+    assert not missing, "docs/config.md is out of date; regenerate its tables:\n" + "\n".join(
+        missing
+    )
