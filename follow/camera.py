@@ -58,9 +58,25 @@ def _rot_z(a: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+# Physically possible mounting poses: (lowest, highest) per field. A pitch beyond
+# straight down or straight up (|pitch| > pi/2) is no camera orientation of its own
+# (the same one is written with |pitch| <= pi/2 and the roll and yaw turned by pi);
+# roll and yaw are angles within one turn; a surveillance view (PETS 2009) sits up to
+# tens of metres off the robot's origin, no camera 50 m over the floor.
+POSE_BOUNDS: dict[str, tuple[float, float]] = {
+    "height_m": (1e-3, 50.0),
+    "pitch_rad": (-math.pi / 2, math.pi / 2),
+    "roll_rad": (-math.pi, math.pi),
+    "yaw_rad": (-2 * math.pi, 2 * math.pi),
+    "x_m": (-100.0, 100.0),
+    "y_m": (-100.0, 100.0),
+}
+
+
 @dataclass(frozen=True)
 class CameraPose:
-    """Where the camera sits on the robot (in `base`)."""
+    """Where the camera sits on the robot (in `base`); a pose outside POSE_BOUNDS, or a
+    field that is not a real number, is refused with a ValueError naming the field."""
 
     height_m: float
     pitch_rad: float = 0.0
@@ -68,6 +84,17 @@ class CameraPose:
     yaw_rad: float = 0.0
     x_m: float = 0.0
     y_m: float = 0.0
+
+    def __post_init__(self):
+        for name, (lo, hi) in POSE_BOUNDS.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)):
+                raise ValueError(f"camera pose {name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and lo <= value <= hi):
+                raise ValueError(
+                    f"camera pose {name} = {value!r} is not a possible mounting: "
+                    f"allowed {lo:.4g} .. {hi:.4g}"
+                )
 
     def rotation_base_from_cam(self) -> np.ndarray:
         # Positive pitch = nose down = rotation about +y_base by +pitch.
@@ -294,6 +321,10 @@ class CameraModel:
 
         def number(mapping: dict, key: str, where: str = "", default=None) -> float:
             value = mapping.get(key, default) if default is not None else need(mapping, key, where)
+            if isinstance(value, bool):
+                raise CameraFileError(
+                    f"{source}: field '{where}{key}' must be a number, got {value!r}"
+                )
             try:
                 out = float(value)
             except (TypeError, ValueError):
@@ -319,16 +350,11 @@ class CameraModel:
         pose_data = need(data, "pose", "")
         if not isinstance(pose_data, dict):
             raise CameraFileError(f"{source}: field 'pose' must be a mapping")
-        pose = CameraPose(
-            height_m=number(pose_data, "height_m", "pose."),
-            pitch_rad=number(pose_data, "pitch_rad", "pose."),
-            roll_rad=number(pose_data, "roll_rad", "pose.", 0.0),
-            yaw_rad=number(pose_data, "yaw_rad", "pose.", 0.0),
-            x_m=number(pose_data, "x_m", "pose.", 0.0),
-            y_m=number(pose_data, "y_m", "pose.", 0.0),
-        )
+        fields = {"height_m": None, "pitch_rad": None, "roll_rad": 0.0, "yaw_rad": 0.0,
+                  "x_m": 0.0, "y_m": 0.0}  # fmt: skip
+        values = {k: number(pose_data, k, "pose.", default) for k, default in fields.items()}
         try:
-            return cls(K, dist, (int(width), int(height)), pose)
+            return cls(K, dist, (int(width), int(height)), CameraPose(**values))
         except ValueError as exc:
             raise CameraFileError(f"{source}: {exc}") from None
 
