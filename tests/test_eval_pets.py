@@ -80,6 +80,8 @@ def test_bench_times_every_stage_and_says_which_model_ran(pets, capsys):
     # fps is printed to two decimals
     assert r["end_to_end_fps"] == pytest.approx(1000.0 / r["end_to_end_ms"], rel=0.01, abs=0.006)
     assert 50.0 < r["peak_rss_mb"] < 4000.0
-    # The default runs the initial stage; without the INT8 model it says FP32 ran.
-    assert "initial-stage" in r["pose_model"]
+    # The robot default runs the whole network (no stage cut); without the INT8 model it
+    # says FP32 ran.
+    assert r["pose_model"].startswith("human-pose-estimation-0001")
+    assert "initial-stage" not in r["pose_model"]
     assert ("int8" in r["pose_model"]) != bool(r["notes"])
