@@ -231,6 +231,9 @@ class ControlConfig:
     search_duration_s: float = 0.0
     search_yaw_rate_radps: float = 0.4
     control_rate_hz: float = 15.0
+    # Run the next frame's pose inference while this frame is tracked, identified and
+    # written (two frames in flight at most): more frames per second on the same cores.
+    overlap_stages: bool = True
 
 
 @dataclass(frozen=True)

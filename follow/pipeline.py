@@ -1,9 +1,14 @@
 """The per-frame loop that ties the stages together, and its threads.
 
     capture thread   -> newest frame only (a slow detector never builds a backlog)
-    perception       -> pose -> observations -> tracker -> identification -> FrameResult
-    control thread   -> at a fixed rate: newest target -> controller -> base, with a
-                        watchdog that stops the base when perception stalls
+    pose thread      -> pose network on the newest frame (`overlap_stages`: it infers
+                        the next frame while the previous one is tracked; two frames in
+                        flight at most)
+    perception       -> observations -> tracker -> identification -> FrameResult
+    output thread    -> drawing, video encoding and logging (`on_result`), in order
+    control thread   -> on each new result and at a fixed rate between them: newest
+                        target -> controller -> base, with a watchdog that stops the
+                        base when perception stalls
 
 Without threads (`run_offline`), every frame of a file is processed in order and the
 controller is stepped once per frame at the frame's time: reproducible, for evaluation
@@ -28,6 +33,8 @@ from follow.config import ControlConfig
 from follow.control.odometry import OdometryPolicy
 from follow.control.target import TargetMotion, ViewCone
 from follow.frames import odom_to_base, vector_odom_to_base
+from follow.handoff import Handoff, OrderedWorker
+from follow.latency import LatencyRecorder
 from follow.types import (
     Frame,
     Observation,
@@ -59,11 +66,21 @@ class FrameResult:
         return next((t for t in self.tracks if t.track_id == self.target.target_id), None)
 
 
+@dataclass(frozen=True)
+class Detections:
+    """The pose stage's output for one frame: what the later stages start from."""
+
+    skeletons: list[Skeleton]
+    pose_ms: float
+
+
 class Perception:
     """pose -> observations -> tracker -> identification, for one frame at a time.
 
     `detect` maps a frame to skeletons (the pose network, or the simulation's synthetic
-    detector); `to_observations` turns skeletons into tracker observations.
+    detector); `to_observations` turns skeletons into tracker observations. The two
+    halves (`detect_people`, `conclude`) are separate so that a runner can infer one
+    frame's pose while the previous frame is tracked.
     """
 
     def __init__(
@@ -78,17 +95,29 @@ class Perception:
         self.tracker = tracker
         self.identifier = identifier
 
-    def process(self, frame: Frame, robot: Odometry, frame_index: int) -> FrameResult:
+    def detect_people(self, frame: Frame) -> Detections:
+        """The pose stage alone (thread-safe with respect to `conclude`)."""
         t0 = time.perf_counter()
         skeletons = self.detect(frame)
+        return Detections(skeletons, 1e3 * (time.perf_counter() - t0))
+
+    def conclude(
+        self, frame: Frame, robot: Odometry, frame_index: int, detections: Detections
+    ) -> FrameResult:
+        """Tracker and identification on one frame's detections (frames in order)."""
         t1 = time.perf_counter()
-        observations = self.to_observations(skeletons)
+        observations = self.to_observations(detections.skeletons)
         tracks = self.tracker.update(observations, frame.stamp_s, robot)
         t2 = time.perf_counter()
         target = self.identifier.update(frame.image, tracks, frame.stamp_s, robot)
         t3 = time.perf_counter()
-        timing = {"pose": 1e3 * (t1 - t0), "tracker": 1e3 * (t2 - t1), "identify": 1e3 * (t3 - t2)}
-        return FrameResult(frame_index, frame.stamp_s, robot, skeletons, tracks, target, timing)
+        timing = {"pose": detections.pose_ms, "tracker": 1e3 * (t2 - t1),
+                  "identify": 1e3 * (t3 - t2)}  # fmt: skip
+        return FrameResult(frame_index, frame.stamp_s, robot, detections.skeletons, tracks,
+                           target, timing)  # fmt: skip
+
+    def process(self, frame: Frame, robot: Odometry, frame_index: int) -> FrameResult:
+        return self.conclude(frame, robot, frame_index, self.detect_people(frame))
 
 
 def target_motion(result: FrameResult | None, robot_now: Odometry) -> TargetMotion | None:
@@ -112,7 +141,8 @@ def target_motion(result: FrameResult | None, robot_now: Odometry) -> TargetMoti
 
 
 class ControlLoop:
-    """Runs the controller at a fixed rate in its own thread.
+    """Runs the controller in its own thread: at once when a new result arrives
+    (`notify`), and at a fixed rate between results.
 
     Each tick takes the newest FrameResult; if perception has produced nothing for
     `perception_timeout_s` (the watchdog), or the base has no fresh odometry, the command
@@ -142,15 +172,23 @@ class ControlLoop:
         self.last_command: VelocityCommand | None = None
         self.watchdog_trips = 0
         self.error: BaseException | None = None
+        self.latency = LatencyRecorder()  # capture of a frame -> first command from it
+        self._last_result: FrameResult | None = None
         self._stop = threading.Event()
+        self._wake = threading.Event()
         self._thread = threading.Thread(target=self._run, name="control", daemon=True)
 
     def start(self) -> ControlLoop:
         self._thread.start()
         return self
 
+    def notify(self) -> None:
+        """A new result is in: compute its command now rather than at the next tick."""
+        self._wake.set()
+
     def stop(self) -> None:
         self._stop.set()
+        self._wake.set()
         self._thread.join(timeout=5.0)
         self._send(VelocityCommand.stop(self.clock()))
 
@@ -177,6 +215,9 @@ class ControlLoop:
         if stalled:
             command = VelocityCommand.stop(now)
         self._send(command)
+        if result is not None and result is not self._last_result:
+            self._last_result = result
+            self.latency.add(now - result.stamp_s)
         return command
 
     def _send(self, command: VelocityCommand) -> None:
@@ -191,7 +232,9 @@ class ControlLoop:
             while not self._stop.is_set():
                 self.tick()
                 next_tick += self.period_s
-                self._stop.wait(max(0.0, next_tick - self.clock()))
+                if self._wake.wait(max(0.0, next_tick - self.clock())):
+                    self._wake.clear()
+                    next_tick = self.clock()  # a new result: its command now, then the period
         except BaseException as exc:  # the base must stop whatever went wrong
             self.error = exc
             log.exception("control loop failed: stopping the base")
@@ -228,13 +271,16 @@ def run_offline(
 
 
 class ThreadedRunner:
-    """Capture, perception and control in their own threads, on one clock.
+    """Capture, pose, perception, outputs and control in their own threads, on one clock.
 
     Frames are re-stamped with `clock()` as they are captured, and the robot's pose is
     sampled with them (so the tracker places each frame where the robot was when it was
     taken), so the control loop's staleness checks compare like with like. A frame
     captured without fresh odometry is not processed. `pace_hz` plays a file at its
-    frame rate. An error in the capture thread (a bad frame) ends the run and is raised.
+    frame rate. With `overlap_stages` the pose network infers the next frame while the
+    previous one is tracked and identified (two frames in flight at most). `on_result`
+    (drawing, video, log) runs on its own thread, in frame order. An error in any of
+    these threads (a bad frame, a full disk) ends the run and is raised here.
     """
 
     def __init__(
@@ -243,11 +289,13 @@ class ThreadedRunner:
         control: ControlLoop,
         base,
         clock: Callable[[], float] = time.monotonic,
+        overlap_stages: bool = False,
     ):
         self.perception = perception
         self.control = control
         self.base = base
         self.clock = clock
+        self.overlap_stages = overlap_stages
         self.frames = LatestSlot()
         self.results = control.results
         self._stop = threading.Event()
@@ -256,6 +304,7 @@ class ThreadedRunner:
         self.processed = 0
         self.skipped_without_odometry = 0
         self.capture_error: BaseException | None = None
+        self.pose_error: BaseException | None = None
 
     def _capture(self, source: Iterable[Frame], pace_hz: float | None) -> None:
         start = self.clock()
@@ -275,6 +324,52 @@ class ThreadedRunner:
         finally:
             self.frames.close()
 
+    def _newest_frames(self) -> Iterator[tuple[int, Frame, Odometry]]:
+        """Each newest captured frame with a known robot pose, until the source ends."""
+        while not self._stop.is_set():
+            item = self.frames.get(timeout_s=1.0)
+            if item is None:
+                if self.frames.closed:
+                    return
+                continue
+            if item[2] is None:  # pose unknown when taken: the control loop stops
+                self.skipped_without_odometry += 1
+                continue
+            yield item
+
+    def _detected_in_turn(self) -> Iterator[tuple[int, Frame, Odometry, Detections]]:
+        for index, frame, robot in self._newest_frames():
+            yield index, frame, robot, self.perception.detect_people(frame)
+
+    def _detected_ahead(self) -> Iterator[tuple[int, Frame, Odometry, Detections]]:
+        """Pose inference on its own thread, one frame ahead of the caller."""
+        handoff = Handoff()
+
+        def infer() -> None:
+            try:
+                for index, frame, robot in self._newest_frames():
+                    item = (index, frame, robot, self.perception.detect_people(frame))
+                    if not handoff.give(item, self._stop):
+                        return
+            except Exception as exc:  # raised again by run(), after the base has stopped
+                self.pose_error = exc
+            finally:
+                handoff.close()
+
+        worker = threading.Thread(target=infer, name="pose", daemon=True)
+        worker.start()
+        try:
+            while True:
+                item = handoff.take(timeout_s=1.0)
+                if item is None:
+                    if handoff.closed:
+                        return
+                    continue
+                yield item
+        finally:
+            self._stop.set()
+            worker.join(timeout=5.0)
+
     def run(
         self,
         source: Iterable[Frame],
@@ -287,30 +382,30 @@ class ThreadedRunner:
         )
         capture.start()
         self.control.start()
+        outputs = OrderedWorker(on_result) if on_result is not None else None
+        detected = self._detected_ahead() if self.overlap_stages else self._detected_in_turn()
         try:
-            while max_frames is None or self.processed < max_frames:
-                item = self.frames.get(timeout_s=1.0)
-                if item is None:
-                    if self.frames.closed:
-                        break
-                    continue
-                index, frame, robot = item
-                if robot is None:  # pose unknown when taken: the control loop stops
-                    self.skipped_without_odometry += 1
-                    continue
-                result = self.perception.process(frame, robot, index)
+            for index, frame, robot, detections in detected:
+                result = self.perception.conclude(frame, robot, index, detections)
                 self.results.put(result)
+                self.control.notify()
                 self.processed += 1
-                if on_result is not None:
-                    on_result(frame, result)
+                if outputs is not None:
+                    outputs.submit(frame, result)
                 if self.control.error is not None:
                     raise RuntimeError("control loop failed") from self.control.error
+                if max_frames is not None and self.processed >= max_frames:
+                    break
         finally:
             self._stop.set()
+            detected.close()
             self.control.stop()
             capture.join(timeout=2.0)
-        if self.capture_error is not None:
-            raise self.capture_error
+            if outputs is not None:
+                outputs.close()
+        for error in (self.capture_error, self.pose_error):
+            if error is not None:
+                raise error
 
     @property
     def dropped_frames(self) -> int:
@@ -335,4 +430,5 @@ def build_runner(
         config.watchdog_timeout_s, clock=clock, on_command=on_command,
         odometry=OdometryPolicy(base),
     )  # fmt: skip
-    return ThreadedRunner(perception, control, base, clock=clock)
+    return ThreadedRunner(perception, control, base, clock=clock,
+                          overlap_stages=config.overlap_stages)  # fmt: skip

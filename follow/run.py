@@ -68,7 +68,9 @@ def build_perception(config: Config, camera: CameraModel, detect=None) -> Percep
     if detect is None:
         from follow.pose.detector import PoseDetector
 
-        detector = PoseDetector(config.pose)
+        # warmed up at the frames' size: a runtime that compiles per input shape does
+        # it before the first real frame, not on it
+        detector = PoseDetector(config.pose, frame_size=camera.image_size)
 
         def detect(frame: Frame):
             return detector.detect(frame.image)
@@ -163,6 +165,7 @@ class RunSummary:
         self.dropped_frames = 0
         self.states: dict[str, int] = {}
         self.final_target_id: int | None = None
+        self.capture_to_command_ms: dict | None = None  # threaded runs: median and p95
 
     def add_result(self, result: FrameResult) -> None:
         self.frames += 1
@@ -275,11 +278,16 @@ def main(args) -> dict:
         "commands": summary.commands,
         "stopped_by": signals.reason,
     }
+    if summary.capture_to_command_ms is not None:
+        result["capture_to_command_ms"] = summary.capture_to_command_ms
     if hasattr(source, "frames_without_odometry"):
         result["frames_without_odometry"] = source.frames_without_odometry
     if not args.json:
         print(f"{summary.frames} frames at {result['fps']} fps "
               f"({dropped} dropped); states: {summary.states}")  # fmt: skip
+        latency = summary.capture_to_command_ms
+        if latency and latency["median"] is not None:
+            print(f"capture to command: median {latency['median']} ms, p95 {latency['p95']} ms")
     return result
 
 
@@ -308,6 +316,7 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
                        on_result=on_result, max_frames=args.max_frames)  # fmt: skip
         finally:
             summary.dropped_frames = runner.dropped_frames
+            summary.capture_to_command_ms = runner.control.latency.summary_ms()
         return
     controller = FollowingController(config.control, view=view)
     # NullBase: the camera is still, a fixed pose; a bag: its recorded pose at each image

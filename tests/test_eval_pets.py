@@ -69,19 +69,35 @@ def test_identification_evaluation_accounts_for_every_frame(pets, capsys, tmp_pa
     assert (tmp_path / "i.png").stat().st_size > 5_000
 
 
-def test_bench_times_every_stage_and_says_which_model_ran(pets, capsys):
-    r = _run(capsys, "bench", "--frames", "3", "--warmup", "1", "--json")
-    assert r["frames"] == 3
+def test_bench_times_every_stage_and_the_runner_against_bare_inference(pets, capsys):
+    r = _run(capsys, "bench", "--frames", "4", "--warmup", "1", "--json")
+    assert r["frames"] == 4
     for key in ("pose_ms", "inference_ms", "decode_ms", "tracker_ms", "identify_ms",
-                "control_ms", "end_to_end_ms"):  # fmt: skip
+                "control_ms", "in_turn_ms", "bare_inference_ms"):  # fmt: skip
         assert r[key] is not None and r[key] >= 0.0, key
     assert r["pose_ms"] >= r["inference_ms"] > 0.0
-    assert r["end_to_end_ms"] >= r["pose_ms"]
+    assert r["in_turn_ms"] >= r["pose_ms"]
     # fps is printed to two decimals
-    assert r["end_to_end_fps"] == pytest.approx(1000.0 / r["end_to_end_ms"], rel=0.01, abs=0.006)
+    assert r["in_turn_fps"] == pytest.approx(1000.0 / r["in_turn_ms"], rel=0.01, abs=0.006)
+    # the runner drove the frames through the threads and commanded from them
+    assert r["runner_frames"] >= 2 and r["overlap_stages"] is True
+    assert r["runner_frame_ms"] == pytest.approx(1000.0 / r["runner_fps"], rel=0.01)
+    assert r["end_to_end_over_inference"] == pytest.approx(
+        r["runner_frame_ms"] / r["bare_inference_ms"], rel=0.01
+    )
+    assert 0 < r["capture_to_command_median_ms"] <= r["capture_to_command_p95_ms"]
     assert 50.0 < r["peak_rss_mb"] < 4000.0
     # The robot default runs the whole network (no stage cut); without the INT8 model it
     # says FP32 ran.
+    assert r["settings"] == "robot" and r["network_stages"] == 2
     assert r["pose_model"].startswith("human-pose-estimation-0001")
     assert "initial-stage" not in r["pose_model"]
-    assert ("int8" in r["pose_model"]) != bool(r["notes"])
+    assert ("int8" in r["pose_model"]) != any("INT8" in n for n in r["notes"])
+
+
+def test_bench_pets_settings_run_the_initial_stage_at_576_px(pets, capsys):
+    r = _run(capsys, "bench", "--settings", "pets", "--provider", "cpu", "--frames", "2",
+             "--warmup", "0", "--json")  # fmt: skip
+    assert r["input_height_px"] == 576 and r["network_stages"] == 1
+    assert r["pose_backend"] == "onnxruntime:CPUExecutionProvider"
+    assert "initial-stage" in r["pose_model"]

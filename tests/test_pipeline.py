@@ -7,7 +7,14 @@ from follow.capture import LatestSlot
 from follow.config import ControlConfig
 from follow.control.base import NullBase
 from follow.control.controller import FollowingController
-from follow.pipeline import ControlLoop, FrameResult, Perception, ThreadedRunner, target_motion
+from follow.pipeline import (
+    ControlLoop,
+    Detections,
+    FrameResult,
+    Perception,
+    ThreadedRunner,
+    target_motion,
+)
 from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
 
 
@@ -49,15 +56,18 @@ def test_watchdog_stops_the_base_when_perception_stalls():
 
 
 class _FrozenPerception(Perception):
-    """Processes two frames, then hangs as a stuck detector would."""
+    """Detects in two frames, then hangs as a stuck detector would."""
 
     def __init__(self, release: threading.Event):
         self.release, self.calls = release, 0
 
-    def process(self, frame, robot, frame_index):
+    def detect_people(self, frame):
         self.calls += 1
         if self.calls > 2:
             self.release.wait(5.0)
+        return Detections([], 0.0)
+
+    def conclude(self, frame, robot, frame_index, detections):
         return _result(frame.stamp_s)
 
 

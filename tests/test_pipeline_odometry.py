@@ -12,7 +12,7 @@ from follow.capture import LatestSlot
 from follow.config import ControlConfig
 from follow.control.controller import FollowingController
 from follow.control.odometry import OdometryPolicy
-from follow.pipeline import ControlLoop, FrameResult, ThreadedRunner, run_offline
+from follow.pipeline import ControlLoop, Detections, FrameResult, ThreadedRunner, run_offline
 from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
 
 
@@ -72,10 +72,16 @@ class _SlowPerception:
     def __init__(self):
         self.seen = []
 
-    def process(self, frame, robot, frame_index):
-        self.seen.append((frame_index, robot.x_m))
+    def detect_people(self, frame):
         time.sleep(0.03)  # the source moves on (and the robot with it) meanwhile
+        return Detections([], 0.0)
+
+    def conclude(self, frame, robot, frame_index, detections):
+        self.seen.append((frame_index, robot.x_m))
         return _tracking(frame.stamp_s)
+
+    def process(self, frame, robot, frame_index):
+        return self.conclude(frame, robot, frame_index, self.detect_people(frame))
 
 
 def test_threaded_runner_uses_the_odometry_sampled_when_the_frame_was_captured():

@@ -139,3 +139,18 @@ def test_undecodable_image_file_gives_a_clear_error(detector, tmp_path):
     bad.write_bytes(b"\xff\xd8\xff\xe0 truncated")
     with pytest.raises(InvalidInput, match="None"):
         detector.detect(cv2.imread(str(bad)))
+
+
+def test_tensorrt_gets_an_engine_cache_in_the_user_cache(tmp_path, monkeypatch):
+    from follow.pose.runtime import provider_entries
+
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path))
+    entries = provider_entries(
+        ["TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"]
+    )
+    name, options = entries[0]
+    assert name == "TensorrtExecutionProvider"
+    assert options["trt_engine_cache_enable"] is True
+    assert options["trt_engine_cache_path"] == str(tmp_path / "tensorrt")
+    assert (tmp_path / "tensorrt").is_dir()
+    assert entries[1:] == ["CUDAExecutionProvider", "CPUExecutionProvider"]

@@ -1,27 +1,51 @@
-"""`follow bench`: per-stage latency of the whole stack on PETS 2009 frames, end-to-end
-frames per second, and peak resident memory.
+"""`follow bench`: the whole stack on PETS 2009 frames, against the pose network's own
+inference time on the same frames (the floor for the runtime).
 
-Every stage is timed on the same frames in one run, so the split is consistent even on
-a busy machine: medians over frames, after a warm-up. The end-to-end figure is the
-median time of one frame through capture, pose, tracker, identification and control.
+One run measures, in this order and in one process:
+1. **bare inference**: the pose network alone on each frame (median ms);
+2. **stages**: every frame through pose, tracker, identification and control one after
+   another, each stage timed (medians over frames, after a warm-up);
+3. **runner**: the threads that drive a robot (`build_runner`, stages overlapped as
+   configured) fed by a camera at `--camera-fps`: frames processed per second, capture
+   to command latency (median, p95), and end-to-end time per frame over the bare
+   inference time (1.0 would be the floor).
+Peak RSS is the process's. `--matrix` runs the robot defaults and the PETS settings
+with onnxruntime and with OpenVINO, each in its own process (so each has its own peak
+RSS), and prints them side by side.
 """
 
 from __future__ import annotations
 
+import json
 import resource
+import subprocess
 import sys
 import time
 
 import numpy as np
 
 from follow.config import Config
-from follow.eval.pets_setup import PETS_FPS, PetsSetup
+
+PROVIDER_CHOICES = ("auto", "cpu", "openvino", "cuda", "tensorrt")
+SETTINGS_CHOICES = ("robot", "pets")
+MATRIX = (("robot", "cpu"), ("robot", "openvino"), ("pets", "cpu"), ("pets", "openvino"))
 
 
 def add_arguments(p) -> None:
     p.add_argument("--frames", type=int, default=60, help="PETS frames to time (default 60)")
     p.add_argument("--warmup", type=int, default=5, help="frames run before timing")
-    p.add_argument("--config", help="TOML configuration (pose input size, provider, ...)")
+    p.add_argument("--settings", choices=SETTINGS_CHOICES, default="robot",
+                   help="robot defaults, or the PETS settings (follow/eval/pets2009.toml)")  # fmt: skip
+    p.add_argument("--provider", choices=PROVIDER_CHOICES,
+                   help="pose runtime: cpu = onnxruntime (the plain install), openvino, "
+                        "cuda, tensorrt (default: the config's)")  # fmt: skip
+    p.add_argument("--camera-fps", type=float, default=30.0,
+                   help="rate the runner's simulated camera delivers frames at (default 30)")  # fmt: skip
+    p.add_argument("--config", help="TOML configuration over the chosen settings")
+    p.add_argument("--matrix", action="store_true",
+                   help="robot and PETS settings x onnxruntime and OpenVINO, one process each")  # fmt: skip
+    p.add_argument("--repeats", type=int, default=1,
+                   help="with --matrix: runs per cell; the table shows medians (default 1)")  # fmt: skip
 
 
 def peak_rss_mb() -> float:
@@ -33,27 +57,93 @@ def _median(values) -> float | None:
     return round(float(np.median(values)), 3) if len(values) else None
 
 
+def bench_config(args) -> Config:
+    """The settings asked for, `--config` over them, then `--provider`."""
+    base = None
+    if args.settings == "pets":
+        from follow.eval.pets_setup import PETS_SETTINGS
+
+        base = Config.load(PETS_SETTINGS)
+    config = Config.load(args.config, base=base) if args.config else (base or Config())
+    if args.provider:
+        config = config.replace("pose", provider=args.provider)
+    return config
+
+
 def main(args) -> dict:
+    if args.frames < 1 or args.warmup < 0:
+        raise ValueError("--frames must be >= 1 and --warmup >= 0")
+    if args.matrix:
+        return run_matrix(args)
+    from follow.eval.pets_setup import PetsSetup
+    from follow.pose.detector import PoseDetector
+
+    config = bench_config(args)
+    setup = PetsSetup.load()
+    total = min(args.warmup + args.frames, setup.frame_count)
+    first = setup.sequence.read_frame(0)
+    detector = PoseDetector(config.pose, frame_size=(first.shape[1], first.shape[0]))
+    result = {
+        "settings": args.settings,
+        "input_height_px": config.pose.input_height_px,
+        "network_stages": config.pose.network_stages,
+        "identifier": config.identify.identifier,
+        "pose_backend": detector.backend_name,
+        "pose_model": detector.model_path.name,
+        "bare_inference_ms": bare_inference_ms(detector, setup, total, args.warmup, args.json),
+    }
+    result.update(stage_times(config, detector, setup, total, args.warmup, args.json))
+    result.update(runner_times(config, detector, setup, total, args.warmup, args.camera_fps,
+                               args.json))  # fmt: skip
+    e2e_ms = result["runner_frame_ms"]
+    result["end_to_end_over_inference"] = (
+        round(e2e_ms / result["bare_inference_ms"], 3) if e2e_ms else None
+    )
+    result["peak_rss_mb"] = round(peak_rss_mb(), 1)
+    notes = []
+    if config.pose.precision == "auto" and "int8" not in detector.model_path.name:
+        notes.append("the INT8 pose model is not made yet, so FP32 ran (2x slower on a CPU): "
+                     "`follow models prepare` makes it once")  # fmt: skip
+    if result["runner_fps"] and result["runner_fps"] >= 0.95 * args.camera_fps:
+        notes.append(f"the runner kept up with the {args.camera_fps:g} fps camera: its figures "
+                     "are the camera's rate, not the stack's limit")  # fmt: skip
+    result["notes"] = notes
+    if not args.json:
+        print_report(result, args.camera_fps)
+    return result
+
+
+def bare_inference_ms(detector, setup, total: int, warmup: int, quiet: bool) -> float | None:
+    """The pose network alone on the frames (preprocessing and decoding excluded)."""
+    from tqdm import tqdm
+
+    times = []
+    for index in tqdm(range(total), desc="bench: inference", unit="frame", disable=quiet):
+        image = setup.sequence.read_frame(index)
+        detector.infer(image)
+        if index >= warmup:
+            times.append(detector.last_timing_ms["inference"])
+    return _median(times)
+
+
+def stage_times(config, detector, setup, total: int, warmup: int, quiet: bool) -> dict:
+    """Each frame through every stage in turn; per-stage medians."""
     from tqdm import tqdm
 
     from follow.control.controller import FollowingController
+    from follow.eval.pets_setup import PETS_FPS
     from follow.pipeline import target_motion
-    from follow.pose.detector import PoseDetector
     from follow.run import build_perception
     from follow.types import Frame, Odometry
 
-    config = Config.load(args.config) if args.config else Config()
-    setup = PetsSetup.load()
-    detector = PoseDetector(config.pose)
     perception = build_perception(config, setup.camera, lambda frame: detector.detect(frame.image))
     controller = FollowingController(config.control)
-    total = min(args.warmup + args.frames, setup.frame_count)
     times: dict[str, list[float]] = {k: [] for k in (
         "capture", "preprocess", "inference", "decode", "pose", "tracker", "identify",
-        "control", "end_to_end")}  # fmt: skip
-    per_track, per_person = [], []
+        "control", "in_turn")}  # fmt: skip
+    per_track, per_person, people = [], [], []
     selected = False
-    for index in tqdm(range(total), desc="bench", unit="frame", disable=args.json):
+    for index in tqdm(range(total), desc="bench: stages", unit="frame", disable=quiet):
         stamp = index / PETS_FPS
         robot = Odometry.origin(stamp)
         t0 = time.perf_counter()
@@ -64,15 +154,12 @@ def main(args) -> dict:
         controller.update(target_motion(result, robot), stamp)
         t3 = time.perf_counter()
         if not selected:  # learn someone, so that the identifier's update is timed too
-            confirmed = [t for t in result.tracks if t.confirmed]
-            if confirmed:
-                perception.identifier.select_target(confirmed[0].track_id)
-                selected = True
-        if index < args.warmup:
+            selected = _select_someone(perception, result)
+        if index < warmup:
             continue
         stage_ms = result.timing_ms
         for key, value_ms in (("capture", 1e3 * (t1 - t0)), ("control", 1e3 * (t3 - t2)),
-                              ("end_to_end", 1e3 * (t3 - t0)),
+                              ("in_turn", 1e3 * (t3 - t0)),
                               *((k, stage_ms[k]) for k in ("pose", "tracker", "identify")),
                               *((k, v) for k, v in detector.last_timing_ms.items()
                                 if k in ("preprocess", "inference", "decode"))):  # fmt: skip
@@ -80,33 +167,127 @@ def main(args) -> dict:
         if result.tracks:
             per_track.append(stage_ms["tracker"] / len(result.tracks))
         observed = sum(t.observation is not None for t in result.tracks)
+        people.append(observed)
         if observed:
             per_person.append(stage_ms["identify"] / observed)
-    e2e = _median(times["end_to_end"])
-    result = {
-        "frames": len(times["end_to_end"]),
-        "input_height_px": config.pose.input_height_px,
-        "pose_backend": detector.backend_name,
-        "pose_model": detector.model_path.name,
-        **{f"{k}_ms": _median(v) for k, v in times.items() if k != "end_to_end"},
+    in_turn = _median(times.pop("in_turn"))
+    return {
+        "frames": len(people),
+        "people_in_view_median": _median(people),
+        "people_in_view_max": max(people) if people else None,
+        **{f"{k}_ms": _median(v) for k, v in times.items()},
         "tracker_ms_per_track": _median(per_track),
         "identify_ms_per_person": _median(per_person),
-        "end_to_end_ms": e2e,
-        "end_to_end_fps": round(1000.0 / e2e, 2) if e2e else None,
-        "peak_rss_mb": round(peak_rss_mb(), 1),
+        "in_turn_ms": in_turn,
+        "in_turn_fps": round(1000.0 / in_turn, 2) if in_turn else None,
     }
-    notes = []
-    if config.pose.precision == "auto" and "int8" not in detector.model_path.name:
-        notes.append("the INT8 pose model is not made yet, so FP32 ran (2x slower on a CPU): "
-                     "`python tools/quantize_pose.py` makes it once")  # fmt: skip
-    result["notes"] = notes
+
+
+def runner_times(config, detector, setup, total: int, warmup: int, camera_fps: float,
+                 quiet: bool) -> dict:  # fmt: skip
+    """The threaded runner of `follow run`, fed at `camera_fps` by a decoding camera."""
+    from follow.control.base import NullBase
+    from follow.pipeline import build_runner
+    from follow.run import build_perception
+    from follow.types import Frame
+
+    perception = build_perception(config, setup.camera, lambda frame: detector.detect(frame.image))
+    runner = build_runner(perception, NullBase(), config.control)
+    done_s: list[float] = []
+
+    def on_result(frame, result) -> None:
+        done_s.append(time.perf_counter())
+        if len(done_s) == 1 or result.target.target_id is None:
+            _select_someone(perception, result)
+
+    def camera():
+        for index in range(total):
+            yield Frame(setup.sequence.read_frame(index), 0.0)  # decoded like a camera's
+
+    if not quiet:
+        print(f"bench: runner at {camera_fps:g} fps ({total} frames)...", file=sys.stderr)
+    runner.run(camera(), pace_hz=camera_fps, on_result=on_result)
+    timed = done_s[min(warmup, max(0, len(done_s) - 2)) :]
+    fps = (len(timed) - 1) / (timed[-1] - timed[0]) if len(timed) >= 2 else None
+    latency = runner.control.latency.summary_ms()
+    return {
+        "overlap_stages": runner.overlap_stages,
+        "camera_fps": camera_fps,
+        "runner_frames": runner.processed,
+        "runner_dropped_frames": runner.dropped_frames,
+        "runner_fps": round(fps, 2) if fps else None,
+        "runner_frame_ms": round(1000.0 / fps, 3) if fps else None,
+        "capture_to_command_median_ms": latency["median"],
+        "capture_to_command_p95_ms": latency["p95"],
+    }
+
+
+def _select_someone(perception, result) -> bool:
+    confirmed = [t for t in result.tracks if t.confirmed]
+    if confirmed:
+        perception.identifier.select_target(confirmed[0].track_id)
+    return bool(confirmed)
+
+
+def print_report(result: dict, camera_fps: float) -> None:
+    print(f"{result['frames']} PETS frames ({result['settings']} settings), pose input "
+          f"{result['input_height_px']} px, {result['pose_model']} on {result['pose_backend']}, "
+          f"identifier {result['identifier']}, people in view median "
+          f"{result['people_in_view_median']} (max {result['people_in_view_max']}); medians:")  # fmt: skip
+    print(f"  bare inference           {result['bare_inference_ms']} ms (the floor)")
+    for key, value in result.items():
+        if (
+            key.endswith("_ms")
+            and key not in ("bare_inference_ms", "runner_frame_ms")
+            and ("capture_to" not in key)
+        ):
+            print(f"  {key:24s} {value}")
+    print(f"  stages in turn: {result['in_turn_fps']} fps")
+    print(f"  runner ({'overlapped' if result['overlap_stages'] else 'in turn'}, camera "
+          f"{camera_fps:g} fps): {result['runner_fps']} fps, {result['runner_frame_ms']} ms a "
+          f"frame = {result['end_to_end_over_inference']} x bare inference; capture to command "
+          f"median {result['capture_to_command_median_ms']} ms, p95 "
+          f"{result['capture_to_command_p95_ms']} ms")  # fmt: skip
+    print(f"  peak RSS {result['peak_rss_mb']} MB")
+    for note in result["notes"]:
+        print(f"  note: {note}")
+
+
+MATRIX_KEYS = ("bare_inference_ms", "in_turn_fps", "runner_fps", "end_to_end_over_inference",
+               "capture_to_command_median_ms", "capture_to_command_p95_ms", "peak_rss_mb")  # fmt: skip
+
+
+def run_matrix(args) -> dict:
+    """Each (settings, runtime) in its own process, `--repeats` times, interleaved so
+    that a change in the machine's load touches every cell alike."""
+    from tqdm import tqdm
+
+    cells: dict[str, list[dict]] = {f"{s}/{p}": [] for s, p in MATRIX}
+    runs = [(s, p) for _ in range(args.repeats) for s, p in MATRIX]
+    for settings, provider in tqdm(runs, desc="bench matrix", unit="run", disable=args.json):
+        command = [sys.executable, "-m", "follow.cli", "bench", "--json", "--settings", settings,
+                   "--provider", provider, "--frames", str(args.frames), "--warmup",
+                   str(args.warmup), "--camera-fps", str(args.camera_fps)]  # fmt: skip
+        if args.config:
+            command += ["--config", args.config]
+        out = subprocess.run(command, capture_output=True, text=True)
+        if out.returncode != 0:
+            raise RuntimeError(f"bench {settings}/{provider} failed:\n{out.stderr[-2000:]}")
+        cells[f"{settings}/{provider}"].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    table = {}
+    for name, runs_of_cell in cells.items():
+        row = {k: _median([r[k] for r in runs_of_cell if r[k] is not None]) for k in MATRIX_KEYS}
+        row["pose_backend"] = runs_of_cell[0]["pose_backend"]
+        row["pose_model"] = runs_of_cell[0]["pose_model"]
+        row["runs"] = len(runs_of_cell)
+        table[name] = row
     if not args.json:
-        print(f"{result['frames']} PETS frames, pose input height {config.pose.input_height_px}"
-              f" px, {detector.model_path.name} on {detector.backend_name}; medians:")  # fmt: skip
-        for key, value in result.items():
-            if key.endswith("_ms") or key.endswith("_per_track") or key.endswith("_per_person"):
-                print(f"  {key:24s} {value}")
-        print(f"  end-to-end: {result['end_to_end_fps']} fps; peak RSS {result['peak_rss_mb']} MB")
-        for note in notes:
-            print(f"  note: {note}")
-    return result
+        print(f"medians of {args.repeats} run(s) per cell, camera {args.camera_fps:g} fps")
+        print(f"{'cell':18s} {'inference ms':>12s} {'in turn fps':>11s} {'runner fps':>10s} "
+              f"{'x inference':>11s} {'latency p50':>11s} {'p95':>7s} {'peak RSS MB':>11s}")  # fmt: skip
+        for name, row in table.items():
+            print(f"{name:18s} {row['bare_inference_ms']:12.1f} {row['in_turn_fps']:11.1f} "
+                  f"{row['runner_fps']:10.1f} {row['end_to_end_over_inference']:11.2f} "
+                  f"{row['capture_to_command_median_ms']:11.1f} "
+                  f"{row['capture_to_command_p95_ms']:7.1f} {row['peak_rss_mb']:11.0f}")  # fmt: skip
+    return {"matrix": table, "repeats": args.repeats, "camera_fps": args.camera_fps}

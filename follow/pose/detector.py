@@ -101,7 +101,13 @@ class PoseDetector:
     """
 
     # PoseConfig is frozen, so one shared default instance is safe.
-    def __init__(self, config: PoseConfig = PoseConfig(), model_path: Path | None = None):  # noqa: B008
+    def __init__(
+        self,
+        config: PoseConfig = PoseConfig(),  # noqa: B008
+        model_path: Path | None = None,
+        frame_size: tuple[int, int] = (640, 480),
+    ):
+        """`frame_size` (width, height) is the size of the frames to come, for warm-up."""
         self.config = config
         if config.input_height_px <= 0 or config.input_height_px % NETWORK_STRIDE_PX:
             raise ValueError(
@@ -114,7 +120,8 @@ class PoseDetector:
         self.last_timing_ms: dict[str, float] = {}
         log.info("pose: running %s (sha256 %s) on %s", self.model_path,
                  models.sha256_of(self.model_path)[:16], self.backend.name)  # fmt: skip
-        self.warm_up()
+        self._input_buffers: dict[tuple[int, int], np.ndarray] = {}
+        self.warm_up(frame_size)
 
     @property
     def backend_name(self) -> str:
@@ -130,7 +137,8 @@ class PoseDetector:
     def infer(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, Letterbox]:
         """(heatmaps, pafs, letterbox plan) of one frame; raises InvalidInput on a bad frame."""
         t0 = time.perf_counter()
-        tensor, plan = prepare_input(image_bgr, self.config.input_height_px)
+        tensor, plan = prepare_input(image_bgr, self.config.input_height_px,
+                                     self._input_buffers)  # fmt: skip
         t1 = time.perf_counter()
         heatmaps, pafs = self.backend.run(tensor)
         t2 = time.perf_counter()

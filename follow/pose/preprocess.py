@@ -85,13 +85,27 @@ def check_frame(image_bgr: np.ndarray) -> None:
         raise InvalidInput(f"pose: frame too small ({image_bgr.shape[1]}x{image_bgr.shape[0]} px)")
 
 
-def prepare_input(image_bgr: np.ndarray, input_height_px: int) -> tuple[np.ndarray, Letterbox]:
-    """A float32 (1, 3, H, W) raw-BGR tensor for the network, and the plan to map back."""
+def prepare_input(
+    image_bgr: np.ndarray,
+    input_height_px: int,
+    buffers: dict[tuple[int, int], np.ndarray] | None = None,
+) -> tuple[np.ndarray, Letterbox]:
+    """A float32 (1, 3, H, W) raw-BGR tensor for the network, and the plan to map back.
+
+    With `buffers` (one per frame size, kept by the caller) the tensor is written into
+    the same array every frame instead of a new one; the caller must be done with the
+    previous tensor before the next call.
+    """
     check_frame(image_bgr)
     height, width = image_bgr.shape[:2]
     plan = plan_letterbox((width, height), input_height_px)
     interpolation = cv2.INTER_AREA if plan.scale_xy[1] < 1 else cv2.INTER_LINEAR
     resized = cv2.resize(image_bgr, plan.resized_size, interpolation=interpolation)
-    tensor = np.full((1, 3, plan.input_size[1], plan.input_size[0]), PAD_VALUE, np.float32)
+    shape = (1, 3, plan.input_size[1], plan.input_size[0])
+    tensor = None if buffers is None else buffers.get((width, height))
+    if tensor is None:
+        tensor = np.full(shape, PAD_VALUE, np.float32)  # the padding stays as it is
+        if buffers is not None:
+            buffers[(width, height)] = tensor
     tensor[0, :, :, : plan.resized_size[0]] = resized.transpose(2, 0, 1)
     return tensor, plan

@@ -43,6 +43,32 @@ def _split_outputs(outputs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     return by_channels[HEATMAP_CHANNELS][0], by_channels[PAF_CHANNELS][0]
 
 
+def tensorrt_options() -> dict[str, object]:
+    """TensorRT provider options: built engines are cached beside the user's models,
+    keyed by onnxruntime from the model and the device, so only the first start on a
+    board pays the engine build (minutes on a Jetson). FP16 is on: the board's tensor
+    cores run it, and the network's outputs are smooth maps that lose nothing to it."""
+    from follow.models import cache_dir
+
+    engines = cache_dir() / "tensorrt"
+    engines.mkdir(parents=True, exist_ok=True)
+    return {
+        "trt_engine_cache_enable": True,
+        "trt_engine_cache_path": str(engines),
+        "trt_timing_cache_enable": True,
+        "trt_timing_cache_path": str(engines),
+        "trt_fp16_enable": True,
+    }
+
+
+def provider_entries(providers: list[str]) -> list:
+    """onnxruntime's providers argument, with options where a provider needs them."""
+    return [
+        (name, tensorrt_options()) if name == "TensorrtExecutionProvider" else name
+        for name in providers
+    ]
+
+
 class OrtBackend:
     """onnxruntime session with the given execution providers (in priority order)."""
 
@@ -56,7 +82,9 @@ class OrtBackend:
         # Idle worker threads sleep instead of spinning: the other stages of the pipeline
         # (and other runtimes in a benchmark) need the CPU between two frames.
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        self.session = ort.InferenceSession(str(model_path), options, providers=providers)
+        self.session = ort.InferenceSession(
+            str(model_path), options, providers=provider_entries(providers)
+        )
         self.input_name = self.session.get_inputs()[0].name
         active = self.session.get_providers()
         if active[0] != providers[0]:

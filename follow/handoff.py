@@ -1,0 +1,106 @@
+"""Passing work between the runner's threads without losing order or piling up frames.
+
+`Handoff` carries one item from the pose thread to the tracking thread; the giver waits
+until it has been taken, so at most two frames are in flight (one being tracked, one
+inferred). `OrderedWorker` runs a callback (drawing, video encoding, logging) on its own
+thread, in order, and raises its first error in the thread that feeds it.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Callable
+
+POLL_S = 0.05  # how often a waiting thread looks at the stop flag
+
+
+class Handoff:
+    """A one-item mailbox whose giver waits until the item is taken."""
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._item = None
+        self._full = False
+        self._closed = False
+
+    def give(self, item, stop: threading.Event) -> bool:
+        """Hand `item` over and wait until it is taken; False when `stop` was set first."""
+        with self._cond:
+            self._item, self._full = item, True
+            self._cond.notify_all()
+            while self._full and not stop.is_set():
+                self._cond.wait(POLL_S)
+            return not self._full
+
+    def take(self, timeout_s: float):
+        """The item given, or None on time-out or when closed and empty."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._full or self._closed, timeout=timeout_s)
+            if not self._full:
+                return None
+            item, self._item, self._full = self._item, None, False
+            self._cond.notify_all()
+            return item
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+
+class OrderedWorker:
+    """Runs `callback(*args)` for each submitted item on one background thread, in order.
+
+    The queue is bounded (`max_pending`), so a slow callback slows the feeder instead of
+    piling up frames in memory. The callback's first exception stops the worker and is
+    raised by the next `submit` or by `close`.
+    """
+
+    _DONE = object()
+
+    def __init__(self, callback: Callable, max_pending: int = 4, name: str = "outputs"):
+        self.callback = callback
+        self.error: BaseException | None = None
+        self._queue: queue.Queue = queue.Queue(maxsize=max_pending)
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, *args) -> None:
+        if self.error is not None:
+            raise self.error
+        while self._thread.is_alive():
+            try:
+                self._queue.put(args, timeout=POLL_S)
+                return
+            except queue.Full:
+                continue
+        if self.error is not None:
+            raise self.error
+
+    def close(self, timeout_s: float = 30.0) -> None:
+        """Finish every submitted item, then raise the callback's error if there was one."""
+        while self._thread.is_alive():
+            try:
+                self._queue.put(self._DONE, timeout=POLL_S)
+                break
+            except queue.Full:
+                continue
+        self._thread.join(timeout_s)
+        if self.error is not None:
+            raise self.error
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is self._DONE:
+                return
+            try:
+                self.callback(*item)
+            except BaseException as exc:  # raised again in the feeding thread
+                self.error = exc
+                return

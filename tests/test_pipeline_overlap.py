@@ -1,0 +1,191 @@
+"""The overlapped runner: pose inference one frame ahead, outputs on their own thread."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from follow.capture import LatestSlot
+from follow.config import ControlConfig
+from follow.control.base import NullBase
+from follow.control.controller import FollowingController
+from follow.handoff import Handoff, OrderedWorker
+from follow.pipeline import ControlLoop, Detections, FrameResult, ThreadedRunner
+from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
+
+
+def _result(index: int, stamp_s: float) -> FrameResult:
+    track = TrackState(7, np.array([4.0, 0.0, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, stamp_s)
+    return FrameResult(index, stamp_s, Odometry.origin(stamp_s), [], [track],
+                       TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, stamp_s))  # fmt: skip
+
+
+class _TimedPerception:
+    """Each half takes `stage_s`; counts the frames between the start of detection and
+    the end of concluding (in flight)."""
+
+    def __init__(self, stage_s: float = 0.02, fail_detect_at: int | None = None):
+        self.stage_s = stage_s
+        self.fail_detect_at = fail_detect_at
+        self.lock = threading.Lock()
+        self.in_flight = 0
+        self.max_in_flight = 0
+        self.detect_threads = set()
+        self.concluded: list[int] = []
+        self.detected = 0
+
+    def detect_people(self, frame):
+        with self.lock:
+            self.in_flight += 1
+            self.max_in_flight = max(self.max_in_flight, self.in_flight)
+            self.detect_threads.add(threading.current_thread().name)
+            self.detected += 1
+            if self.fail_detect_at is not None and self.detected >= self.fail_detect_at:
+                raise ValueError("pose network failed on this frame")
+        time.sleep(self.stage_s)
+        return Detections([], self.stage_s * 1e3)
+
+    def conclude(self, frame, robot, index, detections):
+        time.sleep(self.stage_s)
+        with self.lock:
+            self.in_flight -= 1
+            self.concluded.append(index)
+        return _result(index, frame.stamp_s)
+
+
+def _runner(perception, overlap: bool, base=None) -> ThreadedRunner:
+    base = base if base is not None else NullBase()
+    control = ControlLoop(FollowingController(ControlConfig()), base, LatestSlot(),
+                          rate_hz=15.0, perception_timeout_s=0.5)  # fmt: skip
+    return ThreadedRunner(perception, control, base, overlap_stages=overlap)
+
+
+def _frames(count: int):
+    return (Frame(np.zeros((16, 16, 3), np.uint8), k / 100) for k in range(count))
+
+
+def test_overlapped_stages_keep_two_frames_in_flight_at_most_and_in_order():
+    perception = _TimedPerception()
+    runner = _runner(perception, overlap=True)
+    runner.run(_frames(40), pace_hz=100.0)
+    assert perception.max_in_flight == 2  # inference ran while a frame was concluded
+    assert perception.detect_threads == {"pose"}
+    assert perception.concluded == sorted(perception.concluded)
+    assert runner.processed == len(perception.concluded) >= 10
+    assert runner.base.commands[-1].is_stop
+
+
+def test_stages_in_turn_keep_one_frame_in_flight():
+    perception = _TimedPerception()
+    runner = _runner(perception, overlap=False)
+    runner.run(_frames(20), pace_hz=100.0)
+    assert perception.max_in_flight == 1
+    assert threading.current_thread().name in perception.detect_threads
+
+
+def test_results_reach_on_result_in_order_on_the_output_thread():
+    seen, threads = [], set()
+
+    def on_result(frame, result):
+        seen.append(result.frame_index)
+        threads.add(threading.current_thread().name)
+
+    runner = _runner(_TimedPerception(stage_s=0.005), overlap=True)
+    runner.run(_frames(30), pace_hz=100.0, on_result=on_result)
+    assert seen == sorted(seen) and len(seen) == runner.processed
+    assert threads == {"outputs"}
+
+
+def test_an_output_error_ends_the_run_with_the_base_stopped():
+    base = NullBase()
+
+    def on_result(frame, result):
+        if result.frame_index >= 3:
+            raise OSError("disk full")
+
+    runner = _runner(_TimedPerception(stage_s=0.005), overlap=True, base=base)
+    with pytest.raises(OSError, match="disk full"):
+        runner.run(_frames(500), pace_hz=100.0, on_result=on_result)
+    assert base.commands[-1].is_stop
+
+
+def test_a_pose_error_on_the_pose_thread_ends_the_run_with_the_base_stopped():
+    base = NullBase()
+    runner = _runner(_TimedPerception(stage_s=0.005, fail_detect_at=5), overlap=True, base=base)
+    with pytest.raises(ValueError, match="pose network failed"):
+        runner.run(_frames(500), pace_hz=100.0)
+    assert base.commands[-1].is_stop
+
+
+def test_latency_is_recorded_once_per_result_from_capture_to_its_first_command():
+    now = [10.0]
+    slot = LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), NullBase(), slot, rate_hz=15.0,
+                       perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
+    slot.put(_result(0, 9.95))
+    loop.tick()
+    now[0] += 0.05
+    loop.tick()  # the same result again: not a new latency
+    assert loop.latency.count == 1
+    assert loop.latency.summary_ms()["median"] == pytest.approx(50.0, abs=1e-6)
+    slot.put(_result(1, 10.02))
+    loop.tick()
+    assert loop.latency.count == 2  # 50 ms and 30 ms
+    assert loop.latency.summary_ms()["median"] == pytest.approx(40.0, abs=1e-6)
+
+
+def test_a_new_result_is_commanded_before_the_next_fixed_tick():
+    base = NullBase()
+    slot = LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=1.0,
+                       perception_timeout_s=5.0).start()  # fmt: skip
+    time.sleep(0.1)  # the first tick has run; the next fixed one is a second away
+    sent = len(base.commands)
+    slot.put(_result(0, time.monotonic()))
+    loop.notify()
+    deadline = time.monotonic() + 0.5
+    while len(base.commands) == sent and time.monotonic() < deadline:
+        time.sleep(0.005)
+    loop.stop()
+    assert len(base.commands) > sent
+    assert loop.latency.count == 1
+
+
+def test_handoff_giver_waits_until_taken_and_stops_on_request():
+    handoff, stop = Handoff(), threading.Event()
+    done = []
+    giver = threading.Thread(target=lambda: done.append(handoff.give("x", stop)))
+    giver.start()
+    time.sleep(0.1)
+    assert not done  # not taken yet
+    assert handoff.take(1.0) == "x"
+    giver.join(1.0)
+    assert done == [True]
+    giver = threading.Thread(target=lambda: done.append(handoff.give("y", stop)))
+    giver.start()
+    stop.set()
+    giver.join(1.0)
+    assert done == [True, False]
+    handoff.close()
+    handoff.take(0.0)  # "y" is still there
+    assert handoff.take(0.01) is None and handoff.closed
+
+
+def test_ordered_worker_keeps_order_and_raises_the_first_error_on_close():
+    seen = []
+    worker = OrderedWorker(seen.append, max_pending=2)
+    for k in range(50):
+        worker.submit(k)
+    worker.close()
+    assert seen == list(range(50))
+
+    def fail(k):
+        if k == 2:
+            raise KeyError(k)
+
+    worker = OrderedWorker(fail)
+    with pytest.raises(KeyError):
+        for k in range(100):
+            worker.submit(k)
+        worker.close()
