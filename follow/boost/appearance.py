@@ -78,13 +78,39 @@ class AppearanceModel:
             for i in range(n)
         ]
 
-    def describe(self, image_bgr: np.ndarray, rois: Sequence[Roi]) -> list[Appearance]:
-        """The cues of each ROI of a frame (all people in one batch)."""
+    def describe(
+        self, image_bgr: np.ndarray, rois: Sequence[Roi], embed: Sequence[bool] | None = None
+    ) -> list[Appearance]:
+        """The cues of each ROI of a frame (all people in one batch). The re-id network
+        (~7 ms a person on a laptop core) runs only on the ROIs `embed` marks (default
+        all); the others get no embedding until `complete` gives them one."""
         if not rois:
             return []
         maps = self.extractor.extract(image_bgr, rois) if self.extractor is not None else None
-        emb = self.reid.embed(image_bgr, rois) if self.reid is not None else None
-        return self._combine(maps, emb)
+        if self.reid is None:
+            return self._combine(maps, None)
+        wanted = [i for i in range(len(rois)) if embed is None or embed[i]]
+        found = self.reid.embed(image_bgr, [rois[i] for i in wanted]) if wanted else []
+        embeddings: list[np.ndarray | None] = [None] * len(rois)
+        for i, embedding in zip(wanted, found, strict=True):
+            embeddings[i] = embedding
+        return self._combine(maps, embeddings)
+
+    def complete(
+        self, image_bgr: np.ndarray, rois: Sequence[Roi], appearances: Sequence[Appearance]
+    ) -> list[Appearance]:
+        """The appearances with the re-id embeddings `describe` left out filled in."""
+        missing = [i for i, a in enumerate(appearances) if self.lacks_embedding(a)]
+        if not missing:
+            return list(appearances)
+        found = self.reid.embed(image_bgr, [rois[i] for i in missing])
+        out = list(appearances)
+        for i, embedding in zip(missing, found, strict=True):
+            out[i] = Appearance(out[i].maps, embedding)
+        return out
+
+    def lacks_embedding(self, appearance: Appearance) -> bool:
+        return self.reid is not None and appearance.embedding is None
 
     def describe_crops(self, crops_bgr: Sequence[np.ndarray]) -> list[Appearance]:
         """The cues of whole person crops."""
@@ -124,28 +150,40 @@ class AppearanceModel:
             for a in positives:
                 self.gallery.add(a.embedding)
 
+    def _gallery_scores(self, appearances: Sequence[Appearance], score) -> np.ndarray:
+        """`score` (a gallery method) of each appearance's embedding; NaN without one."""
+        out = np.full(len(appearances), np.nan)
+        has = [i for i, a in enumerate(appearances) if a.embedding is not None]
+        if has:
+            out[has] = score(np.stack([appearances[i].embedding for i in has]))
+        return out
+
     def similarity(self, appearances: Sequence[Appearance]) -> np.ndarray | None:
-        """Each appearance's highest re-id similarity to the target's gallery; None
-        without a re-id cue or before anything was learnt."""
+        """Each appearance's highest re-id similarity to the target's gallery (NaN for
+        one without an embedding, which passes no bar); None without a re-id cue or
+        before anything was learnt."""
         if self.gallery is None or len(self.gallery) == 0 or not appearances:
             return None
-        return self.gallery.similarity(np.stack([a.embedding for a in appearances]))
+        return self._gallery_scores(appearances, self.gallery.similarity)
 
     def confidence(self, appearances: Sequence[Appearance]) -> np.ndarray:
-        """Confidence in [-1, 1] of each appearance being the target (0 before learning)."""
+        """Confidence in [-1, 1] of each appearance being the target (0 before learning).
+        An appearance without a re-id embedding is scored by the classifier alone."""
         n = len(appearances)
         if n == 0:
             return np.zeros(0)
-        scores, weights = [], []
+        total, weight = np.zeros(n), np.zeros(n)
         if self.classifier is not None and self.classifier.is_trained:
-            scores.append(self.classifier.confidence([a.maps for a in appearances]))
-            weights.append(1.0 - self.config.reid_weight if self.gallery is not None else 1.0)
+            w = 1.0 - self.config.reid_weight if self.gallery is not None else 1.0
+            total += w * self.classifier.confidence([a.maps for a in appearances])
+            weight += w
         if self.gallery is not None and len(self.gallery) > 0:
-            scores.append(self.gallery.confidence(np.stack([a.embedding for a in appearances])))
-            weights.append(self.config.reid_weight if self.classifier is not None else 1.0)
-        if not scores or sum(weights) <= 0.0:
-            return np.zeros(n)
-        fused = sum(w * s for w, s in zip(weights, scores, strict=True)) / sum(weights)
+            w = self.config.reid_weight if self.classifier is not None else 1.0
+            scores = self._gallery_scores(appearances, self.gallery.confidence)
+            known = ~np.isnan(scores)
+            total[known] += w * scores[known]
+            weight[known] += w
+        fused = np.divide(total, weight, out=np.zeros(n), where=weight > 0.0)
         return np.clip(fused, -1.0, 1.0)
 
 

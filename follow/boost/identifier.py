@@ -159,12 +159,24 @@ class TargetIdentifier:
         return out
 
     def _appearances(self, image_bgr, tracks) -> tuple[dict[int, Appearance], dict]:
+        """Every observed person's cues. The re-id embedding is computed only where it
+        decides something: for the target while it is learnt and checked, for everyone
+        during re-identification (`_complete_appearances` adds the rest on entering it)."""
         h, w = image_bgr.shape[:2]
         rois = self.rois(tracks, (w, h))
         self._rois = rois
         ids = list(rois)
-        described = self.model.describe(image_bgr, [rois[i] for i in ids])
+        everyone = self.status == TargetStatus.REIDENTIFICATION
+        embed = [everyone or i == self.target_id for i in ids]
+        described = self.model.describe(image_bgr, [rois[i] for i in ids], embed)
         return dict(zip(ids, described, strict=True)), self.person_boxes(tracks, rois, (w, h))
+
+    def _complete_appearances(self, image_bgr, appearances: dict) -> dict[int, Appearance]:
+        ids = list(appearances)
+        completed = self.model.complete(
+            image_bgr, [self._rois[i] for i in ids], [appearances[i] for i in ids]
+        )
+        return dict(zip(ids, completed, strict=True))
 
     # -------------------------------------------------------------------- per frame
     def update(
@@ -254,6 +266,11 @@ class TargetIdentifier:
                 else:
                     self._learn(image_bgr, appearances, boxes)
         if self.status == TargetStatus.REIDENTIFICATION:
+            if any(self.model.lacks_embedding(a) for a in appearances.values()):
+                # entered this frame: everyone's embedding, and confidences with it
+                appearances = self._complete_appearances(image_bgr, appearances)
+                scores = self.model.confidence([appearances[i] for i in ids])
+                confidences = {i: float(c) for i, c in zip(ids, scores, strict=True)}
             similarities = self.model.similarity([appearances[i] for i in ids])
             if similarities is not None:
                 similarities = dict(zip(ids, similarities.tolist(), strict=True))
