@@ -1,6 +1,6 @@
 """`follow eval safety` on a fast subset: the runner stops the simulated rover within
-the goals when the target leaves the view and on SIGTERM (the other faults have their
-own tests: watchdog, odometry policy, MAVLink link and mode)."""
+the goals when the target leaves the view, when the detector hangs and on SIGTERM (the
+other faults have their own tests: odometry policy, MAVLink link and mode)."""
 
 import numpy as np
 
@@ -19,11 +19,13 @@ def test_stop_and_distance_from_samples():
     assert safety.stop_and_distance(still_moving, fault_s=1.0)[0] is None
 
 
-def test_rover_stops_after_the_target_leaves_the_view_and_on_sigterm():
-    report = safety.run_cases(("target_leaves_view", "sigterm"), fault_at_s=5.0)
+def test_rover_stops_after_the_target_leaves_the_view_the_detector_hangs_and_on_sigterm():
+    report = safety.run_cases(("target_leaves_view", "perception_stalls", "sigterm"),
+                              fault_at_s=5.0)  # fmt: skip
     for name, case in report["cases"].items():
         assert case["speed_at_fault_mps"] > 0.2, (name, case)  # it was driving
         assert case["stop_s"] is not None and case["stop_s"] <= safety.GOAL_STOP_S, (name, case)
     assert report["cases"]["target_leaves_view"]["driven_m"] <= safety.GOAL_DRIVEN_AFTER_LOSS_M
     assert report["cases"]["sigterm"]["signal"] == "SIGTERM"
+    assert report["cases"]["perception_stalls"]["watchdog_trips"] >= 1
     assert report["all_goals_met"]

@@ -193,14 +193,14 @@ def run_case(case: Case, fault_at_s: float = 5.0, seed: int = 0,
         mav = dataclasses.replace(config.mavlink or MavlinkConfig(), connection=rover.connection)
         base = MavlinkBase(mav)
         perception = sim_perception(camera, config, seed)
-        inner_process = perception.process
+        inner_detect = perception.detect
 
-        def process(frame, robot, index):
+        def detect(frame):
             if ctx.stalled.is_set():  # a detector that hangs until the case is over
                 ctx.released.wait(case.after_s + 5.0)
-            return inner_process(frame, robot, index)
+            return inner_detect(frame)
 
-        perception.process = process
+        perception.detect = detect
 
         def edit(wf):
             if ctx.fault_s is None and not case.side_exit and wf.stamp_s >= fault_at_s:
