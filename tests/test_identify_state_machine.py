@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from follow.boost.identifier import TargetIdentifier, covered_fraction
 from follow.ccf.channels import ChannelFeatureExtractor
 from follow.config import IdentifyConfig
+from follow.identify.identifier import TargetIdentifier, covered_fraction
 from follow.types import InvalidInput, Observation, Odometry, TargetStatus, TrackState
 
 IMAGE_SIZE = (640, 480)

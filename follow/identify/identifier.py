@@ -45,12 +45,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from follow.boost.appearance import Appearance, AppearanceModel
-from follow.boost.reid import ReidEmbedder
 from follow.ccf.features import FeatureExtractor, check_image
 from follow.ccf.roi import roi_from_keypoints
 from follow.config import IdentifyConfig
 from follow.frames import odom_to_base
+from follow.identify.appearance import Appearance, AppearanceModel
+from follow.identify.reid import ReidEmbedder
 from follow.types import InvalidInput, Odometry, TargetEstimate, TargetStatus, TrackState
 
 log = logging.getLogger(__name__)
