@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from follow.ccf.channels import ChannelFeatureExtractor
+from follow.ccf.roi import covered_fraction
 from follow.config import IdentifyConfig
-from follow.identify.identifier import TargetIdentifier, covered_fraction
+from follow.identify.identifier import TargetIdentifier
 from follow.types import InvalidInput, Observation, Odometry, TargetStatus, TrackState
 
 IMAGE_SIZE = (640, 480)
