@@ -61,7 +61,7 @@ def add_arguments(p) -> None:
 
 def build_perception(config: Config, camera: CameraModel, detect=None) -> Perception:
     """The standard stack: pose network (unless `detect` is given), UKF, identifier."""
-    from follow.boost.factory import build_identifier
+    from follow.identify.factory import build_identifier
     from follow.pose.observations import skeletons_to_observations
     from follow.ukf.tracker import PeopleTracker
 

@@ -84,6 +84,6 @@ def test_every_key_has_a_declared_range_or_choice():
 
 
 def test_identifier_choices_match_the_factory():
-    from follow.boost.factory import IDENTIFIERS
+    from follow.identify.factory import IDENTIFIERS
 
     assert set(CHOICES["identify"]["identifier"]) == set(IDENTIFIERS)

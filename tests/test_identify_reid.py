@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from follow.boost.appearance import Appearance, AppearanceModel
-from follow.boost.factory import build_identifier, parse_identifier
-from follow.boost.reid import ReidEmbedder, ReidGallery
 from follow.ccf.channels import ChannelFeatureExtractor
 from follow.config import ConfigError, IdentifyConfig
+from follow.identify.appearance import Appearance, AppearanceModel
+from follow.identify.factory import build_identifier, parse_identifier
+from follow.identify.reid import ReidEmbedder, ReidGallery
 
 
 def _unit(v):

@@ -7,9 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from follow.boost.identifier import TargetIdentifier, covered_fraction
 from follow.ccf.channels import ChannelFeatureExtractor
+from follow.ccf.roi import covered_fraction
 from follow.config import IdentifyConfig
+from follow.identify.identifier import TargetIdentifier
 from follow.types import InvalidInput, Observation, Odometry, TargetStatus, TrackState
 
 IMAGE_SIZE = (640, 480)

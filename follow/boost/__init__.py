@@ -1,1 +1,1 @@
-"""Online boosting and the target identification state machine."""
+"""The online boosting classifier that learns the target's appearance."""

@@ -5,17 +5,26 @@ their distance) and its sides are proportional to that distance, so it covers th
 part of the body at any range. Without an ankle, the ankle is extrapolated from the hip
 with an assumed body proportion, or else taken at the image bottom below the neck (the
 feet of a close person are out of view).
+
+A track's crop is the ROI of the observation associated with it in this frame; a track
+without one (occluded, missed) has no crop. A person hidden behind another still
+occupies a box, from the tracker's expected neck and ankle pixels, so that a crossing
+is noticed while one of the two is hidden.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
 from follow.config import IdentifyConfig
+from follow.types import Observation, TrackState
 
 Roi = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, half-open
+R_HIP, L_HIP = 8, 11
+HIP_MIN_CONFIDENCE = 0.0
 
 
 def _point(value, name: str) -> np.ndarray | None:
@@ -71,3 +80,58 @@ def roi_from_keypoints(
     if visible < config.min_roi_visible_fraction or (y1 - y0) < config.min_roi_height_px:
         return None
     return x0, y0, x1, y1
+
+
+def track_rois(
+    tracks: Sequence[TrackState], image_size: tuple[int, int], config: IdentifyConfig
+) -> dict[int, Roi]:
+    """track id -> ROI for the tracks with an observation this frame and a usable box."""
+    out = {}
+    for track in tracks:
+        obs = track.observation
+        if obs is None:
+            continue
+        ankle = obs.ankle_px if obs.ankle_px is not None else track.expected_ankle_px
+        roi = roi_from_keypoints(obs.neck_px, ankle, image_size, config, hip_px=hip_of(obs))
+        if roi is not None:
+            out[track.track_id] = roi
+    return out
+
+
+def person_boxes(
+    tracks: Sequence[TrackState],
+    rois: dict[int, Roi],
+    image_size: tuple[int, int],
+    config: IdentifyConfig,
+) -> dict[int, Roi]:
+    """track id -> the box a person occupies: its ROI when seen, else the box of the
+    tracker's expected neck and ankle pixels (a person hidden behind another)."""
+    out = dict(rois)
+    for track in tracks:
+        if track.track_id in out or track.expected_neck_px is None:
+            continue
+        if track.expected_ankle_px is None:
+            continue
+        roi = roi_from_keypoints(
+            track.expected_neck_px, track.expected_ankle_px, image_size, config
+        )
+        if roi is not None:
+            out[track.track_id] = roi
+    return out
+
+
+def covered_fraction(box, other) -> float:
+    """Fraction of `box`'s area (x0, y0, x1, y1) that `other` covers."""
+    w = min(box[2], other[2]) - max(box[0], other[0])
+    h = min(box[3], other[3]) - max(box[1], other[1])
+    area = (box[2] - box[0]) * (box[3] - box[1])
+    return max(0, w) * max(0, h) / area if area > 0 else 0.0
+
+
+def hip_of(observation: Observation) -> np.ndarray | None:
+    """Mean of the detected hips of the observation's skeleton, if any."""
+    skeleton = observation.skeleton
+    if skeleton is None:
+        return None
+    hips = [skeleton.keypoints_px[k] for k in (R_HIP, L_HIP) if skeleton.has(k, HIP_MIN_CONFIDENCE)]
+    return np.mean(hips, axis=0) if hips else None

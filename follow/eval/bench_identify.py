@@ -69,8 +69,8 @@ def bench(
 ) -> dict:
     from tqdm import tqdm
 
-    from follow.boost.factory import build_extractor, build_reid
     from follow.boost.online_boosting import OnlineBoostingClassifier
+    from follow.identify.factory import build_extractor, build_reid
 
     if people < 1 or repeats < 5:
         raise ValueError("--people must be >= 1 and --repeats >= 5")

@@ -102,7 +102,7 @@ def evaluate_identifier(
     steps: list[CropSet], config: IdentifyConfig, train_steps: int, seeds: list[int]
 ) -> dict:
     """AUC and balanced accuracy (means over seeds) and the scores of every seed."""
-    from follow.boost.factory import build_appearance_model
+    from follow.identify.factory import build_appearance_model
 
     if not 1 <= train_steps < len(steps):
         raise ValueError(f"--train-steps must lie in 1..{len(steps) - 1}, got {train_steps}")

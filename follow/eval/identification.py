@@ -94,7 +94,7 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
              whole_sequence: bool = False):  # fmt: skip
     """Per target: the OutcomeTally over the frames after it was selected, up to its last
     annotated frame (to the end with `whole_sequence`)."""
-    from follow.boost.factory import build_identifier
+    from follow.identify.factory import build_identifier
 
     section = dataclasses.replace(config.identify, identifier=identifier_name)
     same_person = load_same_person() if whole_sequence else {}

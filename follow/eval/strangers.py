@@ -76,8 +76,8 @@ def scenario(strangers: int, rng: np.random.Generator):
 
 def run_scenario(config: Config, strangers: int = 5, seed: int = 0) -> dict:
     """Run it for the identifier in `config`; the figures of the module docstring."""
-    from follow.boost.factory import build_identifier
     from follow.control.controller import FollowingController
+    from follow.identify.factory import build_identifier
     from follow.pipeline import Perception, target_motion
     from follow.pose.observations import skeletons_to_observations
     from follow.sim.skeletons import SyntheticDetector

@@ -167,7 +167,7 @@ def verify_robot_crops(model, folder: Path, config: IdentifyConfig) -> dict:
 
 
 def main(args) -> dict:
-    from follow.boost.factory import build_appearance_model, parse_identifier
+    from follow.identify.factory import build_appearance_model, parse_identifier
 
     config = Config.load(args.config).identify if args.config else IdentifyConfig()
     root = Path(args.data_dir or os.environ.get("FOLLOW_DATA_DIR") or "")

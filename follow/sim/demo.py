@@ -171,7 +171,7 @@ class SimFrame(Frame):
 def sim_perception(camera, config: Config, seed: int = 0):
     """The stack as on the robot, with the synthetic detector in place of the pose
     network (it reads the world a `SimFrame` shows)."""
-    from follow.boost.factory import build_identifier
+    from follow.identify.factory import build_identifier
     from follow.pipeline import Perception
     from follow.pose.observations import skeletons_to_observations
     from follow.sim.skeletons import SyntheticDetector

@@ -15,9 +15,9 @@ import cv2
 import numpy as np
 
 from follow.boost.online_boosting import OnlineBoostingClassifier
-from follow.boost.reid import ReidEmbedder, ReidGallery
 from follow.ccf.features import FeatureExtractor, FeatureMaps, Roi, cut_crops
 from follow.config import IdentifyConfig
+from follow.identify.reid import ReidEmbedder, ReidGallery
 
 
 @dataclass(frozen=True)

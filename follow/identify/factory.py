@@ -6,14 +6,14 @@ Names: `ccf10`, `ccf25` (CCF weights), `channels` (weight-free LUV + gradients),
 
 from __future__ import annotations
 
-from follow.boost.appearance import AppearanceModel
-from follow.boost.identifier import TargetIdentifier
-from follow.boost.reid import ReidEmbedder
 from follow.ccf.channels import ChannelFeatureExtractor
 from follow.ccf.features import FeatureExtractor
 from follow.ccf.network import CcfExtractor
 from follow.ccf.weights import load_ccf_weights
 from follow.config import Config, ConfigError, IdentifyConfig
+from follow.identify.appearance import AppearanceModel
+from follow.identify.identifier import TargetIdentifier
+from follow.identify.reid import ReidEmbedder
 
 FEATURE_SETS = ("ccf10", "ccf25", "channels")
 REID_MODEL = "person-reidentification-retail-0248"

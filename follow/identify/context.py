@@ -1,0 +1,213 @@
+"""What the states of the target state machine share, and one frame as they see it.
+
+The `IdentityContext` outlives the states: the learnt appearance model (boosted
+classifier and/or re-id gallery), the track the user selected, how many frames each
+track was seen in, and the timers and last whereabouts of the target that the
+re-identification rules read. A `FrameTracks` is one frame's tracks; its appearances and
+confidences are computed once, when a state first looks at them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from follow.ccf.roi import Roi, covered_fraction, person_boxes, track_rois
+from follow.config import IdentifyConfig
+from follow.identify.appearance import Appearance, AppearanceModel
+from follow.types import Odometry, TrackState
+
+
+@dataclass
+class FrameTracks:
+    """One frame: the image, the tracks by id, and (once looked at) their appearances."""
+
+    image_bgr: np.ndarray
+    tracks: list[TrackState]
+    stamp_s: float
+    robot: Odometry | None
+    by_id: dict[int, TrackState]
+    looked: bool = False
+    rois: dict[int, Roi] = field(default_factory=dict)  # tracks observed this frame
+    boxes: dict[int, Roi] = field(default_factory=dict)  # and those hidden behind others
+    appearances: dict[int, Appearance] = field(default_factory=dict)
+    confidences: dict[int, float] = field(default_factory=dict)  # empty until looked at
+
+
+class IdentityContext:
+    """The appearance model, the selected id, and what is known of the target's past."""
+
+    def __init__(self, config: IdentifyConfig, model: AppearanceModel):
+        self.config = config
+        self.model = model
+        self.requested_id: int | None = None
+        self.observed_frames: dict[int, int] = {}  # track id -> frames it was seen in
+        self.forget()
+
+    def forget(self) -> None:
+        """Forget the target and everything learnt (the frame counts of tracks stay)."""
+        self.model.reset()
+        self.identity_risk_s = -math.inf  # when the tracker last could have swapped it
+        self.last_target_position_m: np.ndarray | None = None  # odom frame
+        self.last_target_s = -math.inf
+        self.last_target_seen_s = -math.inf  # when the target was last observed
+        self.target_height: tuple[float, float] | None = None  # neck height mean, var
+
+    def count_observations(self, by_id: dict[int, TrackState]) -> None:
+        """One more frame for each track observed in it; tracks gone are dropped."""
+        self.observed_frames = {
+            i: self.observed_frames.get(i, 0) + int(t.observation is not None)
+            for i, t in by_id.items()
+        }
+
+    # ------------------------------------------------------------------ the frame
+    def look(self, frame: FrameTracks, only: int | None = None) -> None:
+        """Cut and describe every observed track's crop, and score it (once a frame).
+        Confidences are those of the model before this frame is learnt.
+
+        The re-id network (~7 ms a person on a laptop core) runs only where it decides
+        something: with `only`, on that track alone (the target, while it is learnt and
+        checked); without, on everyone (re-identification), completing what an earlier
+        look this frame left out."""
+        if frame.looked:
+            if only is None and any(self.model.lacks_embedding(a)
+                                    for a in frame.appearances.values()):  # fmt: skip
+                ids = list(frame.appearances)
+                completed = self.model.complete(
+                    frame.image_bgr, [frame.rois[i] for i in ids],
+                    [frame.appearances[i] for i in ids],
+                )  # fmt: skip
+                frame.appearances = dict(zip(ids, completed, strict=True))
+                self._score(frame)
+            return
+        frame.looked = True
+        h, w = frame.image_bgr.shape[:2]
+        frame.rois = track_rois(frame.tracks, (w, h), self.config)
+        ids = list(frame.rois)
+        embed = [only is None or i == only for i in ids]
+        described = self.model.describe(frame.image_bgr, [frame.rois[i] for i in ids], embed)
+        frame.appearances = dict(zip(ids, described, strict=True))
+        frame.boxes = person_boxes(frame.tracks, frame.rois, (w, h), self.config)
+        self._score(frame)
+
+    def _score(self, frame: FrameTracks) -> None:
+        ids = list(frame.appearances)
+        scores = (
+            self.model.confidence([frame.appearances[i] for i in ids])
+            if self.model.ready
+            else np.zeros(len(ids))
+        )
+        frame.confidences = {i: float(c) for i, c in zip(ids, scores, strict=True)}
+
+    def similarities(self, frame: FrameTracks) -> dict[int, float] | None:
+        """Each described track's re-id similarity to the target's gallery (None
+        without a re-id cue or an empty gallery)."""
+        ids = list(frame.appearances)
+        similarities = self.model.similarity([frame.appearances[i] for i in ids])
+        if similarities is None:
+            return None
+        return dict(zip(ids, similarities.tolist(), strict=True))
+
+    # ------------------------------------------------------------------ the target
+    def note_target(self, target_id: int, frame: FrameTracks) -> None:
+        """Remember where the target is, when it was seen, its height, and whether the
+        tracker could be swapping it with someone this frame."""
+        track = frame.by_id[target_id]
+        self.last_target_position_m = track.position_m.copy()
+        self.last_target_s = frame.stamp_s
+        if track.observation is not None:
+            self.last_target_seen_s = frame.stamp_s
+            self.target_height = (track.neck_height_m, float(track.cov[4, 4]))
+        if self._identity_at_risk(target_id, frame):
+            self.identity_risk_s = frame.stamp_s
+
+    def _identity_at_risk(self, target_id: int, frame: FrameTracks) -> bool:
+        """Whether the tracker could be swapping the target with someone this frame: its
+        track has gone unseen for a while, or another track stands near it on the floor."""
+        target = frame.by_id[target_id]
+        if frame.stamp_s - target.last_seen_s > self.config.identity_risk_unseen_s:
+            return True
+        limit = self.config.identity_risk_distance_m
+        return any(float(np.linalg.norm(t.position_m - target.position_m)) <= limit
+                   for i, t in frame.by_id.items() if i != target_id)  # fmt: skip
+
+    def identity_trusted(self, stamp_s: float) -> bool:
+        """Whether nobody could have swapped the target's track for `identity_trust_s`."""
+        return stamp_s - self.identity_risk_s > self.config.identity_trust_s
+
+    def crop_shows_another(self, target_id: int, frame: FrameTracks) -> bool:
+        """Whether another person's box covers more than `max_learning_overlap` of the
+        target's: its crop then shows (part of) someone else."""
+        target_box = frame.boxes[target_id]
+        limit = self.config.max_learning_overlap
+        return any(
+            covered_fraction(target_box, box) > limit
+            for i, box in frame.boxes.items()
+            if i != target_id
+        )
+
+    def learn(self, target_id: int, frame: FrameTracks) -> bool:
+        """Learn the frame unless the target's crop shows someone else; whether it did.
+        Too few other people are topped up with recoloured copies of the target."""
+        if self.crop_shows_another(target_id, frame):
+            return False
+        positives = [frame.appearances[target_id]]
+        negatives = [a for i, a in frame.appearances.items() if i != target_id]
+        missing = self.config.min_negatives_per_update - len(negatives)
+        synthetic = (
+            self.model.synthetic_negatives(
+                self.model.crop(frame.image_bgr, frame.rois[target_id]), missing
+            )
+            if missing > 0
+            else []
+        )
+        self.model.learn(positives, negatives, synthetic)
+        return True
+
+    # ------------------------------------------------------------ who may be it
+    def established(self, track: TrackState) -> bool:
+        """Whether a track may become the target: seen now, and in enough frames."""
+        return (
+            track.observation is not None
+            and self.observed_frames.get(track.track_id, 0) >= self.config.min_target_observations
+        )
+
+    def reachable(self, track: TrackState, stamp_s: float) -> bool:
+        """Whether the target could have walked to `track` since it was last named."""
+        if self.last_target_position_m is None:
+            return True
+        reach_m = self.config.reid_reach_m + self.config.reid_reach_speed_mps * max(
+            0.0, stamp_s - self.last_target_s
+        )
+        return float(np.linalg.norm(track.position_m - self.last_target_position_m)) <= reach_m
+
+    def same_height(self, track: TrackState) -> bool:
+        """Whether the track's estimated neck height could be the target's."""
+        if self.target_height is None:
+            return True
+        height, var = self.target_height
+        spread = 2.0 * math.sqrt(max(0.0, var) + max(0.0, float(track.cov[4, 4])))
+        limit = self.config.reid_height_tolerance_m + spread
+        return abs(track.neck_height_m - height) <= limit
+
+    def _strictness(self, stamp_s: float) -> float:
+        """0 just after the target was last seen, rising to 1 at `reid_strict_after_s`."""
+        if not math.isfinite(self.last_target_seen_s):
+            return 1.0
+        gone_s = max(0.0, stamp_s - self.last_target_seen_s)
+        return min(1.0, gone_s / self.config.reid_strict_after_s)
+
+    def required_similarity(self, stamp_s: float) -> float:
+        """The re-id similarity a candidate needs, rising with the time the target has
+        been unseen."""
+        cfg = self.config
+        span = cfg.reid_strict_similarity - cfg.reid_accept_similarity
+        return cfg.reid_accept_similarity + self._strictness(stamp_s) * span
+
+    def required_confidence(self, stamp_s: float) -> float:
+        """The confidence a candidate needs, rising the same way."""
+        cfg = self.config
+        span = cfg.reid_strict_confidence - cfg.reid_confidence
+        return cfg.reid_confidence + self._strictness(stamp_s) * span

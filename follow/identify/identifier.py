@@ -1,0 +1,136 @@
+"""Which track is the person to follow: the target state machine, run frame by frame.
+
+initial -> initial training -> tracking <-> re-identification
+
+Each state is a small object in `follow.identify.states` whose `update` returns the next
+state; their docstrings give the rules that move between them. This module checks the
+configuration and each frame's input, keeps the current state and reports its estimate.
+
+Rules every state shares (in `follow.identify.context`): only a track seen in the
+current frame, and in `min_target_observations` frames so far, can become the target. A
+track's appearance is cut from the observation associated with it in this frame; a
+track without one (occluded, missed) has no appearance and no confidence this frame.
+Nothing is learnt from a crop that shows two people: while another person's box (seen,
+or predicted by the tracker) covers more than `max_learning_overlap` of the target's
+box the frame is not learnt (neither the target nor the others), since learning during
+a crossing would teach each person's appearance as the other's. Online boosting never
+learns from the target alone: a frame with fewer than `min_negatives_per_update` other
+people is topped up with recoloured copies of the target's crop.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from follow.ccf.features import FeatureExtractor, check_image
+from follow.config import IdentifyConfig
+from follow.identify.appearance import AppearanceModel
+from follow.identify.context import FrameTracks, IdentityContext
+from follow.identify.reid import ReidEmbedder
+from follow.identify.states import Initial, State
+from follow.types import InvalidInput, Odometry, TargetEstimate, TargetStatus, TrackState
+
+
+class TargetIdentifier:
+    """Learns the target's appearance online and says, per frame, which track it is."""
+
+    def __init__(
+        self,
+        config: IdentifyConfig,
+        extractor: FeatureExtractor | None,
+        reid: ReidEmbedder | None = None,
+    ):
+        check_identify_config(config)
+        self.config = config
+        self.context = IdentityContext(config, AppearanceModel(config, extractor, reid))
+        self.reset()
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+    @property
+    def model(self) -> AppearanceModel:
+        return self.context.model
+
+    @property
+    def status(self) -> TargetStatus:
+        return self.state.status
+
+    @property
+    def target_id(self) -> int | None:
+        return self.state.target_id
+
+    def reset(self) -> None:
+        """Forget the target and everything learnt; a selected id stays requested."""
+        self.context.forget()
+        self.context.observed_frames = {}
+        self.state: State = Initial()
+
+    def select_target(self, track_id: int) -> None:
+        """Follow this track id: learning starts afresh on the next frame it is present."""
+        self.context.requested_id = int(track_id)
+        self.reset()
+
+    def required_similarity(self, stamp_s: float) -> float:
+        """The re-id similarity a candidate needs at `stamp_s` (see IdentityContext)."""
+        return self.context.required_similarity(stamp_s)
+
+    def required_confidence(self, stamp_s: float) -> float:
+        """The confidence a candidate needs at `stamp_s` (see IdentityContext)."""
+        return self.context.required_confidence(stamp_s)
+
+    def update(
+        self,
+        image_bgr: np.ndarray,
+        tracks: Sequence[TrackState],
+        stamp_s: float,
+        robot: Odometry | None = None,
+    ) -> TargetEstimate:
+        """One frame: the tracks of the tracker (with this frame's observations)."""
+        check_image(image_bgr, "identifier image")
+        if not math.isfinite(stamp_s):
+            raise InvalidInput(f"identifier stamp_s is not finite: {stamp_s}")
+        by_id = {t.track_id: t for t in tracks}
+        if len(by_id) != len(tracks):
+            raise InvalidInput("identifier: duplicate track ids in one frame")
+        self.context.count_observations(by_id)
+        frame = FrameTracks(image_bgr, list(tracks), stamp_s, robot, by_id)
+        self.state = self.state.update(self.context, frame)
+        target_id = self.state.target_id
+        seen = target_id in by_id and by_id[target_id].observation is not None
+        return TargetEstimate(self.state.status, target_id, frame.confidences, stamp_s, seen)
+
+
+def check_identify_config(config: IdentifyConfig) -> None:
+    """Raise ValueError naming the first inconsistent state machine setting."""
+    if config.initial_training_frames < 1 or config.reid_frames < 1:
+        raise ValueError("initial_training_frames and reid_frames must be >= 1")
+    if config.reid_confidence < config.id_switch_confidence:
+        raise ValueError(
+            f"reid_confidence ({config.reid_confidence}) must not be below "
+            f"id_switch_confidence ({config.id_switch_confidence})"
+        )
+    if config.min_target_observations < 1 or config.min_negatives_per_update < 0:
+        raise ValueError("min_target_observations must be >= 1, min_negatives_per_update >= 0")
+    if not (
+        -1.0 <= config.reid_accept_similarity <= config.reid_strict_similarity <= 1.0
+        and config.reid_confidence <= config.reid_strict_confidence <= 1.0
+        and config.reid_strict_after_s > 0.0
+    ):
+        raise ValueError(
+            "need -1 <= reid_accept_similarity <= reid_strict_similarity <= 1, "
+            "reid_confidence <= reid_strict_confidence <= 1 and reid_strict_after_s > 0, "
+            f"got {config.reid_accept_similarity}, {config.reid_strict_similarity}, "
+            f"{config.reid_strict_confidence}, {config.reid_strict_after_s}"
+        )
+    if config.reid_reach_m < 0.0 or config.reid_reach_speed_mps < 0.0:
+        raise ValueError("reid_reach_m and reid_reach_speed_mps must be >= 0")
+    if config.reid_margin < 0.0 or not 0.0 <= config.max_learning_overlap <= 1.0:
+        raise ValueError(
+            f"reid_margin ({config.reid_margin}) must be >= 0 and max_learning_overlap "
+            f"({config.max_learning_overlap}) in [0, 1]"
+        )

@@ -1,0 +1,194 @@
+"""The target state machine, one small class per state.
+
+initial -> initial training -> tracking <-> re-identification
+
+Each state's `update(context, frame)` returns the state for the next frame: itself, or
+its successor. A state that hands over within a frame (a target chosen, a target lost)
+returns its successor's `update` of the same frame. What the states share (the
+appearance model, timers, the target's last whereabouts) lives in the
+`IdentityContext`; docs/identification.md draws the states and the rules between them.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+from follow.frames import odom_to_base
+from follow.identify.context import FrameTracks, IdentityContext
+from follow.types import Odometry, TargetStatus
+
+log = logging.getLogger(__name__)
+
+
+class State:
+    """One state of the target state machine: its status and target track, if any."""
+
+    status: TargetStatus
+    target_id: int | None = None
+
+    def update(self, context: IdentityContext, frame: FrameTracks) -> State:
+        raise NotImplementedError
+
+
+class Initial(State):
+    """No target yet. The target is the track the user selected, else the nearest
+    confirmed track in front of the robot within `max_initial_distance_m`; either must be
+    seen now and in `min_target_observations` frames so far."""
+
+    status = TargetStatus.INITIAL
+
+    def update(self, context: IdentityContext, frame: FrameTracks) -> State:
+        target_id = self._choose(context, frame)
+        if target_id is None:
+            return self
+        log.info("target: track %d chosen, initial training", target_id)
+        return InitialTraining(target_id).update(context, frame)
+
+    @staticmethod
+    def _choose(context: IdentityContext, frame: FrameTracks) -> int | None:
+        requested = context.requested_id
+        if requested is not None:
+            present = any(
+                t.track_id == requested and t.observation is not None for t in frame.tracks
+            )
+            return requested if present else None
+        robot = frame.robot if frame.robot is not None else Odometry.origin()
+        best, best_distance = None, context.config.max_initial_distance_m
+        for track in frame.tracks:
+            if not (track.confirmed and context.established(track)):
+                continue
+            x, y = odom_to_base(track.position_m, robot)
+            distance = math.hypot(x, y)
+            if x > 0.0 and distance <= best_distance:
+                best, best_distance = track.track_id, distance
+        return best
+
+
+class InitialTraining(State):
+    """The target is learnt as positive and every other observed track as negative, in
+    `initial_training_frames` frames in which it is seen and its crop shows nobody else;
+    losing its track before then starts over."""
+
+    status = TargetStatus.INITIAL_TRAINING
+
+    def __init__(self, target_id: int):
+        self.target_id = target_id
+        self.frames_learnt = 0
+
+    def update(self, context: IdentityContext, frame: FrameTracks) -> State:
+        if self.target_id not in frame.by_id:
+            log.info("target track %d lost during initial training", self.target_id)
+            context.forget()
+            return Initial()
+        context.note_target(self.target_id, frame)
+        context.look(frame, only=self.target_id)
+        if self.target_id in frame.appearances and context.learn(self.target_id, frame):
+            self.frames_learnt += 1
+            if self.frames_learnt >= context.config.initial_training_frames:
+                log.info("target track %d learnt: tracking", self.target_id)
+                return Tracking(self.target_id)
+        return self
+
+
+class Tracking(State):
+    """Following the target's track, learning while its confidence stays at or above
+    `id_switch_confidence`. Below it the identity is no longer trusted, unless nobody
+    came near the target for `identity_trust_s` (it turned round) or another person
+    covers its crop (judged once the crop is clear); losing the track also ends it."""
+
+    status = TargetStatus.TRACKING
+
+    def __init__(self, target_id: int):
+        self.target_id = target_id
+
+    def update(self, context: IdentityContext, frame: FrameTracks) -> State:
+        if self.target_id not in frame.by_id:
+            log.info("target track %d lost: re-identification", self.target_id)
+            return Reidentification().update(context, frame)
+        context.note_target(self.target_id, frame)
+        context.look(frame, only=self.target_id)
+        confidence = frame.confidences.get(self.target_id)
+        if confidence is None:  # not observed this frame: nothing to judge or learn
+            return self
+        threshold = context.config.id_switch_confidence
+        if confidence >= threshold:
+            context.learn(self.target_id, frame)
+            return self
+        if context.identity_trusted(frame.stamp_s):
+            log.debug(
+                "target track %d confidence %.2f is low, but nobody came near it: not learnt",
+                self.target_id, confidence,
+            )  # fmt: skip
+            return self
+        if context.crop_shows_another(self.target_id, frame):
+            log.debug(
+                "target track %d confidence %.2f is low while another person covers it: "
+                "judged once it is clear", self.target_id, confidence,
+            )  # fmt: skip
+            return self
+        log.info(
+            "target track %d confidence %.2f below %.2f: re-identification",
+            self.target_id, confidence, threshold,
+        )  # fmt: skip
+        return Reidentification().update(context, frame)
+
+
+class Reidentification(State):
+    """The target is unknown and nothing is learnt. A track becomes the target again
+    after `reid_frames` consecutive frames in which it passes every test of
+    `_passes`; the evidence needed rises the longer the target is gone."""
+
+    status = TargetStatus.REIDENTIFICATION
+
+    def __init__(self):
+        self.streaks: dict[int, int] = {}  # track id -> consecutive frames passed
+
+    def update(self, context: IdentityContext, frame: FrameTracks) -> State:
+        self.streaks = {k: v for k, v in self.streaks.items() if k in frame.by_id}
+        context.look(frame)
+        confidences = frame.confidences
+        similarities = context.similarities(frame)
+        for track_id in confidences:
+            passed = self._passes(context, frame, track_id, similarities)
+            self.streaks[track_id] = self.streaks.get(track_id, 0) + 1 if passed else 0
+        ready = [
+            i for i, n in self.streaks.items()
+            if n >= context.config.reid_frames and i in confidences
+        ]  # fmt: skip
+        if not ready:
+            return self
+        target_id = max(ready, key=lambda i: confidences[i])
+        log.info("target re-identified as track %d", target_id)
+        return Tracking(target_id)
+
+    @staticmethod
+    def _passes(
+        context: IdentityContext,
+        frame: FrameTracks,
+        track_id: int,
+        similarities: dict[int, float] | None,
+    ) -> bool:
+        """Whether a track is the target by this frame's evidence: its confidence
+        reaches the required one (`reid_confidence` rising to `reid_strict_confidence`)
+        and leads every other seen track's by `reid_margin` (a lead over nobody is no
+        evidence); with a re-id cue its similarity to the gallery reaches the required
+        one (`reid_accept_similarity` rising to `reid_strict_similarity` at
+        `reid_strict_after_s`); it was seen in `min_target_observations` frames; it stands
+        where the target could have walked (`reid_reach_m` + `reid_reach_speed_mps`);
+        and its neck height agrees with the target's (`reid_height_tolerance_m`)."""
+        confidences = frame.confidences
+        confidence = confidences[track_id]
+        runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
+        track = frame.by_id[track_id]
+        return (
+            confidence >= context.required_confidence(frame.stamp_s)
+            and confidence - runner_up >= context.config.reid_margin
+            and (
+                similarities is None
+                or similarities[track_id] >= context.required_similarity(frame.stamp_s)
+            )
+            and context.established(track)
+            and context.reachable(track, frame.stamp_s)
+            and context.same_height(track)
+        )

@@ -1,0 +1,283 @@
+"""Each state object of the target state machine on scripted frames: what it returns.
+
+The frames are given already looked at (their confidences and re-id similarities are
+set by the test), and the appearance model only records what it is taught, so that each
+state's rules are tested apart from what a classifier would learn.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from follow.config import IdentifyConfig
+from follow.identify.appearance import Appearance
+from follow.identify.context import FrameTracks, IdentityContext
+from follow.identify.states import Initial, InitialTraining, Reidentification, Tracking
+from follow.types import Observation, Odometry, TargetStatus, TrackState
+
+CFG = IdentifyConfig(
+    initial_training_frames=3, reid_frames=2, min_target_observations=2, min_negatives_per_update=0
+)
+IMAGE = np.zeros((480, 640, 3), np.uint8)
+
+
+class RecordingModel:
+    """Stands in for the AppearanceModel: re-id similarities are each appearance's
+    scripted value (None without a re-id cue); learning and forgetting are counted."""
+
+    def __init__(self, reid: bool = True):
+        self.reid = reid
+        self.learnt: list[tuple[int, int]] = []  # (positives, negatives) per frame
+        self.resets = 0
+
+    def reset(self) -> None:
+        self.resets += 1
+
+    def similarity(self, appearances):
+        if not self.reid or not appearances:
+            return None
+        return np.array([float(a.embedding[0]) for a in appearances])
+
+    def learn(self, positives, negatives, synthetic=()) -> None:
+        self.learnt.append((len(positives), len(negatives)))
+
+    def lacks_embedding(self, appearance) -> bool:
+        return self.reid and appearance.embedding is None
+
+
+def person(track_id, x_m, y_m=0.0, neck_height_m=1.45, observed=True, last_seen_s=0.0):
+    return TrackState(
+        track_id, np.array([x_m, y_m, 0.0, 0.0, neck_height_m]), np.eye(5) * 1e-4, True,
+        last_seen_s,
+        observation=Observation(np.array([0.0, 0.0]), np.array([0.0, 1.0])) if observed else None,
+    )  # fmt: skip
+
+
+def frame(tracks, stamp_s, confidences, similarities=None, boxes=None, robot=None):
+    """A frame whose observed tracks have the given confidences (and similarities);
+    boxes default to ones that do not overlap."""
+    seen = [t.track_id for t in tracks if t.observation is not None]
+    boxes = boxes or {i: (100 * k, 0, 100 * k + 50, 200) for k, i in enumerate(seen)}
+    similarities = similarities or {}
+    return FrameTracks(
+        IMAGE, list(tracks), stamp_s, robot, {t.track_id: t for t in tracks}, looked=True,
+        rois=dict(boxes), boxes=dict(boxes),
+        appearances={i: Appearance(embedding=np.array([similarities.get(i, 0.0)])) for i in seen},
+        confidences={i: confidences[i] for i in seen},
+    )  # fmt: skip
+
+
+def context(config=CFG, reid=True, observed=None):
+    ctx = IdentityContext(config, RecordingModel(reid))
+    ctx.observed_frames = dict(observed or {})
+    return ctx
+
+
+def tracked_context(target_position_m=(2.0, 0.0), stamp_s=10.0, **kwargs):
+    """A context in which track 1 was last tracked, seen and trusted at `stamp_s`."""
+    ctx = context(**kwargs)
+    ctx.note_target(
+        1, frame([person(1, *target_position_m, last_seen_s=stamp_s)], stamp_s, {1: 0.9})
+    )
+    return ctx
+
+
+# ----------------------------------------------------------------------------- initial
+def test_initial_chooses_the_nearest_established_track_in_front_and_starts_training():
+    ctx = context(observed={1: 2, 2: 2, 3: 1, 4: 2})
+    tracks = [person(1, 4.0), person(2, 2.5), person(3, 1.0), person(4, -1.0)]
+    state = Initial().update(ctx, frame(tracks, 0.0, {1: 0.0, 2: 0.0, 3: 0.0, 4: 0.0}))
+    # 3 is nearer but seen in one frame only; 4 stands behind the robot
+    assert isinstance(state, InitialTraining) and state.target_id == 2
+    assert state.status == TargetStatus.INITIAL_TRAINING
+    assert state.frames_learnt == 1 and ctx.model.learnt == [(1, 3)]  # trained this frame
+
+
+def test_initial_stays_without_an_eligible_track():
+    ctx = context(observed={1: 2, 2: 1})
+    far, new = person(1, CFG.max_initial_distance_m + 1.0), person(2, 2.0)
+    initial = Initial()
+    assert initial.update(ctx, frame([far, new], 0.0, {1: 0.0, 2: 0.0})) is initial
+    turned = Odometry(0.0, 0.0, np.pi, 0.0)  # the robot faces the other way: both behind
+    ctx.observed_frames[2] = 2
+    assert initial.update(ctx, frame([new], 0.0, {2: 0.0}, robot=turned)) is initial
+    assert initial.update(ctx, frame([new], 0.0, {2: 0.0})).target_id == 2
+
+
+def test_initial_takes_only_the_selected_track_once_it_is_seen():
+    ctx = context(observed={1: 2, 2: 2})
+    ctx.requested_id = 2
+    initial = Initial()
+    assert initial.update(ctx, frame([person(1, 2.0)], 0.0, {1: 0.0})) is initial
+    hidden = person(2, 3.0, observed=False)
+    assert initial.update(ctx, frame([person(1, 2.0), hidden], 0.0, {1: 0.0})) is initial
+    state = initial.update(ctx, frame([person(1, 2.0), person(2, 4.9)], 0.0, {1: 0.0, 2: 0.0}))
+    assert state.target_id == 2
+
+
+# -------------------------------------------------------------------- initial training
+def test_initial_training_becomes_tracking_after_the_configured_learnt_frames():
+    ctx = context()
+    state = InitialTraining(1)
+    tracks = [person(1, 2.0), person(2, 3.0)]
+    for k in range(CFG.initial_training_frames - 1):
+        assert state.update(ctx, frame(tracks, 0.1 * k, {1: 0.0, 2: 0.0})) is state
+    overlapping = {1: (0, 0, 100, 200), 2: (20, 0, 120, 200)}  # 80 % of the target covered
+    assert state.update(ctx, frame(tracks, 0.5, {1: 0.0, 2: 0.0}, boxes=overlapping)) is state
+    assert len(ctx.model.learnt) == CFG.initial_training_frames - 1  # that frame not learnt
+    nxt = state.update(ctx, frame(tracks, 0.6, {1: 0.0, 2: 0.0}))
+    assert isinstance(nxt, Tracking) and nxt.target_id == 1
+
+
+def test_initial_training_starts_over_when_the_target_is_lost():
+    ctx = context()
+    state = InitialTraining(1)
+    state.update(ctx, frame([person(1, 2.0)], 0.0, {1: 0.0}))
+    assert ctx.last_target_position_m is not None
+    resets = ctx.model.resets
+    nxt = state.update(ctx, frame([person(2, 2.0)], 0.1, {2: 0.0}))
+    assert isinstance(nxt, Initial) and nxt.target_id is None
+    assert ctx.model.resets == resets + 1 and ctx.last_target_position_m is None
+
+
+# --------------------------------------------------------------------------- tracking
+def test_tracking_becomes_reidentification_when_the_target_is_lost():
+    ctx = tracked_context(observed={2: 5})
+    nxt = Tracking(1).update(ctx, frame([person(2, 2.5)], 10.1, {2: 0.9}, {2: 0.9}))
+    assert isinstance(nxt, Reidentification)
+    assert nxt.status == TargetStatus.REIDENTIFICATION and nxt.target_id is None
+    assert nxt.streaks == {2: 1}  # the frame it was lost in already counts as evidence
+
+
+def test_tracking_learns_while_the_confidence_holds_and_keeps_an_unseen_target():
+    ctx = tracked_context()
+    state = Tracking(1)
+    assert (
+        state.update(ctx, frame([person(1, 2.0), person(2, 4.0)], 10.1, {1: 0.5, 2: -0.5})) is state
+    )
+    assert ctx.model.learnt == [(1, 1)]
+    hidden = person(1, 2.0, observed=False, last_seen_s=10.1)
+    assert state.update(ctx, frame([hidden, person(2, 4.0)], 10.2, {2: -0.5})) is state
+    assert ctx.model.learnt == [(1, 1)]  # nothing to learn from
+
+
+def test_a_low_confidence_ends_tracking_only_after_someone_came_near():
+    low = CFG.id_switch_confidence - 0.1
+    ctx = tracked_context(stamp_s=10.0)
+    ctx.identity_risk_s = 10.0 - CFG.identity_trust_s - 1.0  # nobody near for a while
+    state = Tracking(1)
+    alone = [person(1, 2.0, last_seen_s=10.1), person(2, 5.0, last_seen_s=10.1)]
+    assert state.update(ctx, frame(alone, 10.1, {1: low, 2: -0.5})) is state  # turned round
+    assert ctx.model.learnt == []  # and nothing of the new look is learnt
+    near = [person(1, 2.0, last_seen_s=10.2), person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m,
+                                                       last_seen_s=10.2)]  # fmt: skip
+    nxt = state.update(ctx, frame(near, 10.2, {1: low, 2: -0.5}))
+    assert isinstance(nxt, Reidentification) and ctx.identity_risk_s == 10.2
+
+
+def test_a_low_confidence_while_another_covers_the_target_keeps_tracking():
+    low = CFG.id_switch_confidence - 0.1
+    ctx = tracked_context(stamp_s=10.0)
+    near = [person(1, 2.0, last_seen_s=10.1), person(2, 2.3, last_seen_s=10.1)]
+    covered = {1: (0, 0, 100, 200), 2: (40, 0, 140, 200)}
+    state = Tracking(1)
+    assert state.update(ctx, frame(near, 10.1, {1: low, 2: 0.9}, boxes=covered)) is state
+    assert isinstance(state.update(ctx, frame(near, 10.2, {1: low, 2: 0.9})), Reidentification)
+
+
+# ------------------------------------------------------------------- re-identification
+def reid_frames(state, ctx, tracks, t0, confidences, similarities=None, n=CFG.reid_frames):
+    return [
+        state.update(ctx, frame(tracks, t0 + 0.1 * k, confidences, similarities)) for k in range(n)
+    ]
+
+
+def test_reidentification_takes_a_candidate_with_absolute_evidence_in_enough_frames():
+    ctx = tracked_context(stamp_s=10.0, observed={7: 5})
+    state = Reidentification()
+    back = [person(7, 2.5)]
+    ok = CFG.reid_accept_similarity + 0.05
+    states = reid_frames(state, ctx, back, 10.1, {7: CFG.reid_confidence + 0.1}, {7: ok})
+    assert states[:-1] == [state] * (CFG.reid_frames - 1)
+    assert isinstance(states[-1], Tracking) and states[-1].target_id == 7
+
+
+def test_reidentification_stays_for_a_stranger_who_fails_the_absolute_evidence():
+    ctx = tracked_context(stamp_s=10.0, observed={8: 5})
+    state = Reidentification()
+    stranger = [person(8, 2.5)]
+    confident = {8: 0.95}  # the classifier likes it, and nobody else is in view to lead
+    weak = {8: CFG.reid_accept_similarity - 0.05}
+    states = reid_frames(state, ctx, stranger, 10.1, confident, weak, n=3 * CFG.reid_frames)
+    assert all(s is state for s in states) and state.streaks == {8: 0}
+    # Without a re-id cue the same confidence is evidence enough: the rule that held it.
+    plain = tracked_context(stamp_s=10.0, observed={8: 5}, reid=False)
+    assert isinstance(
+        reid_frames(Reidentification(), plain, stranger, 10.1, confident)[-1], Tracking
+    )
+
+
+def test_the_evidence_needed_rises_the_longer_the_target_is_gone():
+    ctx = tracked_context(stamp_s=10.0, observed={7: 5})
+    between = 0.5 * (CFG.reid_accept_similarity + CFG.reid_strict_similarity)
+    confident = {7: CFG.reid_strict_confidence + 0.1}
+    soon = reid_frames(Reidentification(), ctx, [person(7, 2.5)], 10.1, confident, {7: between})
+    assert isinstance(soon[-1], Tracking)
+    late_s = 10.0 + CFG.reid_strict_after_s + 1.0  # close by, but long gone
+    ctx.last_target_s = late_s
+    late = reid_frames(Reidentification(), ctx, [person(7, 2.5)], late_s, confident, {7: between})
+    assert all(isinstance(s, Reidentification) for s in late)
+
+
+def test_reidentification_rejects_a_look_alike_too_far_too_new_or_of_another_height():
+    ctx = tracked_context(stamp_s=10.0, observed={5: 5, 6: 5})
+    good = {5: 0.9}, {5: 0.9}
+    reach_m = CFG.reid_reach_m + CFG.reid_reach_speed_mps * 0.3
+    far = [person(5, 2.0 + reach_m + 0.5)]
+    assert all(
+        isinstance(s, Reidentification)
+        for s in reid_frames(Reidentification(), ctx, far, 10.1, *good)
+    )
+    taller = [person(5, 2.5, neck_height_m=1.45 + CFG.reid_height_tolerance_m + 0.05)]
+    assert all(
+        isinstance(s, Reidentification)
+        for s in reid_frames(Reidentification(), ctx, taller, 10.1, *good)
+    )
+    ctx.observed_frames[4] = CFG.min_target_observations - 1
+    new = [person(4, 2.5)]  # a track seen in too few frames (a split skeleton's ghost)
+    good_new = {4: 0.9}, {4: 0.9}
+    assert all(
+        isinstance(s, Reidentification)
+        for s in reid_frames(Reidentification(), ctx, new, 10.1, *good_new)
+    )
+    same = [person(5, 2.5, neck_height_m=1.45 + 0.5 * CFG.reid_height_tolerance_m)]
+    assert isinstance(reid_frames(Reidentification(), ctx, same, 10.1, *good)[-1], Tracking)
+
+
+def test_reidentification_needs_a_lead_and_an_unbroken_streak():
+    cfg = dataclasses.replace(CFG, reid_margin=0.2)
+    ctx = tracked_context(stamp_s=10.0, config=cfg, observed={5: 5, 6: 5})
+    sims = {5: 0.9, 6: 0.9}
+    twins = [person(5, 2.5), person(6, 2.0)]
+    state = Reidentification()
+    states = reid_frames(state, ctx, twins, 10.1, {5: 0.8, 6: 0.7}, sims, n=4)
+    assert all(s is state for s in states)  # neither leads the other by 0.2
+    assert state.update(ctx, frame(twins, 10.5, {5: 0.8, 6: 0.5}, sims)) is state  # 1 frame
+    assert state.update(ctx, frame(twins, 10.6, {5: 0.8, 6: 0.7}, sims)) is state  # broken
+    assert state.streaks == {5: 0, 6: 0}
+    nxt = reid_frames(state, ctx, twins, 10.7, {5: 0.8, 6: 0.5}, sims)[-1]
+    assert isinstance(nxt, Tracking) and nxt.target_id == 5
+
+
+@pytest.mark.parametrize("state", [Initial(), InitialTraining(3), Tracking(3), Reidentification()])
+def test_each_state_reports_its_status_and_target(state):
+    expected = {
+        Initial: (TargetStatus.INITIAL, None),
+        InitialTraining: (TargetStatus.INITIAL_TRAINING, 3),
+        Tracking: (TargetStatus.TRACKING, 3),
+        Reidentification: (TargetStatus.REIDENTIFICATION, None),
+    }[type(state)]
+    assert (state.status, state.target_id) == expected
