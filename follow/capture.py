@@ -5,7 +5,6 @@ backlog of stale images."""
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from follow.handoff import Mailbox
 from follow.types import Frame, InvalidInput
 
 log = logging.getLogger(__name__)
@@ -127,17 +127,15 @@ def open_source(
                      skeletons_topic)  # fmt: skip
 
 
-class LatestSlot:
+class LatestSlot(Mailbox):
     """A one-item mailbox: `put` replaces whatever is there, `get` waits for a new item.
 
     Counts the items that were replaced before anyone read them (dropped frames).
     """
 
     def __init__(self):
-        self._cond = threading.Condition()
-        self._item = None
+        super().__init__()
         self._fresh = False
-        self._closed = False
         self.dropped = 0
 
     def put(self, item) -> None:
@@ -160,12 +158,3 @@ class LatestSlot:
         """The newest item, taken or not (None before the first)."""
         with self._cond:
             return self._item
-
-    def close(self) -> None:
-        with self._cond:
-            self._closed = True
-            self._cond.notify_all()
-
-    @property
-    def closed(self) -> bool:
-        return self._closed

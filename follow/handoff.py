@@ -15,14 +15,31 @@ from collections.abc import Callable
 POLL_S = 0.05  # how often a waiting thread looks at the stop flag
 
 
-class Handoff:
-    """A one-item mailbox whose giver waits until the item is taken."""
+class Mailbox:
+    """What every one-item mailbox between threads shares: a condition to wait on, and
+    a `close` that wakes every waiter for good (the source has ended)."""
 
     def __init__(self):
         self._cond = threading.Condition()
         self._item = None
-        self._full = False
         self._closed = False
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+
+class Handoff(Mailbox):
+    """A one-item mailbox whose giver waits until the item is taken."""
+
+    def __init__(self):
+        super().__init__()
+        self._full = False
 
     def give(self, item, stop: threading.Event) -> bool:
         """Hand `item` over and wait until it is taken; False when `stop` was set first."""
@@ -42,15 +59,6 @@ class Handoff:
             item, self._item, self._full = self._item, None, False
             self._cond.notify_all()
             return item
-
-    def close(self) -> None:
-        with self._cond:
-            self._closed = True
-            self._cond.notify_all()
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
 
 
 class OrderedWorker:
