@@ -12,7 +12,7 @@ from follow.config import TrackerConfig
 from follow.types import Odometry
 from follow.ukf import unscented
 from follow.ukf.models import STATE_DIM, MeasurementModel, constant_velocity, process_noise
-from follow.ukf.person import PersonFilter, make_psd
+from follow.ukf.person import PersonFilter, make_psd, project_sigma_points
 
 TOL = 1e-9
 
@@ -169,3 +169,22 @@ def test_failed_update_leaves_the_filter_as_it_was(camera):
     np.testing.assert_array_equal(f.mean, mean)
     np.testing.assert_array_equal(f.cov, cov)
     np.testing.assert_array_equal(f.ukf.sigmas_f, sigmas)
+
+
+def test_projecting_many_tracks_at_once_is_projecting_each(camera):
+    """A frame's tracks are projected in one call; each track's pixels are those it
+    gets alone, also when another track's sigma points come near the camera."""
+    rng = np.random.default_rng(5)
+    cfg = TrackerConfig()
+    model = MeasurementModel(camera, Odometry(0.5, 0.2, 0.1, 0.0), 0.08, 0.03, 0.6, 0.3, 0.05)
+    filters = [PersonFilter(*random_state(rng), cfg) for _ in range(4)]
+    near = np.array([0.8, 0.0, 0.0, 0.0, 1.45])  # its spread reaches behind the camera plane
+    filters.append(PersonFilter(near, np.diag([0.5, 0.5, 0.1, 0.1, 0.01]), cfg))
+    project_sigma_points(filters, model)
+    assert all(f.has_projection(model) for f in filters)
+    for f in filters:
+        alone = model.neck_ankle(f.ukf.sigmas_f)
+        np.testing.assert_array_equal(f.expected_measurement(model, np.zeros((4, 4)), True)[0],
+                                      f.ukf.Wm @ alone)  # fmt: skip
+        np.testing.assert_array_equal(f._measurement_sigmas(model, True), alone)
+    assert not filters[0].has_projection(MeasurementModel(camera, Odometry.origin()))

@@ -8,6 +8,8 @@ measurement model.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from filterpy.kalman import unscented_transform as filterpy_unscented_transform
@@ -152,16 +154,26 @@ class PersonFilter:
         self.ukf.sigmas_f = merwe_sigma_points(self.ukf.points_fn, self.ukf.x, self.ukf.P)
         self._projected_model, self._projected = None, {}
 
+    def has_projection(self, model: MeasurementModel, with_ankle: bool = True) -> bool:
+        """Whether the current sigma points' projection by `model` is kept."""
+        return model is self._projected_model and with_ankle in self._projected
+
+    def keep_projection(
+        self, model: MeasurementModel, projected: np.ndarray, with_ankle: bool = True
+    ) -> None:
+        """Keep `projected`, the current sigma points projected by `model`, until they
+        change (see `project_sigma_points`)."""
+        if model is not self._projected_model:
+            self._projected_model, self._projected = model, {}
+        self._projected[with_ankle] = projected
+
     def _measurement_sigmas(self, model: MeasurementModel, with_ankle: bool) -> np.ndarray:
         """The sigma points projected by `model` (neck+ankle or neck only), computed once
         per set of sigma points and model."""
-        if model is not self._projected_model:
-            self._projected_model, self._projected = model, {}
-        if with_ankle not in self._projected:
+        if not self.has_projection(model, with_ankle):
             sigmas = self.ukf.sigmas_f
-            self._projected[with_ankle] = (
-                model.neck_ankle(sigmas) if with_ankle else model.neck_only(sigmas)
-            )
+            projected = model.neck_ankle(sigmas) if with_ankle else model.neck_only(sigmas)
+            self.keep_projection(model, projected, with_ankle)
         return self._projected[with_ankle]
 
     def predict(self, dt_s: float, Q: np.ndarray) -> None:
@@ -197,3 +209,15 @@ class PersonFilter:
         self.ukf.x, self.ukf.P = x, P
         self._refresh_sigmas()
         return True
+
+
+def project_sigma_points(filters: Sequence[PersonFilter], model: MeasurementModel) -> None:
+    """Project the sigma points of every filter not yet projected by `model` to the neck
+    and ankle pixels in one call (a frame's tracks share the camera and robot pose, and
+    one call on all their points costs little more than one on a single track's)."""
+    todo = [f for f in filters if not f.has_projection(model)]
+    if not todo:
+        return
+    projected = model.neck_ankle(np.vstack([f.ukf.sigmas_f for f in todo]))
+    for f, block in zip(todo, np.split(projected, len(todo)), strict=True):
+        f.keep_projection(model, block)

@@ -24,7 +24,7 @@ from follow.frames import base_to_odom, odom_to_base
 from follow.types import L_ANKLE, R_ANKLE, Observation, Odometry, TrackState
 from follow.ukf.association import InnovationGate, gate_mahalanobis_sq, global_nearest_neighbour
 from follow.ukf.models import MeasurementModel, process_noise
-from follow.ukf.person import PersonFilter, initial_state_base
+from follow.ukf.person import PersonFilter, initial_state_base, project_sigma_points
 
 log = logging.getLogger(__name__)
 
@@ -158,6 +158,7 @@ class PeopleTracker:
         Q = process_noise(dt, cfg.accel_noise_mps2, cfg.height_noise_mps)
         for track in self._tracks:
             track.filter.predict(dt, Q)
+        project_sigma_points([t.filter for t in self._tracks], model)
 
         depths = [self._depth_m(t.filter.mean, robot) for t in self._tracks]
         no_noise = np.zeros((4, 4))
@@ -200,6 +201,7 @@ class PeopleTracker:
                     born.append(InnovationGate(*e))
 
         self._retire(stamp_s, robot)
+        project_sigma_points([t.filter for t in self._tracks], model)  # the updated ones
         self._states = [self._state(t, model, associated.get(t.track_id)) for t in self._tracks]
         return self.tracks
 
