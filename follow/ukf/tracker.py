@@ -217,17 +217,8 @@ class PeopleTracker:
         covariance without measurement noise."""
         cost = np.full((len(obs), len(expected)), np.inf)
         q = self.config.gate_chi2_quantile
-        gates: dict[tuple[int, str], InnovationGate] = {}
-
-        def gate(j: int, kind: str) -> InnovationGate:
-            # One factorisation per track and kind of observation.
-            if (j, kind) not in gates:
-                zp, S0 = expected[j]
-                R = self._measurement_cov(depths_m[j], kind == "single")
-                k = 2 if kind == "neck" else 4
-                gates[j, kind] = InnovationGate(zp[:k], S0[:k, :k] + R[:k, :k])
-            return gates[j, kind]
-
+        # Observations by kind: each track's gate for a kind scores them all at once.
+        by_kind: dict[str, tuple[list[int], list[np.ndarray]]] = {}
         for i, o in enumerate(obs):
             if o.has_ankle:
                 z, kind = (
@@ -236,13 +227,20 @@ class PeopleTracker:
                 )
             else:
                 z, kind = o.neck_px, "neck"
-            limit = gate_mahalanobis_sq(len(z), q)
+            rows, zs = by_kind.setdefault(kind, ([], []))
+            rows.append(i)
+            zs.append(z)
+        for kind, (rows, zs) in by_kind.items():
+            Z = np.array(zs)
+            k = Z.shape[1]
+            limit = gate_mahalanobis_sq(k, q)
             for j, e in enumerate(expected):
                 if e is None:
                     continue
-                d2, nll = gate(j, kind).cost(z)
-                if d2 <= limit:
-                    cost[i, j] = nll
+                zp, S0 = e
+                R = self._measurement_cov(depths_m[j], kind == "single")
+                d2, nll = InnovationGate(zp[:k], S0[:k, :k] + R[:k, :k]).costs(Z)
+                cost[rows, j] = np.where(d2 <= limit, nll, np.inf)
         return global_nearest_neighbour(cost), np.isfinite(cost).any(axis=1)
 
     def _start_track(self, o: Observation, stamp_s: float, robot: Odometry) -> _Track | None:
