@@ -188,3 +188,18 @@ def test_projecting_many_tracks_at_once_is_projecting_each(camera):
                                       f.ukf.Wm @ alone)  # fmt: skip
         np.testing.assert_array_equal(f._measurement_sigmas(model, True), alone)
     assert not filters[0].has_projection(MeasurementModel(camera, Odometry.origin()))
+
+
+def test_a_covariance_that_lost_definiteness_is_repaired_before_drawing_points():
+    cfg = TrackerConfig()
+    x, P = random_state(np.random.default_rng(6))
+    f = PersonFilter(x, P, cfg)
+    v = np.array([1.0, -1.0, 0.0, 0.0, 0.0]) / np.sqrt(2.0)
+    broken = P - (v @ P @ v + 1e-9) * np.outer(v, v)  # one eigenvalue just below zero
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(broken)
+    f.ukf.P = broken
+    f._refresh_sigmas()
+    np.testing.assert_array_equal(f.cov, make_psd(broken))
+    assert np.linalg.eigvalsh(f.cov)[0] > 0
+    np.testing.assert_array_equal(f.ukf.sigmas_f, f.ukf.points_fn.sigma_points(x, f.cov))

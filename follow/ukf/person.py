@@ -150,8 +150,16 @@ class PersonFilter:
         return self.ukf.P
 
     def _refresh_sigmas(self) -> None:
-        self.ukf.P = make_psd(self.ukf.P)
-        self.ukf.sigmas_f = merwe_sigma_points(self.ukf.points_fn, self.ukf.x, self.ukf.P)
+        """Symmetrise P and draw its sigma points; the Cholesky factor they need is also
+        the test for positive definiteness, so only a P that fails it is repaired (by
+        `make_psd`) and factored again."""
+        ukf = self.ukf
+        ukf.P = 0.5 * (ukf.P + ukf.P.T)
+        try:
+            ukf.sigmas_f = merwe_sigma_points(ukf.points_fn, ukf.x, ukf.P)
+        except np.linalg.LinAlgError:
+            ukf.P = make_psd(ukf.P)
+            ukf.sigmas_f = merwe_sigma_points(ukf.points_fn, ukf.x, ukf.P)
         self._projected_model, self._projected = None, {}
 
     def has_projection(self, model: MeasurementModel, with_ankle: bool = True) -> bool:
