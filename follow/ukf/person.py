@@ -16,13 +16,13 @@ from filterpy.kalman import unscented_transform as filterpy_unscented_transform
 
 from follow.camera import CameraModel
 from follow.config import TrackerConfig
+from follow.ukf import unscented
 from follow.ukf.models import (
     STATE_DIM,
     MeasurementModel,
     constant_velocity,
     population_ankle_height_m,
 )
-from follow.ukf.unscented import cholesky_upper, merwe_sigma_points, predict, update
 
 _MIN_EIGENVALUE = 1e-10
 
@@ -130,7 +130,7 @@ class PersonFilter:
             alpha=config.sigma_alpha,
             beta=config.sigma_beta,
             kappa=config.sigma_kappa,
-            sqrt_method=cholesky_upper,
+            sqrt_method=unscented.cholesky_upper,
         )
         self.ukf = UnscentedKalmanFilter(
             dim_x=STATE_DIM, dim_z=4, dt=0.0, hx=None, fx=constant_velocity, points=points
@@ -156,10 +156,10 @@ class PersonFilter:
         ukf = self.ukf
         ukf.P = 0.5 * (ukf.P + ukf.P.T)
         try:
-            ukf.sigmas_f = merwe_sigma_points(ukf.points_fn, ukf.x, ukf.P)
+            ukf.sigmas_f = unscented.merwe_sigma_points(ukf.points_fn, ukf.x, ukf.P)
         except np.linalg.LinAlgError:
             ukf.P = make_psd(ukf.P)
-            ukf.sigmas_f = merwe_sigma_points(ukf.points_fn, ukf.x, ukf.P)
+            ukf.sigmas_f = unscented.merwe_sigma_points(ukf.points_fn, ukf.x, ukf.P)
         self._projected_model, self._projected = None, {}
 
     def has_projection(self, model: MeasurementModel, with_ankle: bool = True) -> bool:
@@ -187,7 +187,7 @@ class PersonFilter:
     def predict(self, dt_s: float, Q: np.ndarray) -> None:
         """Move forward by `dt_s` seconds (nothing to do for dt = 0)."""
         if dt_s > 0:
-            predict(self.ukf, dt_s, Q, sigmas=self.ukf.sigmas_f)
+            unscented.predict(self.ukf, dt_s, Q, sigmas=self.ukf.sigmas_f)
             # Draw fresh sigma points from the prior, so that they include Q.
             self._refresh_sigmas()
 
@@ -209,7 +209,7 @@ class PersonFilter:
         if not np.isfinite(projected).all():
             return False
         try:
-            x, P = update(self.ukf, np.asarray(z, dtype=np.float64), R, projected)
+            x, P = unscented.update(self.ukf, np.asarray(z, dtype=np.float64), R, projected)
         except (np.linalg.LinAlgError, ValueError):
             return False
         if not (np.isfinite(x).all() and np.isfinite(P).all()):
