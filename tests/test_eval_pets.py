@@ -101,3 +101,14 @@ def test_bench_pets_settings_run_the_initial_stage_at_576_px(pets, capsys):
     assert r["input_height_px"] == 576 and r["network_stages"] == 1
     assert r["pose_backend"] == "onnxruntime:CPUExecutionProvider"
     assert "initial-stage" in r["pose_model"]
+
+
+def test_bench_tracker_times_the_tracker_alone_on_the_cached_detections(pets, capsys):
+    r = _run(capsys, "bench", "tracker", "--frames", FRAMES, "--repeats", "1", "--json")
+    assert r["frames"] == 60 and r["repeats"] == 1
+    assert 2 <= r["tracks_per_frame"] <= 10  # about 4.7 annotated people per frame
+    assert 0.0 < r["tracker_ms_per_track"] <= r["tracker_ms_per_frame"]
+    assert r["reference_filterpy_step_ms"] > 0.0
+    assert r["per_track_over_reference"] == pytest.approx(
+        r["tracker_ms_per_track"] / r["reference_filterpy_step_ms"], rel=0.01
+    )

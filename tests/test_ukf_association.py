@@ -32,6 +32,19 @@ def test_cost_is_the_negative_log_likelihood():
     assert InnovationGate(mean, -S).cost(z) == (np.inf, np.inf)
 
 
+def test_costs_score_many_measurements_at_once():
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(4, 4))
+    S = A @ A.T + np.eye(4)
+    mean, Z = rng.normal(size=4), rng.normal(size=(7, 4))
+    gate = InnovationGate(mean, S)
+    d2, nll = gate.costs(Z)
+    assert d2.shape == nll.shape == (7,)
+    np.testing.assert_allclose(d2, [(z - mean) @ np.linalg.solve(S, z - mean) for z in Z])
+    np.testing.assert_allclose(nll, -multivariate_normal(mean, S).logpdf(Z))
+    assert np.isinf(InnovationGate(mean, -S).costs(Z)).all()
+
+
 def test_global_nearest_neighbour_minimises_the_total_and_respects_the_gate():
     # Greedy would give row 0 its best (column 0) and leave row 1 with a poor match.
     cost = np.array([[1.0, 2.0], [1.5, 10.0]])

@@ -63,14 +63,16 @@ def add_arguments(p) -> None:
 
 class _CachedDescribe:
     """Memoises an appearance model's `describe` per (frame, ROI): the cues of a person
-    in a frame do not depend on which target is being learnt."""
+    in a frame do not depend on which target is being learnt. Every ROI gets its re-id
+    embedding (`embed` is ignored): computed once, it serves all the targets, and the
+    identifier's decisions are the same as with embeddings only where they decide."""
 
     def __init__(self, describe):
         self.describe = describe
         self.frame_index = -1
         self.cache: dict = {}
 
-    def __call__(self, image_bgr, rois):
+    def __call__(self, image_bgr, rois, embed=None):
         missing = [r for r in rois if (self.frame_index, tuple(r)) not in self.cache]
         if missing:
             for roi, cue in zip(missing, self.describe(image_bgr, missing), strict=True):

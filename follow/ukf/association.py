@@ -38,10 +38,16 @@ class InnovationGate:
     def cost(self, z: np.ndarray) -> tuple[float, float]:
         """(squared Mahalanobis distance, negative log-likelihood) of a measurement; (inf,
         inf) when the covariance is not positive definite."""
+        d2, nll = self.costs(np.asarray(z, dtype=np.float64)[None, :])
+        return float(d2[0]), float(nll[0])
+
+    def costs(self, Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`cost` of each row of Z (m, k), with one triangular solve for them all."""
+        m = len(Z)
         if self._L is None:
-            return float("inf"), float("inf")
-        w = np.linalg.solve(self._L, z - self.mean)
-        d2 = float(w @ w)
+            return np.full(m, np.inf), np.full(m, np.inf)
+        w = np.linalg.solve(self._L, (Z - self.mean).T)
+        d2 = np.einsum("km,km->m", w, w)
         return d2, 0.5 * d2 + self._log_norm
 
 

@@ -46,7 +46,9 @@ def process_noise(dt_s: float, accel_noise_mps2: float, height_noise_mps: float)
 def population_ankle_height_m(config) -> float:
     """The standing ankle keypoint height of a person of the default neck height: what
     a single observation, without a height estimate, is back-projected with."""
-    return config.ankle_height_m + config.ankle_height_per_neck_height * config.default_neck_height_m
+    return (
+        config.ankle_height_m + config.ankle_height_per_neck_height * config.default_neck_height_m
+    )
 
 
 class MeasurementModel:
@@ -94,9 +96,10 @@ class MeasurementModel:
             cam = self.camera
             pc = cam.base_to_camera(points_base)
             near = pc[:, 2] < self.min_depth_m
-            if near.any():
+            if near.any():  # move only those points, so that each projects on its own
                 pc[near, 2] = self.min_depth_m
-                points_base = pc @ cam.rotation_base_from_cam.T + cam.position_base
+                points_base = np.array(points_base, dtype=np.float64)
+                points_base[near] = pc[near] @ cam.rotation_base_from_cam.T + cam.position_base
         return self.camera.project(points_base)
 
     def neck_ankle(self, states: np.ndarray) -> np.ndarray:

@@ -8,12 +8,15 @@ measurement model.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from filterpy.kalman import unscented_transform as filterpy_unscented_transform
 
 from follow.camera import CameraModel
 from follow.config import TrackerConfig
+from follow.ukf import unscented
 from follow.ukf.models import (
     STATE_DIM,
     MeasurementModel,
@@ -112,7 +115,14 @@ def initial_state_base(
 
 
 class PersonFilter:
-    """The UKF of one person, in `odom`."""
+    """The UKF of one person, in `odom`.
+
+    A filterpy `UnscentedKalmanFilter` holds the state, the weights and the sigma points;
+    `follow.ukf.unscented` runs its steps on all sigma points at once. `ukf.sigmas_f`
+    always holds the sigma points of the current (x, P), and their projection into the
+    image is kept for the frame's measurement model, so that gating, the update and the
+    reported track share one projection.
+    """
 
     def __init__(self, mean: np.ndarray, cov: np.ndarray, config: TrackerConfig):
         points = MerweScaledSigmaPoints(
@@ -120,12 +130,15 @@ class PersonFilter:
             alpha=config.sigma_alpha,
             beta=config.sigma_beta,
             kappa=config.sigma_kappa,
+            sqrt_method=unscented.cholesky_upper,
         )
         self.ukf = UnscentedKalmanFilter(
             dim_x=STATE_DIM, dim_z=4, dt=0.0, hx=None, fx=constant_velocity, points=points
         )
         self.ukf.x = np.asarray(mean, dtype=np.float64).copy()
         self.ukf.P = make_psd(np.asarray(cov, dtype=np.float64))
+        self._projected_model: MeasurementModel | None = None
+        self._projected: dict[bool, np.ndarray] = {}
         self._refresh_sigmas()
 
     @property
@@ -137,24 +150,53 @@ class PersonFilter:
         return self.ukf.P
 
     def _refresh_sigmas(self) -> None:
-        self.ukf.P = make_psd(self.ukf.P)
-        self.ukf.sigmas_f = self.ukf.points_fn.sigma_points(self.ukf.x, self.ukf.P)
+        """Symmetrise P and draw its sigma points; the Cholesky factor they need is also
+        the test for positive definiteness, so only a P that fails it is repaired (by
+        `make_psd`) and factored again."""
+        ukf = self.ukf
+        ukf.P = 0.5 * (ukf.P + ukf.P.T)
+        try:
+            ukf.sigmas_f = unscented.merwe_sigma_points(ukf.points_fn, ukf.x, ukf.P)
+        except np.linalg.LinAlgError:
+            ukf.P = make_psd(ukf.P)
+            ukf.sigmas_f = unscented.merwe_sigma_points(ukf.points_fn, ukf.x, ukf.P)
+        self._projected_model, self._projected = None, {}
+
+    def has_projection(self, model: MeasurementModel, with_ankle: bool = True) -> bool:
+        """Whether the current sigma points' projection by `model` is kept."""
+        return model is self._projected_model and with_ankle in self._projected
+
+    def keep_projection(
+        self, model: MeasurementModel, projected: np.ndarray, with_ankle: bool = True
+    ) -> None:
+        """Keep `projected`, the current sigma points projected by `model`, until they
+        change (see `project_sigma_points`)."""
+        if model is not self._projected_model:
+            self._projected_model, self._projected = model, {}
+        self._projected[with_ankle] = projected
+
+    def _measurement_sigmas(self, model: MeasurementModel, with_ankle: bool) -> np.ndarray:
+        """The sigma points projected by `model` (neck+ankle or neck only), computed once
+        per set of sigma points and model."""
+        if not self.has_projection(model, with_ankle):
+            sigmas = self.ukf.sigmas_f
+            projected = model.neck_ankle(sigmas) if with_ankle else model.neck_only(sigmas)
+            self.keep_projection(model, projected, with_ankle)
+        return self._projected[with_ankle]
 
     def predict(self, dt_s: float, Q: np.ndarray) -> None:
         """Move forward by `dt_s` seconds (nothing to do for dt = 0)."""
         if dt_s > 0:
-            self.ukf.Q = Q
-            self.ukf.predict(dt=dt_s)
-        # Draw fresh sigma points from the prior, so that they include Q.
-        self._refresh_sigmas()
+            unscented.predict(self.ukf, dt_s, Q, sigmas=self.ukf.sigmas_f)
+            # Draw fresh sigma points from the prior, so that they include Q.
+            self._refresh_sigmas()
 
     def expected_measurement(
         self, model: MeasurementModel, R: np.ndarray, with_ankle: bool
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Mean and covariance of the measurement by the unscented transform, or None when
         part of the distribution falls behind the camera."""
-        sigmas = self.ukf.sigmas_f
-        Z = model.neck_ankle(sigmas) if with_ankle else model.neck_only(sigmas)
+        Z = self._measurement_sigmas(model, with_ankle)
         if not np.isfinite(Z).all():
             return None
         zp, S = filterpy_unscented_transform(Z, self.ukf.Wm, self.ukf.Wc, R)
@@ -163,26 +205,27 @@ class PersonFilter:
     def update(self, z: np.ndarray, R: np.ndarray, model: MeasurementModel) -> bool:
         """Fuse a 4-d neck+ankle or a 2-d neck-only measurement; False (and no change) if
         the update would not give a finite state."""
-        # filterpy calls hx once per sigma point, in order; project them all at once.
-        sigmas = self.ukf.sigmas_f
-        projected = model.neck_ankle(sigmas) if len(z) == 4 else model.neck_only(sigmas)
+        projected = self._measurement_sigmas(model, len(z) == 4)
         if not np.isfinite(projected).all():
             return False
-        rows = iter(projected)
-
-        def hx(_state: np.ndarray) -> np.ndarray:
-            return next(rows)
-
-        x_before, P_before = self.ukf.x.copy(), self.ukf.P.copy()
         try:
-            self.ukf.update(np.asarray(z, dtype=np.float64), R=R, hx=hx)
+            x, P = unscented.update(self.ukf, np.asarray(z, dtype=np.float64), R, projected)
         except (np.linalg.LinAlgError, ValueError):
-            self.ukf.x, self.ukf.P = x_before, P_before
-            self._refresh_sigmas()
             return False
-        if not (np.isfinite(self.ukf.x).all() and np.isfinite(self.ukf.P).all()):
-            self.ukf.x, self.ukf.P = x_before, P_before
-            self._refresh_sigmas()
+        if not (np.isfinite(x).all() and np.isfinite(P).all()):
             return False
+        self.ukf.x, self.ukf.P = x, P
         self._refresh_sigmas()
         return True
+
+
+def project_sigma_points(filters: Sequence[PersonFilter], model: MeasurementModel) -> None:
+    """Project the sigma points of every filter not yet projected by `model` to the neck
+    and ankle pixels in one call (a frame's tracks share the camera and robot pose, and
+    one call on all their points costs little more than one on a single track's)."""
+    todo = [f for f in filters if not f.has_projection(model)]
+    if not todo:
+        return
+    projected = model.neck_ankle(np.vstack([f.ukf.sigmas_f for f in todo]))
+    for f, block in zip(todo, np.split(projected, len(todo)), strict=True):
+        f.keep_projection(model, block)

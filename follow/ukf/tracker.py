@@ -24,7 +24,7 @@ from follow.frames import base_to_odom, odom_to_base
 from follow.types import L_ANKLE, R_ANKLE, Observation, Odometry, TrackState
 from follow.ukf.association import InnovationGate, gate_mahalanobis_sq, global_nearest_neighbour
 from follow.ukf.models import MeasurementModel, process_noise
-from follow.ukf.person import PersonFilter, initial_state_base
+from follow.ukf.person import PersonFilter, initial_state_base, project_sigma_points
 
 log = logging.getLogger(__name__)
 
@@ -158,6 +158,7 @@ class PeopleTracker:
         Q = process_noise(dt, cfg.accel_noise_mps2, cfg.height_noise_mps)
         for track in self._tracks:
             track.filter.predict(dt, Q)
+        project_sigma_points([t.filter for t in self._tracks], model)
 
         depths = [self._depth_m(t.filter.mean, robot) for t in self._tracks]
         no_noise = np.zeros((4, 4))
@@ -200,6 +201,7 @@ class PeopleTracker:
                     born.append(InnovationGate(*e))
 
         self._retire(stamp_s, robot)
+        project_sigma_points([t.filter for t in self._tracks], model)  # the updated ones
         self._states = [self._state(t, model, associated.get(t.track_id)) for t in self._tracks]
         return self.tracks
 
@@ -215,17 +217,8 @@ class PeopleTracker:
         covariance without measurement noise."""
         cost = np.full((len(obs), len(expected)), np.inf)
         q = self.config.gate_chi2_quantile
-        gates: dict[tuple[int, str], InnovationGate] = {}
-
-        def gate(j: int, kind: str) -> InnovationGate:
-            # One factorisation per track and kind of observation.
-            if (j, kind) not in gates:
-                zp, S0 = expected[j]
-                R = self._measurement_cov(depths_m[j], kind == "single")
-                k = 2 if kind == "neck" else 4
-                gates[j, kind] = InnovationGate(zp[:k], S0[:k, :k] + R[:k, :k])
-            return gates[j, kind]
-
+        # Observations by kind: each track's gate for a kind scores them all at once.
+        by_kind: dict[str, tuple[list[int], list[np.ndarray]]] = {}
         for i, o in enumerate(obs):
             if o.has_ankle:
                 z, kind = (
@@ -234,13 +227,20 @@ class PeopleTracker:
                 )
             else:
                 z, kind = o.neck_px, "neck"
-            limit = gate_mahalanobis_sq(len(z), q)
+            rows, zs = by_kind.setdefault(kind, ([], []))
+            rows.append(i)
+            zs.append(z)
+        for kind, (rows, zs) in by_kind.items():
+            Z = np.array(zs)
+            k = Z.shape[1]
+            limit = gate_mahalanobis_sq(k, q)
             for j, e in enumerate(expected):
                 if e is None:
                     continue
-                d2, nll = gate(j, kind).cost(z)
-                if d2 <= limit:
-                    cost[i, j] = nll
+                zp, S0 = e
+                R = self._measurement_cov(depths_m[j], kind == "single")
+                d2, nll = InnovationGate(zp[:k], S0[:k, :k] + R[:k, :k]).costs(Z)
+                cost[rows, j] = np.where(d2 <= limit, nll, np.inf)
         return global_nearest_neighbour(cost), np.isfinite(cost).any(axis=1)
 
     def _start_track(self, o: Observation, stamp_s: float, robot: Odometry) -> _Track | None:
