@@ -3,8 +3,10 @@ following server, every track, the identifier's state and diagnostics out; optio
 cmd_vel from the project's own controller.
 
 It runs the same stack as `follow run` (`build_perception`, `Perception`, the
-`FollowingController` in the shared `ControlLoop`) on a perception thread of its own, so
-the executor keeps taking odometry and requests while a frame is processed. Safety as in
+`FollowingController` in the shared `ControlLoop`) on threads of its own, so the executor
+keeps taking odometry and requests while a frame is processed: the pose network on the
+newest image, and (with `[control] overlap_stages`) tracking, identification and the
+publishers of the previous image beside it, in order. Safety as in
 `follow run`: an image older than `max_image_age_s`, odometry older than
 `max_odometry_age_s`, a lost target or a stop request give a zero cmd_vel, and so does
 shutdown (SIGINT or SIGTERM).
@@ -35,6 +37,7 @@ from visualization_msgs.msg import MarkerArray
 from follow.camera import CameraModel
 from follow.capture import LatestSlot
 from follow.config import Config, ConfigError
+from follow.handoff import Handoff
 from follow.odometry_buffer import OdometryBuffer
 from follow.pipeline import ControlLoop, FrameResult
 from follow.ros2 import messages
@@ -116,8 +119,16 @@ class FollowNode(Node):
             )  # fmt: skip
         self.create_timer(ros.diagnostics_period_s, self._publish_diagnostics)
         self._stopping = threading.Event()
-        self._worker = threading.Thread(target=self._perceive, name="perception", daemon=True)
-        self._worker.start()
+        # With `overlap_stages` the pose network infers the next image on this thread
+        # while the previous one is tracked, identified and published on another.
+        self._handoff = Handoff() if self.config.control.overlap_stages else None
+        self._workers = [threading.Thread(target=self._perceive, name="pose", daemon=True)]
+        if self._handoff is not None:
+            self._workers.append(
+                threading.Thread(target=self._conclude_handed, name="perception", daemon=True)
+            )
+        for worker in self._workers:
+            worker.start()
         if self.control is not None:
             self.control.start()
         self.get_logger().info(
@@ -195,12 +206,37 @@ class FollowNode(Node):
 
     # ------------------------------------------------------------------ perception
     def _perceive(self) -> None:
-        while not self._stopping.is_set():
-            msg = self._images.get(timeout_s=0.2)
-            if msg is None:
+        """Each newest image through the pose network, then (handed over, or here)
+        through tracker, identifier and the publishers."""
+        try:
+            while not self._stopping.is_set():
+                msg = self._images.get(timeout_s=0.2)
+                if msg is None:
+                    continue
+                try:
+                    detected = self._detect_in(msg)
+                    if detected is None:
+                        continue
+                    if self._handoff is None:
+                        self._conclude(*detected)
+                    elif not self._handoff.give(detected, self._stopping):
+                        return
+                except Exception:  # one bad frame must not end the node; control goes stale
+                    self.errors += 1
+                    log.exception("frame failed")
+        finally:
+            if self._handoff is not None:
+                self._handoff.close()
+
+    def _conclude_handed(self) -> None:
+        while True:
+            detected = self._handoff.take(timeout_s=0.2)
+            if detected is None:
+                if self._handoff.closed:
+                    return
                 continue
             try:
-                self._process(msg)
+                self._conclude(*detected)
             except Exception:  # one bad frame must not end the node; control goes stale
                 self.errors += 1
                 log.exception("frame failed")
@@ -222,17 +258,20 @@ class FollowNode(Node):
             self.perception.identifier.select_target(self._pending_target)
         return self.perception
 
-    def _process(self, msg) -> None:
+    def _detect_in(self, msg):
+        """(frame, robot pose, detections, camera frame id) of an image message, or None
+        for an image that is dropped (out of order, unreadable, without odometry, or
+        before the camera is known)."""
         ros = self.config.ros
         stamp = stamp_s(msg.header)
         if self._last_stamp is not None and stamp <= self._last_stamp:
             self.stale_frames += 1
-            return
+            return None
         try:
             image = image_from_msg(msg)
         except InvalidInput as exc:
             self.get_logger().warning(f"image dropped: {exc}", throttle_duration_sec=5.0)
-            return
+            return None
         if self.odometry is not None:
             self.odometry.wait_until(stamp, ros.max_odometry_age_s)
             robot = self.odometry.at(stamp)
@@ -242,7 +281,7 @@ class FollowNode(Node):
                     f"image dropped: no odometry within {ros.max_odometry_age_s} s of its stamp",
                     throttle_duration_sec=5.0,
                 )
-                return
+                return None
         else:
             robot = Odometry.origin(stamp)
         with self._lock:
@@ -250,16 +289,23 @@ class FollowNode(Node):
                 perception = self._perception_for(image.shape[1], image.shape[0])
             except ValueError as exc:  # a camera_info or camera file that cannot be used
                 self.get_logger().error(f"image dropped: {exc}", throttle_duration_sec=5.0)
-                return
-            if perception is None:
-                return
-            result = perception.process(Frame(image, stamp), robot, self.frames)
+                return None
+        if perception is None:
+            return None
+        self._last_stamp = stamp
+        frame = Frame(image, stamp)
+        return frame, robot, perception.detect_people(frame), msg.header.frame_id
+
+    def _conclude(self, frame: Frame, robot: Odometry, detections, camera_frame: str) -> None:
+        with self._lock:
+            result = self.perception.conclude(frame, robot, self.frames, detections)
             following = self.following
         self.frames += 1
-        self._last_stamp = stamp
         self._recent.append((time.monotonic(), result.timing_ms))
         self.results.put(result)
-        self._publish(result, image, following, msg.header.frame_id)
+        if self.control is not None:
+            self.control.notify()
+        self._publish(result, frame.image, following, camera_frame)
 
     # ------------------------------------------------------------------ outputs
     def _publish(self, result: FrameResult, image, following: bool, camera_frame: str) -> None:
@@ -308,7 +354,8 @@ class FollowNode(Node):
         """Stop perception and control; the base's last command is zero."""
         self._stopping.set()
         self._images.close()
-        self._worker.join(timeout=10.0)
+        for worker in self._workers:
+            worker.join(timeout=10.0)
         if self.control is not None:
             self.control.stop()  # sends zero through the gate
         if self.config.ros.publish_cmd_vel:
