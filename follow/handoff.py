@@ -10,19 +10,35 @@ from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 POLL_S = 0.05  # how often a waiting thread looks at the stop flag
 
 
 class Mailbox:
-    """What every one-item mailbox between threads shares: a condition to wait on, and
-    a `close` that wakes every waiter for good (the source has ended)."""
+    """What every one-item mailbox between threads shares: a condition to wait on, a
+    `close` that wakes every waiter for good (the source has ended), and `items`, the
+    reader's loop. Subclasses define `get(timeout_s)`: the next item, or None on
+    time-out or when closed and empty."""
 
     def __init__(self):
         self._cond = threading.Condition()
         self._item = None
         self._closed = False
+
+    def get(self, timeout_s: float | None = None):
+        raise NotImplementedError
+
+    def items(self, stop: threading.Event | None = None, poll_s: float = POLL_S) -> Iterator:
+        """Each item as it comes, until the mailbox is closed and empty or `stop` is set
+        (looked at every `poll_s` seconds while nothing comes)."""
+        while stop is None or not stop.is_set():
+            item = self.get(timeout_s=poll_s)
+            if item is None:
+                if self._closed:
+                    return
+                continue
+            yield item
 
     def close(self) -> None:
         with self._cond:
@@ -50,7 +66,7 @@ class Handoff(Mailbox):
                 self._cond.wait(POLL_S)
             return not self._full
 
-    def take(self, timeout_s: float):
+    def get(self, timeout_s: float | None = None):
         """The item given, or None on time-out or when closed and empty."""
         with self._cond:
             self._cond.wait_for(lambda: self._full or self._closed, timeout=timeout_s)

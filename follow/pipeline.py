@@ -326,12 +326,7 @@ class ThreadedRunner:
 
     def _newest_frames(self) -> Iterator[tuple[int, Frame, Odometry]]:
         """Each newest captured frame with a known robot pose, until the source ends."""
-        while not self._stop.is_set():
-            item = self.frames.get(timeout_s=1.0)
-            if item is None:
-                if self.frames.closed:
-                    return
-                continue
+        for item in self.frames.items(self._stop, poll_s=1.0):
             if item[2] is None:  # pose unknown when taken: the control loop stops
                 self.skipped_without_odometry += 1
                 continue
@@ -359,13 +354,7 @@ class ThreadedRunner:
         worker = threading.Thread(target=infer, name="pose", daemon=True)
         worker.start()
         try:
-            while True:
-                item = handoff.take(timeout_s=1.0)
-                if item is None:
-                    if handoff.closed:
-                        return
-                    continue
-                yield item
+            yield from handoff.items(poll_s=1.0)
         finally:
             self._stop.set()
             worker.join(timeout=5.0)

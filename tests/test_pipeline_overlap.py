@@ -159,7 +159,7 @@ def test_handoff_giver_waits_until_taken_and_stops_on_request():
     giver.start()
     time.sleep(0.1)
     assert not done  # not taken yet
-    assert handoff.take(1.0) == "x"
+    assert handoff.get(1.0) == "x"
     giver.join(1.0)
     assert done == [True]
     giver = threading.Thread(target=lambda: done.append(handoff.give("y", stop)))
@@ -168,8 +168,8 @@ def test_handoff_giver_waits_until_taken_and_stops_on_request():
     giver.join(1.0)
     assert done == [True, False]
     handoff.close()
-    handoff.take(0.0)  # "y" is still there
-    assert handoff.take(0.01) is None and handoff.closed
+    handoff.get(0.0)  # "y" is still there
+    assert handoff.get(0.01) is None and handoff.closed
 
 
 def test_ordered_worker_keeps_order_and_raises_the_first_error_on_close():
@@ -189,3 +189,15 @@ def test_ordered_worker_keeps_order_and_raises_the_first_error_on_close():
         for k in range(100):
             worker.submit(k)
         worker.close()
+
+
+def test_a_mailbox_reader_ends_when_it_is_closed_or_told_to_stop():
+    slot = LatestSlot()
+    slot.put("a")
+    slot.close()
+    assert list(slot.items(poll_s=0.01)) == ["a"]  # the last item, then the end
+    stop = threading.Event()
+    stop.set()
+    open_slot = LatestSlot()
+    open_slot.put("b")
+    assert list(open_slot.items(stop, poll_s=0.01)) == []  # stopped before reading

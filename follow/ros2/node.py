@@ -209,10 +209,7 @@ class FollowNode(Node):
         """Each newest image through the pose network, then (handed over, or here)
         through tracker, identifier and the publishers."""
         try:
-            while not self._stopping.is_set():
-                msg = self._images.get(timeout_s=0.2)
-                if msg is None:
-                    continue
+            for msg in self._images.items(self._stopping, poll_s=0.2):
                 try:
                     detected = self._detect_in(msg)
                     if detected is None:
@@ -229,12 +226,7 @@ class FollowNode(Node):
                 self._handoff.close()
 
     def _conclude_handed(self) -> None:
-        while True:
-            detected = self._handoff.take(timeout_s=0.2)
-            if detected is None:
-                if self._handoff.closed:
-                    return
-                continue
+        for detected in self._handoff.items(poll_s=0.2):
             try:
                 self._conclude(*detected)
             except Exception:  # one bad frame must not end the node; control goes stale
