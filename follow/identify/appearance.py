@@ -89,24 +89,24 @@ class AppearanceModel:
         maps = self.extractor.extract(image_bgr, rois) if self.extractor is not None else None
         if self.reid is None:
             return self._combine(maps, None)
+        described = self._combine(maps, [None] * len(rois))
         wanted = [i for i in range(len(rois)) if embed is None or embed[i]]
-        found = self.reid.embed(image_bgr, [rois[i] for i in wanted]) if wanted else []
-        embeddings: list[np.ndarray | None] = [None] * len(rois)
-        for i, embedding in zip(wanted, found, strict=True):
-            embeddings[i] = embedding
-        return self._combine(maps, embeddings)
+        return self._embedded(image_bgr, rois, described, wanted)
 
     def complete(
         self, image_bgr: np.ndarray, rois: Sequence[Roi], appearances: Sequence[Appearance]
     ) -> list[Appearance]:
         """The appearances with the re-id embeddings `describe` left out filled in."""
         missing = [i for i, a in enumerate(appearances) if self.lacks_embedding(a)]
-        if not missing:
-            return list(appearances)
-        found = self.reid.embed(image_bgr, [rois[i] for i in missing])
+        return self._embedded(image_bgr, rois, appearances, missing)
+
+    def _embedded(self, image_bgr, rois, appearances, indices: list[int]) -> list[Appearance]:
+        """The appearances with the re-id embeddings of those at `indices` (one batch)."""
         out = list(appearances)
-        for i, embedding in zip(missing, found, strict=True):
-            out[i] = Appearance(out[i].maps, embedding)
+        if indices:
+            found = self.reid.embed(image_bgr, [rois[i] for i in indices])
+            for i, embedding in zip(indices, found, strict=True):
+                out[i] = Appearance(out[i].maps, embedding)
         return out
 
     def lacks_embedding(self, appearance: Appearance) -> bool:
