@@ -140,16 +140,14 @@ def stage_times(config, detector, setup, total: int, warmup: int, quiet: bool) -
     from follow.control.controller import FollowingController
     from follow.eval.pets_setup import PETS_FPS
     from follow.pipeline import target_motion
-    from follow.run import build_perception
     from follow.types import Frame, Odometry
 
-    perception = build_perception(config, setup.camera, lambda frame: detector.detect(frame.image))
+    perception = _learning_perception(config, setup, detector)
     controller = FollowingController(config.control)
     times: dict[str, list[float]] = {k: [] for k in (
         "capture", "preprocess", "inference", "decode", "pose", "tracker", "identify",
         "control", "in_turn")}  # fmt: skip
     per_track, per_person, people = [], [], []
-    selected = False
     for index in tqdm(range(total), desc="bench: stages", unit="frame", disable=quiet):
         stamp = index / PETS_FPS
         robot = Odometry.origin(stamp)
@@ -160,8 +158,6 @@ def stage_times(config, detector, setup, total: int, warmup: int, quiet: bool) -
         t2 = time.perf_counter()
         controller.update(target_motion(result, robot), stamp)
         t3 = time.perf_counter()
-        if not selected:  # learn someone, so that the identifier's update is timed too
-            selected = _select_someone(perception, result)
         if index < warmup:
             continue
         stage_ms = result.timing_ms
@@ -195,17 +191,14 @@ def runner_times(config, detector, setup, total: int, warmup: int, camera_fps: f
     """The threaded runner of `follow run`, fed at `camera_fps` by a decoding camera."""
     from follow.control.base import NullBase
     from follow.pipeline import build_runner
-    from follow.run import build_perception
     from follow.types import Frame
 
-    perception = build_perception(config, setup.camera, lambda frame: detector.detect(frame.image))
+    perception = _learning_perception(config, setup, detector)
     runner = build_runner(perception, NullBase(), config.control)
     done_s: list[float] = []
 
     def on_result(frame, result) -> None:
         done_s.append(time.perf_counter())
-        if len(done_s) == 1 or result.target.target_id is None:
-            _select_someone(perception, result)
 
     def camera():
         for index in range(total):
@@ -229,11 +222,32 @@ def runner_times(config, detector, setup, total: int, warmup: int, camera_fps: f
     }
 
 
-def _select_someone(perception, result) -> bool:
-    confirmed = [t for t in result.tracks if t.confirmed]
-    if confirmed:
-        perception.identifier.select_target(confirmed[0].track_id)
-    return bool(confirmed)
+class _SelectsSomeone:
+    """The identifier, made to select the first confirmed track it is shown, so that its
+    learning and checking are timed too (PETS people stand farther away than a robot's
+    initial choice reaches). It selects on the thread that updates it: the runner's
+    outputs run on another thread, where a selection would race the update."""
+
+    def __init__(self, identifier):
+        self.identifier = identifier
+        self.selected = False
+
+    def update(self, image_bgr, tracks, stamp_s, robot=None):
+        estimate = self.identifier.update(image_bgr, tracks, stamp_s, robot)
+        confirmed = [t for t in tracks if t.confirmed]
+        if not self.selected and confirmed:
+            self.identifier.select_target(confirmed[0].track_id)
+            self.selected = True
+        return estimate
+
+
+def _learning_perception(config, setup, detector):
+    """The stack on `detector`, with an identifier that learns someone."""
+    from follow.run import build_perception
+
+    perception = build_perception(config, setup.camera, lambda frame: detector.detect(frame.image))
+    perception.identifier = _SelectsSomeone(perception.identifier)
+    return perception
 
 
 def print_report(result: dict, camera_fps: float) -> None:
