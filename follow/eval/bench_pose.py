@@ -5,7 +5,9 @@ load from other processes, and any runtime's after-effects, hit them alike; medi
 run. Measured: onnxruntime FP32 on the CPU; the project's fast CPU path (the INT8 model
 from tools/quantize_pose.py, on OpenVINO when installed, else on onnxruntime); the
 onnxruntime INT8 path on its own; the OpenVINO runtime on the official INT8 IR as the
-reference (skipped with a note when openvino is missing); and decoding time, also on
+reference (skipped with a note when openvino is missing); the INT8 paths fed the uint8
+frame with the transpose and conversion inside the graph (`*_frame_input`), with the
+Python preparation of either input timed beside them; and decoding time, also on
 "crowd" frames made of two PETS frames side by side (10+ people).
 """
 
@@ -25,7 +27,7 @@ from follow.eval.pets import PetsSequence, evenly_spaced_frames
 from follow.eval.pose import data_dir
 from follow.pose.decode import decode
 from follow.pose.detector import decode_params
-from follow.pose.preprocess import prepare_input
+from follow.pose.preprocess import prepare_frame, prepare_input
 from follow.pose.quantize import default_int8_path, quantize_pose_model
 from follow.pose.runtime import OpenVinoBackend, OrtBackend, openvino_installed
 from follow.pose.stages import initial_stage_file
@@ -89,15 +91,18 @@ def main(args: argparse.Namespace) -> dict:
     indices = evenly_spaced_frames(sequence.frame_count, args.frames)
     images = [img for _, img in sequence.frames(indices)]
     tensors = [prepare_input(img, args.height)[0] for img in images]
+    frames = [prepare_frame(img, args.height)[0] for img in images]
     fp32 = models.resolve("human-pose-estimation-0001")
     int8 = ensure_int8_model(args.int8_model, sequence, args.height)
     notes = []
     runtimes = {
         "ort_fp32": OrtBackend(fp32, ["CPUExecutionProvider"], args.threads),
         "ort_int8": OrtBackend(int8, ["CPUExecutionProvider"], args.threads),
+        "ort_int8_frame_input": OrtBackend(int8, ["CPUExecutionProvider"], args.threads, True),
     }
     if openvino_installed():
         runtimes["fast_path"] = OpenVinoBackend(int8, args.threads)
+        runtimes["fast_path_frame_input"] = OpenVinoBackend(int8, args.threads, True)
         # What the detector runs by default (network_stages = 1): the same, initial stage only.
         runtimes["fast_path_initial_stage"] = OpenVinoBackend(
             initial_stage_file(int8), args.threads
@@ -109,19 +114,23 @@ def main(args: argparse.Namespace) -> dict:
     else:
         fast_name = "onnxruntime CPU on the INT8 ONNX"
         notes.append("openvino is not installed: reference skipped, fast path = ort_int8")
-    for backend in runtimes.values():  # warm-up and per-shape compilation
-        backend.run(tensors[0])
+    def input_of(name: str, k: int) -> np.ndarray:
+        return frames[k] if name.endswith("_frame_input") else tensors[k]
+
+    for name, backend in runtimes.items():  # warm-up and per-shape compilation
+        backend.run(input_of(name, 0))
     times: dict[str, list[float]] = {k: [] for k in runtimes}
     names = list(runtimes)
     outputs = []
     rng = np.random.default_rng(0)
-    for tensor in tqdm(tensors, desc="frames"):
+    for k in tqdm(range(len(tensors)), desc="frames"):
         for name in rng.permutation(names):  # no runtime always follows the same one
             t0 = time.perf_counter()
-            out = runtimes[name].run(tensor)
+            out = runtimes[name].run(input_of(name, k))
             times[name].append((time.perf_counter() - t0) * 1e3)
             if name == "ort_fp32":
                 outputs.append(out)
+    preparation = _time_preparation(images, args.height)
     if "fast_path" not in runtimes:
         times["fast_path"] = times["ort_int8"]
     params = decode_params(PoseConfig())
@@ -140,6 +149,10 @@ def main(args: argparse.Namespace) -> dict:
         "frames": len(tensors),
         "ort_fp32_ms": med["ort_fp32"],
         "ort_int8_ms": med["ort_int8"],
+        "ort_int8_frame_input_ms": med["ort_int8_frame_input"],
+        "fast_path_frame_input_ms": med.get("fast_path_frame_input"),
+        "prepare_input_ms": preparation["prepare_input"],
+        "prepare_frame_ms": preparation["prepare_frame"],
         "fast_path_ms": med["fast_path"],
         "fast_path": fast_name,
         "fast_path_initial_stage_ms": med.get("fast_path_initial_stage"),
@@ -156,10 +169,13 @@ def main(args: argparse.Namespace) -> dict:
     if not args.json:
         print(f"pose network at {result['input'][0]}x{result['input'][1]}, "
               f"{len(tensors)} PETS frames, medians (runtimes interleaved)")  # fmt: skip
-        for key in ("ort_fp32", "ort_int8", "fast_path", "reference_openvino_int8",
+        for key in ("ort_fp32", "ort_int8", "ort_int8_frame_input", "fast_path",
+                    "fast_path_frame_input", "reference_openvino_int8",
                     "fast_path_initial_stage"):  # fmt: skip
             if key in med:
                 print(f"  {key:26s} {med[key]:8.1f} ms")
+        for key, value in preparation.items():
+            print(f"  {key:26s} {value:8.2f} ms (Python, before the network)")
         if reference:
             print(f"  fast path / reference      {result['fast_path_over_reference']:8.2f}"
                   f"   ({fast_name})")  # fmt: skip
@@ -171,6 +187,24 @@ def main(args: argparse.Namespace) -> dict:
         for note in notes:
             print(f"  note: {note}")
     return result
+
+
+def _time_preparation(images, height_px: int, repeats: int = 5) -> dict[str, float]:
+    """Median of the per-frame best time to make each kind of network input, into
+    reused buffers as the detector does."""
+    out = {}
+    for name, prepare in (("prepare_input", prepare_input), ("prepare_frame", prepare_frame)):
+        buffers: dict = {}
+        per_frame = []
+        for image in images:
+            runs = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                prepare(image, height_px, buffers)
+                runs.append((time.perf_counter() - t0) * 1e3)
+            per_frame.append(min(runs))
+        out[name] = float(np.median(per_frame))
+    return out
 
 
 def _time_decode(outputs, params, repeats: int = 5) -> tuple[list[float], list[int]]:

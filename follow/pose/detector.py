@@ -16,6 +16,7 @@ from follow.pose.preprocess import (
     NETWORK_STRIDE_PX,
     Letterbox,
     heatmap_to_network_px,
+    prepare_frame,
     prepare_input,
 )
 from follow.pose.runtime import create_backend
@@ -137,8 +138,8 @@ class PoseDetector:
     def infer(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, Letterbox]:
         """(heatmaps, pafs, letterbox plan) of one frame; raises InvalidInput on a bad frame."""
         t0 = time.perf_counter()
-        tensor, plan = prepare_input(image_bgr, self.config.input_height_px,
-                                     self._input_buffers)  # fmt: skip
+        prepare = prepare_frame if self.backend.frame_input else prepare_input
+        tensor, plan = prepare(image_bgr, self.config.input_height_px, self._input_buffers)
         t1 = time.perf_counter()
         heatmaps, pafs = self.backend.run(tensor)
         t2 = time.perf_counter()

@@ -17,7 +17,7 @@ from follow.types import InvalidInput
 
 NETWORK_STRIDE_PX = 8
 # Padding colour, raw BGR. The network subtracts 128 internally, so 128 pads with zeros.
-PAD_VALUE = 128.0
+PAD_VALUE = 128
 
 
 @dataclass(frozen=True)
@@ -85,6 +85,25 @@ def check_frame(image_bgr: np.ndarray) -> None:
         raise InvalidInput(f"pose: frame too small ({image_bgr.shape[1]}x{image_bgr.shape[0]} px)")
 
 
+def _resized(image_bgr: np.ndarray, input_height_px: int) -> tuple[np.ndarray, Letterbox]:
+    check_frame(image_bgr)
+    height, width = image_bgr.shape[:2]
+    plan = plan_letterbox((width, height), input_height_px)
+    interpolation = cv2.INTER_AREA if plan.scale_xy[1] < 1 else cv2.INTER_LINEAR
+    return cv2.resize(image_bgr, plan.resized_size, interpolation=interpolation), plan
+
+
+def _padded_buffer(buffers, image_bgr, shape, dtype) -> np.ndarray:
+    """The caller's array for this frame size, or a new one; padding written once."""
+    key = image_bgr.shape[1], image_bgr.shape[0]
+    array = None if buffers is None else buffers.get(key)
+    if array is None:
+        array = np.full(shape, PAD_VALUE, dtype)
+        if buffers is not None:
+            buffers[key] = array
+    return array
+
+
 def prepare_input(
     image_bgr: np.ndarray,
     input_height_px: int,
@@ -96,16 +115,22 @@ def prepare_input(
     the same array every frame instead of a new one; the caller must be done with the
     previous tensor before the next call.
     """
-    check_frame(image_bgr)
-    height, width = image_bgr.shape[:2]
-    plan = plan_letterbox((width, height), input_height_px)
-    interpolation = cv2.INTER_AREA if plan.scale_xy[1] < 1 else cv2.INTER_LINEAR
-    resized = cv2.resize(image_bgr, plan.resized_size, interpolation=interpolation)
-    shape = (1, 3, plan.input_size[1], plan.input_size[0])
-    tensor = None if buffers is None else buffers.get((width, height))
-    if tensor is None:
-        tensor = np.full(shape, PAD_VALUE, np.float32)  # the padding stays as it is
-        if buffers is not None:
-            buffers[(width, height)] = tensor
+    resized, plan = _resized(image_bgr, input_height_px)
+    width, height = plan.input_size
+    tensor = _padded_buffer(buffers, image_bgr, (1, 3, height, width), np.float32)
     tensor[0, :, :, : plan.resized_size[0]] = resized.transpose(2, 0, 1)
     return tensor, plan
+
+
+def prepare_frame(
+    image_bgr: np.ndarray,
+    input_height_px: int,
+    buffers: dict[tuple[int, int], np.ndarray] | None = None,
+) -> tuple[np.ndarray, Letterbox]:
+    """The same as uint8 (1, H, W, 3), for a back-end that converts it inside the graph
+    (`runtime.with_frame_input`)."""
+    resized, plan = _resized(image_bgr, input_height_px)
+    width, height = plan.input_size
+    frame = _padded_buffer(buffers, image_bgr, (1, height, width, 3), np.uint8)
+    frame[0, :, : plan.resized_size[0]] = resized
+    return frame, plan
