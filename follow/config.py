@@ -171,6 +171,11 @@ class IdentifyConfig:
     # target itself 0.8-1.0 (`follow eval identification-sim`).
     reid_strict_confidence: float = 0.6
     reid_strict_after_s: float = 15.0
+    # With two cues (ccf10+reid) each must reach the confidence bar, not only their
+    # mean: a re-id network vouching for a stranger in the target's clothes then cannot
+    # carry a classifier that doubts them. Costs re-acquisitions where the classifier
+    # is weak (PETS's 50-px people; docs/identification.md).
+    reid_cues_must_agree: bool = True
     # Clothes can match; stature rarely does: a candidate whose estimated neck height
     # differs from the target's last estimate by more than this (plus twice the two
     # estimates' combined std) is not the target.

@@ -23,3 +23,15 @@ def test_strangers_are_never_followed_and_the_target_is_reacquired(model_path):
     out = run_scenario(config, strangers=2, seed=0)
     assert out["wrong_person_s"] == 0.0 and out["driving_toward_stranger_s"] == 0.0
     assert out["reacquired_after_s"] is not None and out["reacquired_after_s"] <= 3.0
+
+
+def test_the_default_identifier_does_not_take_the_stranger_in_the_targets_clothes(model_path):
+    """ccf10+reid: re-id vouches for the twin (the 4th stranger); the classifier alone
+    does not, and each cue must agree (`reid_cues_must_agree`)."""
+    model_path("ccf/ccf10")
+    model_path("reid/person-reidentification-retail-0248.onnx")
+    config = Config()
+    assert config.identify.identifier == "ccf10+reid" and config.identify.reid_cues_must_agree
+    out = run_scenario(config, strangers=4, seed=0)
+    assert out["wrong_person_s"] == 0.0 and out["driving_toward_stranger_s"] == 0.0
+    assert out["reacquired_after_s"] is not None and out["reacquired_after_s"] <= 3.0

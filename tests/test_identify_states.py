@@ -41,6 +41,12 @@ class RecordingModel:
             return None
         return np.array([float(a.embedding[0]) for a in appearances])
 
+    def classifier_confidence(self, appearances):
+        """The classifier's own score where a frame scripts one (in `maps`), else None."""
+        if not appearances or any(a.maps is None for a in appearances):
+            return None
+        return np.array([float(a.maps[0]) for a in appearances])
+
     def learn(self, positives, negatives, synthetic=()) -> None:
         self.learnt.append((len(positives), len(negatives)))
 
@@ -56,16 +62,23 @@ def person(track_id, x_m, y_m=0.0, neck_height_m=1.45, observed=True, last_seen_
     )  # fmt: skip
 
 
-def frame(tracks, stamp_s, confidences, similarities=None, boxes=None, robot=None):
-    """A frame whose observed tracks have the given confidences (and similarities);
-    boxes default to ones that do not overlap."""
+def frame(tracks, stamp_s, confidences, similarities=None, boxes=None, robot=None,
+          classifier=None):  # fmt: skip
+    """A frame whose observed tracks have the given confidences (and similarities, and
+    the classifier's own confidences); boxes default to ones that do not overlap."""
     seen = [t.track_id for t in tracks if t.observation is not None]
     boxes = boxes or {i: (100 * k, 0, 100 * k + 50, 200) for k, i in enumerate(seen)}
     similarities = similarities or {}
     return FrameTracks(
         IMAGE, list(tracks), stamp_s, robot, {t.track_id: t for t in tracks}, looked=True,
         rois=dict(boxes), boxes=dict(boxes),
-        appearances={i: Appearance(embedding=np.array([similarities.get(i, 0.0)])) for i in seen},
+        appearances={
+            i: Appearance(
+                maps=None if classifier is None else np.array([classifier[i]]),
+                embedding=np.array([similarities.get(i, 0.0)]),
+            )
+            for i in seen
+        },
         confidences={i: confidences[i] for i in seen},
     )  # fmt: skip
 
@@ -218,6 +231,28 @@ def test_reidentification_stays_for_a_stranger_who_fails_the_absolute_evidence()
     assert isinstance(
         reid_frames(Reidentification(), plain, stranger, 10.1, confident)[-1], Tracking
     )
+
+
+def test_with_two_cues_each_must_agree_not_only_their_mean():
+    """The simulated stranger in the target's clothes: re-id vouches for them and lifts
+    the fused confidence over the bar, while the classifier alone doubts them."""
+    ctx = tracked_context(stamp_s=10.0, observed={8: 5})
+    fused = {8: CFG.reid_confidence + 0.2}
+    similar = {8: CFG.reid_accept_similarity + 0.1}
+    stranger = [person(8, 2.5)]
+
+    def run(classifier_alone):
+        state = Reidentification()
+        return [
+            state.update(ctx, frame(stranger, 10.1 + 0.1 * k, fused, similar,
+                                    classifier={8: classifier_alone}))  # fmt: skip
+            for k in range(3 * CFG.reid_frames)
+        ]
+
+    assert all(isinstance(s, Reidentification) for s in run(CFG.reid_confidence - 0.05))
+    assert isinstance(run(CFG.reid_confidence + 0.05)[-1], Tracking)
+    ctx.config = dataclasses.replace(CFG, reid_cues_must_agree=False)  # the mean alone
+    assert isinstance(run(CFG.reid_confidence - 0.05)[-1], Tracking)
 
 
 def test_the_evidence_needed_rises_the_longer_the_target_is_gone():

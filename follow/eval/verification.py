@@ -14,9 +14,10 @@ that 1 % and 0.1 % of other people's crops reach, `reid_accept_similarity` and
 (`ccf_crops`: p01-p05 enrol the target, p06-p14 are probes, the two hard negatives
 n*.jpg are the others) are scored too.
 
-The score of an identifier is its re-identification decision moved to 0: the boosted
-confidence over `reid_confidence` and, with re-id, the gallery similarity over the bar,
-whichever is lower; so `score >= 0` is what the shipped settings accept.
+The score of an identifier is its re-identification decision moved to 0: the lowest of
+the fused confidence over `reid_confidence`, with two cues the boosted classifier's own
+confidence over the same bar, and, with re-id, the gallery similarity over its bar; so
+`score >= 0` is what the shipped settings accept.
 """
 
 from __future__ import annotations
@@ -90,6 +91,9 @@ def decision_scores(model, enrol: list, probes: list, config: IdentifyConfig) ->
     scores = []
     if model.classifier is not None:
         scores.append(model.confidence(probes) - config.reid_confidence)
+        alone = model.classifier_confidence(probes)  # with two cues each must agree
+        if alone is not None and config.reid_cues_must_agree:
+            scores.append(alone - config.reid_confidence)
     similarity = model.similarity(probes)
     if similarity is not None:
         if model.classifier is None:  # re-id alone: its confidence is its similarity

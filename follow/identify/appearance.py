@@ -166,6 +166,16 @@ class AppearanceModel:
             return None
         return self._gallery_scores(appearances, self.gallery.similarity)
 
+    def classifier_confidence(self, appearances: Sequence[Appearance]) -> np.ndarray | None:
+        """The boosted classifier's own confidence in each appearance, where it is one
+        of two cues (None otherwise): re-identification asks each cue to agree, so that
+        one cue vouching strongly cannot carry a stranger past a doubtful other."""
+        if self.classifier is None or self.gallery is None or not self.classifier.is_trained:
+            return None
+        if not appearances:
+            return np.zeros(0)
+        return self.classifier.confidence([a.maps for a in appearances])
+
     def confidence(self, appearances: Sequence[Appearance]) -> np.ndarray:
         """Confidence in [-1, 1] of each appearance being the target (0 before learning).
         An appearance without a re-id embedding is scored by the classifier alone."""

@@ -101,6 +101,17 @@ class IdentityContext:
         )
         frame.confidences = {i: float(c) for i, c in zip(ids, scores, strict=True)}
 
+    def classifier_confidences(self, frame: FrameTracks) -> dict[int, float] | None:
+        """Each described track's confidence by the boosted classifier alone, where it
+        is one of two cues that must agree (None otherwise)."""
+        if not self.config.reid_cues_must_agree:
+            return None
+        ids = list(frame.appearances)
+        scores = self.model.classifier_confidence([frame.appearances[i] for i in ids])
+        if scores is None:
+            return None
+        return dict(zip(ids, scores.tolist(), strict=True))
+
     def similarities(self, frame: FrameTracks) -> dict[int, float] | None:
         """Each described track's re-id similarity to the target's gallery (None
         without a re-id cue or an empty gallery)."""

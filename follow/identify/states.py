@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import NamedTuple
 
 from follow.frames import odom_to_base
 from follow.identify.context import FrameTracks, IdentityContext
@@ -134,6 +135,13 @@ class Tracking(State):
         return Reidentification().update(context, frame)
 
 
+class Evidence(NamedTuple):
+    """Per-track cues beside the fused confidence (None where the identifier lacks them)."""
+
+    similarities: dict[int, float] | None  # re-id similarity to the target's gallery
+    classifier: dict[int, float] | None  # boosted classifier alone, with two cues
+
+
 class Reidentification(State):
     """The target is unknown and nothing is learnt. A track becomes the target again
     after `reid_frames` consecutive frames in which it passes every test of
@@ -148,9 +156,9 @@ class Reidentification(State):
         self.streaks = {k: v for k, v in self.streaks.items() if k in frame.by_id}
         context.look(frame)
         confidences = frame.confidences
-        similarities = context.similarities(frame)
+        evidence = Evidence(context.similarities(frame), context.classifier_confidences(frame))
         for track_id in confidences:
-            passed = self._passes(context, frame, track_id, similarities)
+            passed = self._passes(context, frame, track_id, evidence)
             self.streaks[track_id] = self.streaks.get(track_id, 0) + 1 if passed else 0
         ready = [
             i for i, n in self.streaks.items()
@@ -167,11 +175,12 @@ class Reidentification(State):
         context: IdentityContext,
         frame: FrameTracks,
         track_id: int,
-        similarities: dict[int, float] | None,
+        evidence: Evidence,
     ) -> bool:
         """Whether a track is the target by this frame's evidence: its confidence
-        reaches the required one (`reid_confidence` rising to `reid_strict_confidence`)
-        and leads every other seen track's by `reid_margin` (a lead over nobody is no
+        reaches the required one (`reid_confidence` rising to `reid_strict_confidence`),
+        by the fused cues and, with two cues, by the boosted classifier alone too, and
+        leads every other seen track's by `reid_margin` (a lead over nobody is no
         evidence); with a re-id cue its similarity to the gallery reaches the required
         one (`reid_accept_similarity` rising to `reid_strict_similarity` at
         `reid_strict_after_s`); it was seen in `min_target_observations` frames; it stands
@@ -181,8 +190,11 @@ class Reidentification(State):
         confidence = confidences[track_id]
         runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
         track = frame.by_id[track_id]
+        required = context.required_confidence(frame.stamp_s)
+        similarities, classifier = evidence
         return (
-            confidence >= context.required_confidence(frame.stamp_s)
+            confidence >= required
+            and (classifier is None or classifier[track_id] >= required)
             and confidence - runner_up >= context.config.reid_margin
             and (
                 similarities is None
