@@ -95,3 +95,45 @@ def test_a_model_without_one_4d_input_is_refused(tmp_path):
     onnx.save(helper.make_model(graph), str(path))
     with pytest.raises(ValueError, match="flat.onnx: expected one 4-d NCHW input"):
         with_frame_input(path)
+
+
+SIGNAL_AFTER_DROPPED_BACKENDS = """
+import gc, os, signal, sys, time
+import numpy as np
+from follow.pose.preprocess import prepare_input
+from follow.pose.runtime import OpenVinoBackend
+
+def use_two_backends():
+    backends = [OpenVinoBackend(sys.argv[1]) for _ in range(2)]
+    for backend in backends:
+        backend.run(prepare_input(np.zeros((480, 640, 3), np.uint8), 256)[0])
+
+use_two_backends()
+gc.collect()
+
+def interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+signal.signal(signal.SIGTERM, interrupt)
+try:
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(5)
+except KeyboardInterrupt:
+    print("interrupted")
+"""
+
+
+@pytest.mark.skipif(not openvino_installed(), reason="openvino is not installed")
+def test_a_signal_after_openvino_backends_were_dropped_takes_the_python_path(tmp_path):
+    """Back-ends made and dropped (a benchmark, a test) must not leave the process
+    unable to handle the shutdown signal: each Core used to unload OpenVINO's plugin,
+    and the next SIGTERM crashed the process instead of raising in Python."""
+    import subprocess
+    import sys
+
+    path = tmp_path / "tiny.onnx"
+    _tiny_pose_like_model(path)
+    done = subprocess.run([sys.executable, "-c", SIGNAL_AFTER_DROPPED_BACKENDS, str(path)],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "interrupted"

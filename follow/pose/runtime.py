@@ -8,6 +8,7 @@ that says what was asked for, what is missing and what runs instead.
 
 from __future__ import annotations
 
+import functools
 import logging
 from pathlib import Path
 from typing import Protocol
@@ -153,7 +154,7 @@ class OpenVinoBackend:
     def __init__(self, model_path: Path, cpu_threads: int = 0, frame_input: bool = False):
         import openvino as ov
 
-        self._core = ov.Core()
+        self._core = openvino_core()
         self._model = self._core.read_model(str(model_path))
         if frame_input:
             from openvino.preprocess import PrePostProcessor
@@ -181,6 +182,17 @@ class OpenVinoBackend:
         request = self._request(tuple(tensor.shape))
         request.infer({0: tensor})
         return _split_outputs([request.get_output_tensor(i).data.copy() for i in range(2)])
+
+
+@functools.cache
+def openvino_core():
+    """One OpenVINO Core for the process. A Core that is created and destroyed again
+    (two back-ends made and dropped) unloads its CPU plugin, and a signal handled by
+    Python afterwards (SIGINT, SIGTERM: the shutdown path) then crashed the process
+    with a segmentation fault; a Core kept for the process's life never unloads it."""
+    import openvino as ov
+
+    return ov.Core()
 
 
 def openvino_installed() -> bool:
