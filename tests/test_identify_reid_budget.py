@@ -97,3 +97,29 @@ def test_a_frame_is_embedded_for_the_target_first_and_for_everyone_on_demand(mon
     fresh = FrameTracks(IMAGE, [], 0.1, None, {})
     ctx.look(fresh)  # re-identification from the start of a frame
     assert model.asked[-1] == [True, True, True]
+
+
+def test_the_classifier_speaks_alone_only_with_two_cues_that_must_agree():
+    """`classifier_confidence` is what re-identification asks to agree with the fused
+    confidence: present with a trained classifier beside re-id and the rule on."""
+    import dataclasses
+
+    from follow.ccf.channels import ChannelFeatureExtractor
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    rois = [(10, 10, 60, 200), (200, 10, 250, 200)]
+    extractor = ChannelFeatureExtractor((48, 128))
+
+    def trained(config, reid):
+        model = AppearanceModel(config, extractor, reid)
+        described = model.describe(image, rois)
+        model.learn([described[0]], [described[1]])
+        return model, described
+
+    both, described = trained(IdentifyConfig(), CountingReid())
+    scores = both.classifier_confidence(described)
+    assert scores.shape == (2,) and scores[0] > scores[1]
+    off = dataclasses.replace(IdentifyConfig(), reid_cues_must_agree=False)
+    assert trained(off, CountingReid())[0].classifier_confidence(described) is None
+    assert trained(IdentifyConfig(), None)[0].classifier_confidence(described) is None

@@ -28,8 +28,9 @@ class RecordingModel:
     """Stands in for the AppearanceModel: re-id similarities are each appearance's
     scripted value (None without a re-id cue); learning and forgetting are counted."""
 
-    def __init__(self, reid: bool = True):
+    def __init__(self, reid: bool = True, config: IdentifyConfig = CFG):
         self.reid = reid
+        self.config = config
         self.learnt: list[tuple[int, int]] = []  # (positives, negatives) per frame
         self.resets = 0
 
@@ -42,7 +43,10 @@ class RecordingModel:
         return np.array([float(a.embedding[0]) for a in appearances])
 
     def classifier_confidence(self, appearances):
-        """The classifier's own score where a frame scripts one (in `maps`), else None."""
+        """The classifier's own score where a frame scripts one (in `maps`) and the
+        cues must agree, else None (AppearanceModel's contract)."""
+        if not self.config.reid_cues_must_agree:
+            return None
         if not appearances or any(a.maps is None for a in appearances):
             return None
         return np.array([float(a.maps[0]) for a in appearances])
@@ -251,7 +255,7 @@ def test_with_two_cues_each_must_agree_not_only_their_mean():
 
     assert all(isinstance(s, Reidentification) for s in run(CFG.reid_confidence - 0.05))
     assert isinstance(run(CFG.reid_confidence + 0.05)[-1], Tracking)
-    ctx.config = dataclasses.replace(CFG, reid_cues_must_agree=False)  # the mean alone
+    ctx.model.config = dataclasses.replace(CFG, reid_cues_must_agree=False)  # the mean alone
     assert isinstance(run(CFG.reid_confidence - 0.05)[-1], Tracking)
 
 

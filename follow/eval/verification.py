@@ -92,7 +92,7 @@ def decision_scores(model, enrol: list, probes: list, config: IdentifyConfig) ->
     if model.classifier is not None:
         scores.append(model.confidence(probes) - config.reid_confidence)
         alone = model.classifier_confidence(probes)  # with two cues each must agree
-        if alone is not None and config.reid_cues_must_agree:
+        if alone is not None:
             scores.append(alone - config.reid_confidence)
     similarity = model.similarity(probes)
     if similarity is not None:

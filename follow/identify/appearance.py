@@ -168,9 +168,10 @@ class AppearanceModel:
 
     def classifier_confidence(self, appearances: Sequence[Appearance]) -> np.ndarray | None:
         """The boosted classifier's own confidence in each appearance, where it is one
-        of two cues (None otherwise): re-identification asks each cue to agree, so that
-        one cue vouching strongly cannot carry a stranger past a doubtful other."""
-        if self.classifier is None or self.gallery is None or not self.classifier.is_trained:
+        of two cues that must agree (`reid_cues_must_agree`; None otherwise): one cue
+        vouching strongly must not carry a stranger past a doubtful other."""
+        two_cues = self.classifier is not None and self.gallery is not None
+        if not (two_cues and self.config.reid_cues_must_agree and self.classifier.is_trained):
             return None
         if not appearances:
             return np.zeros(0)

@@ -93,33 +93,28 @@ class IdentityContext:
         self._score(frame)
 
     def _score(self, frame: FrameTracks) -> None:
+        scores = self._by_track(frame, self.model.confidence) if self.model.ready else None
+        frame.confidences = scores or dict.fromkeys(frame.appearances, 0.0)
+
+    @staticmethod
+    def _by_track(frame: FrameTracks, score) -> dict[int, float] | None:
+        """track id -> `score` (a model method over appearances) of each described
+        track; None where the model has no such score."""
         ids = list(frame.appearances)
-        scores = (
-            self.model.confidence([frame.appearances[i] for i in ids])
-            if self.model.ready
-            else np.zeros(len(ids))
-        )
-        frame.confidences = {i: float(c) for i, c in zip(ids, scores, strict=True)}
+        scores = score([frame.appearances[i] for i in ids])
+        if scores is None:
+            return None
+        return {i: float(s) for i, s in zip(ids, scores, strict=True)}
 
     def classifier_confidences(self, frame: FrameTracks) -> dict[int, float] | None:
         """Each described track's confidence by the boosted classifier alone, where it
         is one of two cues that must agree (None otherwise)."""
-        if not self.config.reid_cues_must_agree:
-            return None
-        ids = list(frame.appearances)
-        scores = self.model.classifier_confidence([frame.appearances[i] for i in ids])
-        if scores is None:
-            return None
-        return dict(zip(ids, scores.tolist(), strict=True))
+        return self._by_track(frame, self.model.classifier_confidence)
 
     def similarities(self, frame: FrameTracks) -> dict[int, float] | None:
         """Each described track's re-id similarity to the target's gallery (None
         without a re-id cue or an empty gallery)."""
-        ids = list(frame.appearances)
-        similarities = self.model.similarity([frame.appearances[i] for i in ids])
-        if similarities is None:
-            return None
-        return dict(zip(ids, similarities.tolist(), strict=True))
+        return self._by_track(frame, self.model.similarity)
 
     # ------------------------------------------------------------------ the target
     def note_target(self, target_id: int, frame: FrameTracks) -> None:

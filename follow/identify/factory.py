@@ -55,17 +55,20 @@ def _section(config: IdentifyConfig | Config) -> IdentifyConfig:
     return config.identify if isinstance(config, Config) else config
 
 
-def build_appearance_model(config: IdentifyConfig | Config) -> AppearanceModel:
-    cfg = _section(config)
+def _cues(cfg: IdentifyConfig) -> tuple[FeatureExtractor | None, ReidEmbedder | None]:
+    """The feature extractor and re-id network `cfg.identifier` names (None where unused)."""
     feature_set, use_reid = parse_identifier(cfg.identifier)
     extractor = build_extractor(feature_set, cfg) if feature_set else None
-    return AppearanceModel(cfg, extractor, build_reid(cfg) if use_reid else None)
+    return extractor, build_reid(cfg) if use_reid else None
+
+
+def build_appearance_model(config: IdentifyConfig | Config) -> AppearanceModel:
+    cfg = _section(config)
+    return AppearanceModel(cfg, *_cues(cfg))
 
 
 def build_identifier(config: IdentifyConfig | Config) -> TargetIdentifier:
     """The TargetIdentifier named by `config.identifier` (raises ModelError if a model is
     missing, ConfigError for an unknown name)."""
     cfg = _section(config)
-    feature_set, use_reid = parse_identifier(cfg.identifier)
-    extractor = build_extractor(feature_set, cfg) if feature_set else None
-    return TargetIdentifier(cfg, extractor, build_reid(cfg) if use_reid else None)
+    return TargetIdentifier(cfg, *_cues(cfg))
