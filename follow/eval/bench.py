@@ -59,12 +59,12 @@ def _median(values) -> float | None:
 
 def bench_config(args) -> Config:
     """The settings asked for, `--config` over them, then `--provider`."""
-    base = None
     if args.settings == "pets":
-        from follow.eval.pets_setup import PETS_SETTINGS
+        from follow.eval.pets_setup import pets_config
 
-        base = Config.load(PETS_SETTINGS)
-    config = Config.load(args.config, base=base) if args.config else (base or Config())
+        config = pets_config(args.config)
+    else:
+        config = Config.load(args.config) if args.config else Config()
     if args.provider:
         config = config.replace("pose", provider=args.provider)
     return config

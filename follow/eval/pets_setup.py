@@ -95,12 +95,15 @@ def load_evaluation(
     return (config, *variant_inputs(args, config, setup, variant))
 
 
+def pets_config(config_path=None) -> Config:
+    """The PETS settings (pets2009.toml), with the TOML file at `config_path` over them."""
+    config = Config.load(PETS_SETTINGS)
+    return Config.load(config_path, base=config) if config_path else config
+
+
 def load_pets(args) -> tuple[Config, PetsSetup]:
     """The configuration (pets2009.toml, then `--config`) and the unperturbed sequence."""
-    config = Config.load(PETS_SETTINGS)
-    if args.config:
-        config = Config.load(args.config, base=config)
-    return config, PetsSetup.load()
+    return pets_config(args.config), PetsSetup.load()
 
 
 def variant_inputs(

@@ -180,11 +180,9 @@ def data_dir(arg: Path | None) -> Path:
 
 
 def main(args: argparse.Namespace) -> dict:
-    from follow.config import Config
-    from follow.eval.pets_setup import PETS_SETTINGS
+    from follow.eval.pets_setup import pets_config
 
-    config = Config.load(PETS_SETTINGS)
-    base = (Config.load(args.config, base=config) if args.config else config).pose
+    base = pets_config(args.config).pose
     if args.provider:
         base = dataclasses.replace(base, provider=args.provider)
     if args.precision:
