@@ -51,16 +51,11 @@ def fit_whitening(groups: list[np.ndarray], regularisation: float):
 
 def verification_scores(views: dict, transform) -> tuple[np.ndarray, np.ndarray]:
     """Same-person and other-person gallery similarities over `views`
-    ({identity: (camera A embeddings, camera B embeddings)}), both directions."""
-    moved = {i: [transform(v) for v in pair] for i, pair in views.items()}
-    positive, negative = [], []
-    for identity, pair in moved.items():
-        others = np.concatenate([v for j, p in moved.items() if j != identity for v in p])
-        for cam in (0, 1):
-            gallery = pair[cam]
-            positive.append((pair[1 - cam] @ gallery.T).max(axis=1))
-            negative.append((others @ gallery.T).max(axis=1))
-    return np.concatenate(positive), np.concatenate(negative)
+    ({identity: (camera A embeddings, camera B embeddings)}) after `transform`, as
+    `follow eval verification` computes them."""
+    from follow.eval.verification import gallery_similarities
+
+    return gallery_similarities({i: tuple(transform(v) for v in pair) for i, pair in views.items()})
 
 
 def figures(positive: np.ndarray, negative: np.ndarray) -> dict:

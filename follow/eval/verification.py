@@ -139,18 +139,26 @@ def verify_cuhk03(model, people: list[Person], config: IdentifyConfig) -> tuple[
     return operating_figures(pos, neg), {"positive": pos, "negative": neg}
 
 
+def gallery_similarities(views: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Highest similarity to a gallery of one camera's embeddings of a person, for the
+    same person's embeddings from the other camera (positives) and for every other
+    person's (negatives), both directions; `views`: {identity: (camera A, camera B)}
+    unit embeddings."""
+    positives, negatives = [], []
+    for identity, pair in views.items():
+        others = np.concatenate([v for i, p in views.items() if i != identity for v in p])
+        for cam in (0, 1):
+            gallery = pair[cam]
+            positives.append((pair[1 - cam] @ gallery.T).max(axis=1))
+            negatives.append((others @ gallery.T).max(axis=1))
+    return np.concatenate(positives), np.concatenate(negatives)
+
+
 def calibrate_similarity(model, people: list[Person], config: IdentifyConfig) -> dict:
     """The re-id similarity that other people reach at each false-accept rate (gallery
     of one camera's crops, probes of everyone else), on `people`."""
-    embeddings = {p.identity: [model.reid.embed_crops(v) for v in p.views] for p in people}
-    negatives = []
-    for person in people:
-        for cam in (0, 1):
-            gallery = embeddings[person.identity][cam]
-            others = np.concatenate([e for p in people if p.identity != person.identity
-                                     for e in embeddings[p.identity]])  # fmt: skip
-            negatives.append((others @ gallery.T).max(axis=1))
-    negatives = np.concatenate(negatives)
+    views = {p.identity: tuple(model.reid.embed_crops(v) for v in p.views) for p in people}
+    _, negatives = gallery_similarities(views)
     return {f"similarity_at_far_{far:g}": float(np.quantile(negatives, 1 - far)) for far in FARS}
 
 
