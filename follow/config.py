@@ -261,7 +261,8 @@ class MavlinkConfig:
 
 @dataclass(frozen=True)
 class RosConfig:
-    """Topics and safety bounds of `follow ros2`; the topics also name a bag's streams."""
+    """Topics and safety bounds of `follow ros2` (a bag's streams are named by `follow run`'s
+    `--*-topic` options)."""
 
     # A topic ending in /compressed carries sensor_msgs/CompressedImage, any other Image.
     image_topic: str = "/camera/image_raw"

@@ -230,7 +230,8 @@ def main(args) -> dict:
     bag_odometry = source.odometry_at if getattr(source, "odometry", None) is not None else None
     if bag_odometry and (args.realtime or config.mavlink.connection):
         raise ValueError("a bag's odometry is replayed frame by frame only: leave out "
-                         "--realtime and --mavlink")  # fmt: skip
+                         "--realtime and the MAVLink connection (--mavlink or "
+                         "[mavlink] connection in the configuration)")  # fmt: skip
     frames = iter(source)
     first = next(frames, None)
     if first is None:

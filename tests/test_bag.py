@@ -110,6 +110,26 @@ def test_follow_run_on_a_bag_needs_the_image_topic(tmp_path, small_frames, small
     assert "--image-topic" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("drive", ["--realtime", "--mavlink", "config"])
+def test_a_bags_odometry_is_never_replayed_beside_a_live_base(
+    tmp_path, small_frames, small_camera, capsys, drive
+):
+    """The bag's odometry is the recorded robot's: a connection from the configuration
+    file is refused like --mavlink, before any frame is read."""
+    write_robot_bag(tmp_path / "robot.mcap", small_frames, small_camera)
+    small_camera.save(tmp_path / "cam.yaml")
+    args = ["run", str(tmp_path / "robot.mcap"), "--camera", str(tmp_path / "cam.yaml"),
+            "--image-topic", "/camera/image_raw", "--odom-topic", "/odom"]  # fmt: skip
+    if drive == "config":
+        (tmp_path / "base.toml").write_text('[mavlink]\nconnection = "udpin:127.0.0.1:14599"\n')
+        args += ["--config", str(tmp_path / "base.toml")]
+    else:
+        args += [drive] if drive == "--realtime" else [drive, "udpin:127.0.0.1:14599"]
+    assert cli.main(args) == 1
+    err = capsys.readouterr().err
+    assert "odometry is replayed frame by frame" in err and "[mavlink] connection" in err
+
+
 FRAMES = 10
 
 

@@ -42,9 +42,11 @@ DEMO_CAMERA = SimCameraConfig(
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--output", default="follow-demo", help="folder for the video and plot")
-    p.add_argument("--seconds", type=float, default=34.0, help="length of the scenario")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--output", default="follow-demo",
+                   help="folder for the video, plot and log (default follow-demo)")  # fmt: skip
+    p.add_argument("--seconds", type=float, default=34.0,
+                   help="length of the scenario (default 34)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="people's heights and looks (default 0)")
     p.add_argument("--identifier", help="identifier to use (default: ccf10 if its weights "
                    "are available, else channels)")  # fmt: skip
     p.add_argument("--no-video", action="store_true", help="skip writing the video")
