@@ -44,6 +44,9 @@ class PoseConfig:
     network_stages: int = 2
     cpu_threads: int = 0  # 0 = the runtime's default
     warmup_runs: int = 1
+    # A (2 r + 1)-pixel median filter over the frame before it is resized for the
+    # network (0 = none): sensor noise and JPEG blocking hide small, far people from it.
+    median_filter_radius_px: int = 0
     keypoint_min_confidence: float = 0.05  # keypoints below this are not used as observations
     min_keypoints_per_person: int = 2  # e.g. neck + one shoulder, joined by their PAF
     border_margin_px: float = 4.0

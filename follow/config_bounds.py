@@ -76,6 +76,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "network_stages": closed(1, 2),
         "cpu_threads": THREADS,
         "warmup_runs": closed(0, 100),
+        "median_filter_radius_px": closed(0, 4),
         "keypoint_min_confidence": UNIT,
         "min_keypoints_per_person": closed(1, 18),
         "border_margin_px": closed(0.0, 100.0),

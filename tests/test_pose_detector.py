@@ -154,3 +154,20 @@ def test_tensorrt_gets_an_engine_cache_in_the_user_cache(tmp_path, monkeypatch):
     assert options["trt_engine_cache_path"] == str(tmp_path / "tensorrt")
     assert (tmp_path / "tensorrt").is_dir()
     assert entries[1:] == ["CUDAExecutionProvider", "CPUExecutionProvider"]
+
+
+def test_the_median_filter_setting_reaches_the_network(model_path, pets):
+    """`[pose] median_filter_radius_px` filters the frame the network sees: the same
+    heatmaps as the unfiltered detector on a frame filtered beforehand, other ones than
+    on the raw frame."""
+    from follow.pose.preprocess import median_filtered
+
+    config = PoseConfig(provider="cpu", input_height_px=256)
+    plain = PoseDetector(config, model_path(ONNX))
+    filtering = PoseDetector(PoseConfig(provider="cpu", input_height_px=256,
+                                        median_filter_radius_px=1), model_path(ONNX))  # fmt: skip
+    frame = pets.read_frame(200)
+    filtered_heatmaps = filtering.infer(frame)[0]
+    np.testing.assert_allclose(filtered_heatmaps, plain.infer(median_filtered(frame, 1))[0],
+                               atol=1e-6)  # fmt: skip
+    assert np.abs(filtered_heatmaps - plain.infer(frame)[0]).max() > 1e-3

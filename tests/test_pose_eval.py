@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from follow.eval.perturb import Variant
 from follow.eval.pets import GtBox
-from follow.eval.pose import score_frame
+from follow.eval.pose import frame_range, score_frame, variant_frames
 from follow.types import Observation
 
 
@@ -80,3 +82,16 @@ def test_near_people_evaluation_finds_large_real_people(data_path, model_path, c
         assert row["neck"] >= 0.9 and row["ankle"] >= 0.8, row
     assert cli.main(["eval", "pose-near", "--person-heights", "470", "--sizes", "256"]) != 0
     assert "does not fit" in capsys.readouterr().err
+
+
+def test_frames_are_taken_from_the_half_asked_for():
+    """Settings are chosen on frames 0-399 and checked on 400-794: the two never share a
+    frame, and a later-starting variant starts where it starts."""
+    first = frame_range(795, 100, 0, 400)
+    second = frame_range(795, 100, 400)
+    assert first[0] == 0 and first[-1] == 399 and len(first) == 100
+    assert second[0] == 400 and second[-1] == 794 and len(second) == 100
+    assert not set(first) & set(second)
+    assert variant_frames(795, 10, Variant("offset100", "", first_frame=100), 0, 400)[0] == 100
+    with pytest.raises(ValueError, match="no frames from 400 until 400"):
+        frame_range(795, 10, 400, 400)

@@ -9,7 +9,9 @@ from hypothesis import strategies as st
 
 from follow.pose.preprocess import (
     heatmap_to_network_px,
+    median_filtered,
     plan_letterbox,
+    prepare_frame,
     prepare_input,
 )
 from follow.types import InvalidInput
@@ -72,3 +74,28 @@ def test_tensor_is_raw_bgr_with_neutral_padding():
 def test_bad_frames_are_rejected_with_a_clear_message(frame, message):
     with pytest.raises(InvalidInput, match=message):
         prepare_input(frame, 256)
+
+
+def test_the_median_filter_removes_specks_and_keeps_edges():
+    """Isolated noise pixels go; a person's outline (a step edge) stays where it was,
+    to the pixel, which a blur of the same size would smear."""
+    image = np.zeros((40, 60, 3), np.uint8)
+    image[:, 30:] = 200  # a vertical edge
+    specks = image.copy()
+    specks[10, 10] = 255
+    specks[20, 45] = 0
+    assert median_filtered(specks, 0) is specks
+    filtered = median_filtered(specks, 1)
+    np.testing.assert_array_equal(filtered, image)
+
+
+def test_the_network_input_is_made_from_the_filtered_frame():
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    smooth = median_filtered(image, 2)
+    assert not np.array_equal(smooth, image)
+    for prepare in (prepare_input, prepare_frame):
+        want, _ = prepare(smooth, 32)
+        got, _ = prepare(image, 32, None, 2)
+        np.testing.assert_array_equal(got, want)
+        assert not np.array_equal(prepare(image, 32)[0], want)

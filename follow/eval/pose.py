@@ -145,6 +145,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--frames", type=int, default=DEFAULT_FRAMES, help="evenly spaced frames to use"
     )
+    parser.add_argument("--from-frame", type=int, default=0,
+                        help="take the frames from this one on (e.g. 400: the half that "
+                             "checks settings chosen on the first)")  # fmt: skip
+    parser.add_argument("--until-frame", type=int, default=None,
+                        help="take the frames before this one (e.g. 400: the half settings "
+                             "are chosen on)")  # fmt: skip
     parser.add_argument(
         "--sizes",
         type=int,
@@ -191,7 +197,7 @@ def main(args: argparse.Namespace) -> dict:
     variants = perturb_variants(args)
     if variants is not None:
         return main_perturbed(args, base, sequence, variants)
-    frames = evenly_spaced_frames(sequence.frame_count, args.frames)
+    frames = frame_range(sequence.frame_count, args.frames, args.from_frame, args.until_frame)
     results = []
     for height in tqdm(args.sizes, desc="input sizes"):
         config = dataclasses.replace(base, input_height_px=height)
@@ -207,15 +213,25 @@ def main(args: argparse.Namespace) -> dict:
             )
     if args.plot:
         write_plot(results, args.plot)
-    return {"sizes": results, "frames": len(frames), "default_height": base.input_height_px}
+    return {"sizes": results, "frames": len(frames), "default_height": base.input_height_px,
+            "from_frame": frames[0], "until_frame": frames[-1] + 1}  # fmt: skip
 
 
-def variant_frames(frame_count: int, count: int, variant) -> list[int]:
-    """`count` evenly spaced frames from the variant's first frame on."""
-    first = variant.first_frame
-    if first >= frame_count:
+def frame_range(frame_count: int, count: int, first: int = 0, end: int | None = None) -> list[int]:
+    """`count` evenly spaced frames of first .. end - 1 (end: the sequence's end)."""
+    end = frame_count if end is None else min(end, frame_count)
+    if not 0 <= first < end:
+        raise ValueError(f"no frames from {first} until {end} (the sequence has {frame_count})")
+    return [first + i for i in evenly_spaced_frames(end - first, count)]
+
+
+def variant_frames(frame_count: int, count: int, variant, first: int = 0,
+                   end: int | None = None) -> list[int]:  # fmt: skip
+    """`count` evenly spaced frames from the variant's first frame (or `first`, if
+    later) until `end`."""
+    if variant.first_frame >= frame_count:
         raise ValueError(f"variant {variant.name} starts after the last frame {frame_count - 1}")
-    return [first + i for i in evenly_spaced_frames(frame_count - first, count)]
+    return frame_range(frame_count, count, max(first, variant.first_frame), end)
 
 
 def main_perturbed(args: argparse.Namespace, base: PoseConfig, sequence, variants) -> dict:
@@ -226,7 +242,8 @@ def main_perturbed(args: argparse.Namespace, base: PoseConfig, sequence, variant
 
     def one(variant) -> dict:
         seen = PerturbedSequence(sequence, variant) if variant.changes_pixels else sequence
-        frames = variant_frames(sequence.frame_count, args.frames, variant)
+        frames = variant_frames(sequence.frame_count, args.frames, variant, args.from_frame,
+                                args.until_frame)  # fmt: skip
         frames_run[variant.name] = len(frames)
         out = {}
         for height in args.sizes:
@@ -243,7 +260,8 @@ def main_perturbed(args: argparse.Namespace, base: PoseConfig, sequence, variant
         plot_spread(suite, list(SUITE_METRICS), str(args.plot),
                     "Pose detector on PETS 2009 S2.L1 under perturbation, by input height")  # fmt: skip
     model = next(iter(next(iter(suite["variants"].values())).values()))["model"]
-    return {**suite, "frames": frames_run, "default_height": base.input_height_px, "model": model}
+    return {**suite, "frames": frames_run, "default_height": base.input_height_px, "model": model,
+            "from_frame": args.from_frame, "until_frame": args.until_frame}  # fmt: skip
 
 
 def write_plot(results: list[dict], path: Path) -> None:

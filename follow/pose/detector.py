@@ -139,7 +139,8 @@ class PoseDetector:
         """(heatmaps, pafs, letterbox plan) of one frame; raises InvalidInput on a bad frame."""
         t0 = time.perf_counter()
         prepare = prepare_frame if self.backend.frame_input else prepare_input
-        tensor, plan = prepare(image_bgr, self.config.input_height_px, self._input_buffers)
+        tensor, plan = prepare(image_bgr, self.config.input_height_px, self._input_buffers,
+                               self.config.median_filter_radius_px)  # fmt: skip
         t1 = time.perf_counter()
         heatmaps, pafs = self.backend.run(tensor)
         t2 = time.perf_counter()
