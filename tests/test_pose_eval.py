@@ -95,3 +95,23 @@ def test_frames_are_taken_from_the_half_asked_for():
     assert variant_frames(795, 10, Variant("offset100", "", first_frame=100), 0, 400)[0] == 100
     with pytest.raises(ValueError, match="no frames from 400 until 400"):
         frame_range(795, 10, 400, 400)
+
+
+def test_near_people_under_sensor_noise(data_path, model_path, capsys):
+    """`--variants` applies the suite's pixel changes to the pasted frames: noise hides
+    small people from the robot's default detector; a later start is refused."""
+    import json
+
+    from follow import cli
+
+    data_path("ccf_crops/p01.jpg")
+    model_path("pose/human-pose-estimation-0001.onnx")
+    capsys.readouterr()
+    assert cli.main(["eval", "pose-near", "--person-heights", "96", "--sizes", "368",
+                     "--stages", "2", "--variants", "original,noise", "--json"]) == 0  # fmt: skip
+    r = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    by_variant = {row["variant"]: row for row in r["rows"]}
+    assert set(by_variant) == {"original", "noise"}
+    assert by_variant["noise"]["neck"] + 0.2 < by_variant["original"]["neck"], by_variant
+    assert cli.main(["eval", "pose-near", "--variants", "offset50"]) != 0
+    assert "pose-near has no sequence" in capsys.readouterr().err

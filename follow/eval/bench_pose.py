@@ -153,6 +153,7 @@ def main(args: argparse.Namespace) -> dict:
         "fast_path_frame_input_ms": med.get("fast_path_frame_input"),
         "prepare_input_ms": preparation["prepare_input"],
         "prepare_frame_ms": preparation["prepare_frame"],
+        "prepare_input_median1_ms": preparation["prepare_input_median1"],
         "fast_path_ms": med["fast_path"],
         "fast_path": fast_name,
         "fast_path_initial_stage_ms": med.get("fast_path_initial_stage"),
@@ -191,16 +192,19 @@ def main(args: argparse.Namespace) -> dict:
 
 def _time_preparation(images, height_px: int, repeats: int = 5) -> dict[str, float]:
     """Median of the per-frame best time to make each kind of network input, into
-    reused buffers as the detector does."""
+    reused buffers as the detector does (the float input also after a 3x3 median
+    filter, `[pose] median_filter_radius_px = 1`)."""
     out = {}
-    for name, prepare in (("prepare_input", prepare_input), ("prepare_frame", prepare_frame)):
+    kinds = (("prepare_input", prepare_input, 0), ("prepare_frame", prepare_frame, 0),
+             ("prepare_input_median1", prepare_input, 1))  # fmt: skip
+    for name, prepare, median_radius_px in kinds:
         buffers: dict = {}
         per_frame = []
         for image in images:
             runs = []
             for _ in range(repeats):
                 t0 = time.perf_counter()
-                prepare(image, height_px, buffers)
+                prepare(image, height_px, buffers, median_radius_px)
                 runs.append((time.perf_counter() - t0) * 1e3)
             per_frame.append(min(runs))
         out[name] = float(np.median(per_frame))

@@ -35,6 +35,23 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--crops-dir", help="folder of person crops (default $FOLLOW_DATA_DIR/ccf_crops)"
     )
+    p.add_argument("--variants", default="original",
+                   help="comma-separated pixel changes of the perturbation suite to apply to "
+                        "the frames (docs/robustness.md; default original)")  # fmt: skip
+
+
+def pixel_variants(names: str):
+    """The suite's variants named in `names`; a later start means nothing for one
+    pasted frame per crop, so those are refused."""
+    from follow.eval.perturb import variant
+
+    chosen = [variant(n.strip()) for n in names.split(",") if n.strip()]
+    if not chosen:
+        raise ValueError("--variants names no variant")
+    for v in chosen:
+        if v.first_frame:
+            raise ValueError(f"variant {v.name} starts later: pose-near has no sequence")
+    return chosen
 
 
 def crop_files(given: str | None) -> list[Path]:
@@ -95,22 +112,27 @@ def main(args) -> dict:
 
     config = Config.load(args.config) if args.config else Config()
     crop_paths = crop_files(args.crops_dir)
+    variants = pixel_variants(args.variants)
     rows = []
     for person_px in args.person_heights:
-        frames = frames_with_people(crop_paths, person_px)
-        for stages in args.stages:
-            for size in args.sizes:
-                pose = dataclasses.replace(config.pose, input_height_px=size,
-                                           network_stages=stages, warmup_runs=0)  # fmt: skip
-                neck, ankle, dup = detection_rates(PoseDetector(pose), frames)
-                rows.append({"person_px": person_px, "network_stages": stages,
-                             "input_height_px": size, "neck": neck, "ankle": ankle,
-                             "duplicates_per_person": dup})  # fmt: skip
+        pasted = frames_with_people(crop_paths, person_px)
+        for v in variants:
+            frames = [(v.apply(frame, i), box) for i, (frame, box) in enumerate(pasted)]
+            for stages in args.stages:
+                for size in args.sizes:
+                    pose = dataclasses.replace(config.pose, input_height_px=size,
+                                               network_stages=stages, warmup_runs=0)  # fmt: skip
+                    neck, ankle, dup = detection_rates(PoseDetector(pose), frames)
+                    rows.append({"person_px": person_px, "variant": v.name,
+                                 "network_stages": stages, "input_height_px": size,
+                                 "neck": neck, "ankle": ankle,
+                                 "duplicates_per_person": dup})  # fmt: skip
     if not args.json:
         print(f"{len(crop_paths)} real person crops pasted into a 640x480 frame")
-        print(f"{'person px':>9s} {'stages':>6s} {'input':>5s} {'neck':>6s} {'ankle':>6s} "
-              f"{'dup':>5s}")  # fmt: skip
+        print(f"{'person px':>9s} {'variant':>12s} {'stages':>6s} {'input':>5s} {'neck':>6s} "
+              f"{'ankle':>6s} {'dup':>5s}")  # fmt: skip
         for r in rows:
-            print(f"{r['person_px']:9d} {r['network_stages']:6d} {r['input_height_px']:5d} "
-                  f"{r['neck']:6.2f} {r['ankle']:6.2f} {r['duplicates_per_person']:5.2f}")  # fmt: skip
+            print(f"{r['person_px']:9d} {r['variant']:>12s} {r['network_stages']:6d} "
+                  f"{r['input_height_px']:5d} {r['neck']:6.2f} {r['ankle']:6.2f} "
+                  f"{r['duplicates_per_person']:5.2f}")  # fmt: skip
     return {"crops": len(crop_paths), "rows": rows}
