@@ -60,7 +60,7 @@ def test_the_shipped_pets_ankle_height_matches_a_fit_on_the_data(pets, capsys, t
 
 def test_identification_evaluation_accounts_for_every_frame(pets, capsys, tmp_path):
     # The default identifier. (CCF10 alone follows these two targets 0.48 of these 60
-    # frames with the PETS settings' median filter, 0.65 without: docs/robustness.md.)
+    # frames with the PETS settings' median filter, 0.65 without: docs/identification.md.)
     r = _run(capsys, "eval", "identification", "--frames", FRAMES, "--identifiers",
              "ccf10+reid", "--min-visible-s", "5", "--max-targets", "2", "--plot",
              str(tmp_path / "i.png"), "--json")  # fmt: skip

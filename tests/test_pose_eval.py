@@ -95,6 +95,10 @@ def test_frames_are_taken_from_the_half_asked_for():
     assert variant_frames(795, 10, Variant("offset100", "", first_frame=100), 0, 400)[0] == 100
     with pytest.raises(ValueError, match="no frames from 400 until 400"):
         frame_range(795, 10, 400, 400)
+    with pytest.raises(ValueError, match="variant offset100: no frames from 100 until 50"):
+        variant_frames(795, 10, Variant("offset100", "", first_frame=100), 0, 50)
+    with pytest.raises(ValueError, match="--frames must be at least 1"):
+        frame_range(795, 0)
 
 
 def test_near_people_under_sensor_noise(data_path, model_path, capsys):

@@ -214,12 +214,20 @@ def main(args: argparse.Namespace) -> dict:
     if args.plot:
         write_plot(results, args.plot)
     return {"sizes": results, "frames": len(frames), "default_height": base.input_height_px,
-            "from_frame": frames[0], "until_frame": frames[-1] + 1}  # fmt: skip
+            **asked_range(args, sequence.frame_count)}  # fmt: skip
+
+
+def asked_range(args: argparse.Namespace, frame_count: int) -> dict:
+    """The frame range the frames were taken from, as the JSON reports it."""
+    end = frame_count if args.until_frame is None else min(args.until_frame, frame_count)
+    return {"from_frame": args.from_frame, "until_frame": end}
 
 
 def frame_range(frame_count: int, count: int, first: int = 0, end: int | None = None) -> list[int]:
     """`count` evenly spaced frames of first .. end - 1 (end: the sequence's end)."""
     end = frame_count if end is None else min(end, frame_count)
+    if count < 1:
+        raise ValueError(f"--frames must be at least 1, got {count}")
     if not 0 <= first < end:
         raise ValueError(f"no frames from {first} until {end} (the sequence has {frame_count})")
     return [first + i for i in evenly_spaced_frames(end - first, count)]
@@ -231,7 +239,10 @@ def variant_frames(frame_count: int, count: int, variant, first: int = 0,
     later) until `end`."""
     if variant.first_frame >= frame_count:
         raise ValueError(f"variant {variant.name} starts after the last frame {frame_count - 1}")
-    return frame_range(frame_count, count, max(first, variant.first_frame), end)
+    try:
+        return frame_range(frame_count, count, max(first, variant.first_frame), end)
+    except ValueError as error:
+        raise ValueError(f"variant {variant.name}: {error}") from None
 
 
 def main_perturbed(args: argparse.Namespace, base: PoseConfig, sequence, variants) -> dict:
@@ -261,7 +272,7 @@ def main_perturbed(args: argparse.Namespace, base: PoseConfig, sequence, variant
                     "Pose detector on PETS 2009 S2.L1 under perturbation, by input height")  # fmt: skip
     model = next(iter(next(iter(suite["variants"].values())).values()))["model"]
     return {**suite, "frames": frames_run, "default_height": base.input_height_px, "model": model,
-            "from_frame": args.from_frame, "until_frame": args.until_frame}  # fmt: skip
+            **asked_range(args, sequence.frame_count)}  # fmt: skip
 
 
 def write_plot(results: list[dict], path: Path) -> None:
