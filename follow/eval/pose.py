@@ -237,8 +237,6 @@ def variant_frames(frame_count: int, count: int, variant, first: int = 0,
                    end: int | None = None) -> list[int]:  # fmt: skip
     """`count` evenly spaced frames from the variant's first frame (or `first`, if
     later) until `end`."""
-    if variant.first_frame >= frame_count:
-        raise ValueError(f"variant {variant.name} starts after the last frame {frame_count - 1}")
     try:
         return frame_range(frame_count, count, max(first, variant.first_frame), end)
     except ValueError as error:

@@ -40,14 +40,12 @@ def add_arguments(p) -> None:
                         "the frames (docs/robustness.md; default original)")  # fmt: skip
 
 
-def pixel_variants(names: str):
-    """The suite's variants named in `names`; a later start means nothing for one
+def pixel_variants(args):
+    """The suite's variants `--variants` names; a later start means nothing for one
     pasted frame per crop, so those are refused."""
-    from follow.eval.perturb import variant
+    from follow.eval.perturb import selected_variants
 
-    chosen = [variant(n.strip()) for n in names.split(",") if n.strip()]
-    if not chosen:
-        raise ValueError("--variants names no variant")
+    chosen = selected_variants(args)
     for v in chosen:
         if v.first_frame:
             raise ValueError(f"variant {v.name} starts later: pose-near has no sequence")
@@ -112,7 +110,7 @@ def main(args) -> dict:
 
     config = Config.load(args.config) if args.config else Config()
     crop_paths = crop_files(args.crops_dir)
-    variants = pixel_variants(args.variants)
+    variants = pixel_variants(args)
     rows = []
     for person_px in args.person_heights:
         pasted = frames_with_people(crop_paths, person_px)
