@@ -183,6 +183,10 @@ class IdentifyConfig:
     # differs from the target's last estimate by more than this (plus twice the two
     # estimates' combined std) is not the target.
     reid_height_tolerance_m: float = 0.05
+    # Two people seen at once are two people: a track seen beside the target while its
+    # identity was confirmed (apart from it: farther than identity_risk_distance_m, the
+    # boxes not touching, ever since) is never taken for the target come back.
+    reid_excludes_seen_beside: bool = True
     # Online boosting never learns the target from positives alone (it would then call
     # anyone the target): a frame with fewer other people than this is topped up with
     # colour-changed copies of the target's crop as negatives (brightness inverted, hue

@@ -320,3 +320,41 @@ def test_each_state_reports_its_status_and_target(state):
         Reidentification: (TargetStatus.REIDENTIFICATION, None),
     }[type(state)]
     assert (state.status, state.target_id) == expected
+
+
+def test_a_person_seen_beside_the_confirmed_target_is_never_taken_for_it():
+    def run(config):
+        ctx = tracked_context(stamp_s=10.0, config=config, observed={1: 5, 2: 5})
+        tracking = Tracking(1)
+        together = [person(1, 2.0, last_seen_s=10.1), person(2, 5.0, last_seen_s=10.1)]
+        assert tracking.update(ctx, frame(together, 10.1, {1: 0.9, 2: -0.5})) is tracking
+        # The target walks out of view; the other, dressed and as tall alike, steps in.
+        alike = [person(2, 2.2, last_seen_s=10.2)]
+        state = tracking.update(ctx, frame(alike, 10.2, {2: 0.9}, {2: 0.9}, classifier={2: 0.9}))
+        for k in range(CFG.reid_frames):
+            state = state.update(
+                ctx, frame(alike, 10.3 + 0.1 * k, {2: 0.9}, {2: 0.9}, classifier={2: 0.9})
+            )  # fmt: skip
+        return state
+
+    assert isinstance(run(CFG), Reidentification)
+    off = dataclasses.replace(CFG, reid_excludes_seen_beside=False)
+    assert isinstance(run(off), Tracking)  # the evidence alone would have named it
+
+
+def test_a_person_who_came_near_the_target_may_still_be_it():
+    """Where the tracker could have swapped the two tracks, the other one may carry the
+    target now: it is not excluded."""
+    ctx = tracked_context(stamp_s=10.0, observed={1: 5, 2: 5})
+    tracking = Tracking(1)
+    apart = [person(1, 2.0, last_seen_s=10.1), person(2, 5.0, last_seen_s=10.1)]
+    tracking.update(ctx, frame(apart, 10.1, {1: 0.9, 2: -0.5}))
+    assert ctx.seen_beside_target(2)
+    near = [person(1, 2.0, last_seen_s=10.2),
+            person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m, last_seen_s=10.2)]  # fmt: skip
+    tracking.update(ctx, frame(near, 10.2, {1: 0.9, 2: -0.5}))
+    assert not ctx.seen_beside_target(2)
+    touching = {1: (0, 0, 100, 200), 2: (90, 0, 190, 200)}  # boxes touch, 3 m apart
+    ctx.seen_apart.add(2)
+    tracking.update(ctx, frame(apart, 10.3, {1: 0.9, 2: -0.5}, boxes=touching))
+    assert not ctx.seen_beside_target(2)

@@ -54,6 +54,7 @@ class IdentityContext:
         self.last_target_s = -math.inf
         self.last_target_seen_s = -math.inf  # when the target was last observed
         self.target_height: tuple[float, float] | None = None  # neck height mean, var
+        self.seen_apart: set[int] = set()  # tracks seen beside the target: other people
 
     def count_observations(self, by_id: dict[int, TrackState]) -> None:
         """One more frame for each track observed in it; tracks gone are dropped."""
@@ -128,6 +129,40 @@ class IdentityContext:
             self.target_height = (track.neck_height_m, float(track.cov[4, 4]))
         if self._identity_at_risk(target_id, frame):
             self.identity_risk_s = frame.stamp_s
+        self.seen_apart -= self._could_swap_with(target_id, frame)
+
+    def _could_swap_with(self, target_id: int, frame: FrameTracks) -> set[int]:
+        """The tracks the tracker could be swapping with the target's this frame: those
+        within `identity_risk_distance_m` of it on the floor, or whose box overlaps its
+        box in the image (a person passing in front)."""
+        target = frame.by_id[target_id]
+        limit = self.config.identity_risk_distance_m
+        target_box = frame.boxes.get(target_id)
+        return {
+            i for i, t in frame.by_id.items()
+            if i != target_id and (
+                float(np.linalg.norm(t.position_m - target.position_m)) <= limit
+                or (target_box is not None and i in frame.boxes
+                    and covered_fraction(target_box, frame.boxes[i]) > 0.0)
+            )
+        }  # fmt: skip
+
+    def note_others(self, target_id: int, frame: FrameTracks) -> None:
+        """Remember every track seen in this frame beside the target's, where the tracker
+        cannot be confusing them: two people at once are two people, so such a track is
+        never the target come back (`reid_excludes_seen_beside`). Called on frames in
+        which the target's identity is confirmed."""
+        if frame.by_id[target_id].observation is None:
+            return
+        swappable = self._could_swap_with(target_id, frame)
+        self.seen_apart |= {
+            i for i, t in frame.by_id.items()
+            if i != target_id and t.observation is not None and i not in swappable
+        }  # fmt: skip
+
+    def seen_beside_target(self, track_id: int) -> bool:
+        """Whether the track was seen at once with the confirmed target, apart from it."""
+        return self.config.reid_excludes_seen_beside and track_id in self.seen_apart
 
     def _identity_at_risk(self, target_id: int, frame: FrameTracks) -> bool:
         """Whether the tracker could be swapping the target with someone this frame: its

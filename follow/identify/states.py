@@ -82,9 +82,10 @@ class InitialTraining(State):
             log.info("target track %d lost during initial training", self.target_id)
             context.forget()
             return Initial()
-        context.note_target(self.target_id, frame)
         context.look(frame, only=self.target_id)
+        context.note_target(self.target_id, frame)
         if self.target_id in frame.appearances and context.learn(self.target_id, frame):
+            context.note_others(self.target_id, frame)
             self.frames_learnt += 1
             if self.frames_learnt >= context.config.initial_training_frames:
                 log.info("target track %d learnt: tracking", self.target_id)
@@ -107,14 +108,15 @@ class Tracking(State):
         if self.target_id not in frame.by_id:
             log.info("target track %d lost: re-identification", self.target_id)
             return Reidentification().update(context, frame)
-        context.note_target(self.target_id, frame)
         context.look(frame, only=self.target_id)
+        context.note_target(self.target_id, frame)
         confidence = frame.confidences.get(self.target_id)
         if confidence is None:  # not observed this frame: nothing to judge or learn
             return self
         threshold = context.config.id_switch_confidence
         if confidence >= threshold:
             context.learn(self.target_id, frame)
+            context.note_others(self.target_id, frame)
             return self
         if context.identity_trusted(frame.stamp_s):
             log.debug(
@@ -183,8 +185,8 @@ class Reidentification(State):
         leads every other seen track's by `reid_margin` (a lead over nobody is no
         evidence); with a re-id cue its similarity to the gallery reaches the required
         one (`reid_accept_similarity` rising to `reid_strict_similarity` at
-        `reid_strict_after_s`); it was seen in `min_target_observations` frames; it stands
-        where the target could have walked (`reid_reach_m` + `reid_reach_speed_mps`);
+        `reid_strict_after_s`); it was seen in `min_target_observations` frames and never
+        beside the confirmed target (`reid_excludes_seen_beside`); it stands where the target could have walked (`reid_reach_m` + `reid_reach_speed_mps`);
         and its neck height agrees with the target's (`reid_height_tolerance_m`)."""
         confidences = frame.confidences
         confidence = confidences[track_id]
@@ -201,6 +203,7 @@ class Reidentification(State):
                 or similarities[track_id] >= context.required_similarity(frame.stamp_s)
             )
             and context.established(track)
+            and not context.seen_beside_target(track_id)
             and context.reachable(track, frame.stamp_s)
             and context.same_height(track)
         )
