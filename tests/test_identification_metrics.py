@@ -48,3 +48,44 @@ def test_same_person_map_joins_returning_people_and_rejects_bad_files(tmp_path):
     bad.write_text("[[same_person]]\nids = [1]\n")
     with pytest.raises(ValueError, match="two or more ints"):
         load_same_person(bad)
+
+
+def test_undecided_wrong_time_is_wrong_and_counted_apart():
+    a, b = OutcomeTally(), OutcomeTally()
+    a.add("ct", 1.0)
+    a.add("wt", 1.0, undecided=True)
+    b.add("wt", 2.0)
+    a.merge(b)
+    assert a.fractions()["wt"] == pytest.approx(0.75)
+    assert a.wt_undecided_s == pytest.approx(1.0)
+    assert a.wt_undecided_fraction() == pytest.approx(0.25)
+    assert a.timeline == ["ct", "wt?", "wt"]
+    with pytest.raises(ValueError, match="only a WT frame"):
+        a.add("ct", 1.0, undecided=True)
+
+
+def test_undecided_pairs_stand_for_whole_groups_and_never_join_one_person(tmp_path):
+    from follow.eval.identification import load_undecided
+
+    shipped = load_undecided()
+    assert 2 in shipped[13] and 13 in shipped[2]
+    assert {14, 18, 8} <= shipped[15] and 15 in shipped[8]  # 14/18/8 are one person
+    assert all(i not in maybe for i, maybe in shipped.items())
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[same_person]]\nids = [1, 2]\n[[undecided]]\nids = [2, 1]\n")
+    with pytest.raises(ValueError, match="already one person"):
+        load_undecided(bad)
+    bad.write_text("[[undecided]]\nids = [4]\n")
+    with pytest.raises(ValueError, match="two or more ints"):
+        load_undecided(bad)
+
+
+def test_a_named_track_is_the_nearest_annotated_person_within_the_match_distance():
+    import numpy as np
+
+    from follow.eval.identification import _person_at
+
+    people = {3: (np.array([0.0, 0.0]), 0.0), 5: (np.array([0.8, 0.0]), 0.0)}
+    assert _person_at(people, np.array([0.5, 0.0]), 1.0) == 5
+    assert _person_at(people, np.array([0.3, 0.0]), 1.0) == 3
+    assert _person_at(people, np.array([3.0, 0.0]), 1.0) is None

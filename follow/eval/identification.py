@@ -100,6 +100,7 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
 
     section = dataclasses.replace(config.identify, identifier=identifier_name)
     same_person = load_same_person() if whole_sequence else {}
+    undecided = load_undecided(same_person=same_person) if whole_sequence else {}
     cache = None
     out = {}
     for target in target_ids:
@@ -126,13 +127,17 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
             cache.frame_index = index
             estimate = identifier.update(image, tracks, index / PETS_FPS)
             named = estimate.target_id if estimate.status in NAMING_STATES else None
-            named_is_target = False
-            if named is not None and target_box is not None:
-                track = next((t for t in tracks if t.track_id == named), None)
-                named_is_target = track is not None and bool(
-                    np.linalg.norm(track.position_m - target_box[0]) <= match_m
-                )
-            tally.add(classify(visible, named, named_is_target), 1.0 / PETS_FPS)
+            track = next((t for t in tracks if t.track_id == named), None)
+            named_is_target = (
+                track is not None and target_box is not None
+                and bool(np.linalg.norm(track.position_m - target_box[0]) <= match_m)
+            )  # fmt: skip
+            outcome = classify(visible, named, named_is_target)
+            maybe_target = undecided.get(target, frozenset())
+            tally.add(outcome, 1.0 / PETS_FPS, undecided=(
+                outcome == "wt" and track is not None
+                and _person_at(people, track.position_m, match_m) in maybe_target
+            ))  # fmt: skip
         out[target] = tally
     return out
 
@@ -167,6 +172,50 @@ def load_same_person(path: Path = SAME_PERSON_FILE) -> dict[int, tuple[int, ...]
     return out
 
 
+def load_undecided(
+    path: Path = SAME_PERSON_FILE, same_person: dict[int, tuple[int, ...]] | None = None
+) -> dict[int, frozenset[int]]:
+    """GT id -> the GT ids that may be the same physical person but could not be told
+    apart (`[[undecided]] ids = [...]` of `path`), each id standing for its whole
+    same-person group."""
+    from follow.config import tomllib
+
+    same_person = load_same_person(path) if same_person is None else same_person
+    data = tomllib.loads(Path(path).read_text())
+    out: dict[int, set[int]] = {}
+    for k, entry in enumerate(data.get("undecided", [])):
+        ids = entry.get("ids") if isinstance(entry, dict) else None
+        if (
+            not isinstance(ids, list)
+            or len(ids) < 2
+            or not all(isinstance(i, int) and not isinstance(i, bool) for i in ids)
+        ):
+            raise ValueError(
+                f"same-person map {path}: undecided entry {k + 1} needs ids = [two or more ints]"
+            )
+        groups = [set(same_person.get(i, (i,))) for i in ids]
+        for a, group in enumerate(groups):
+            others = set().union(*(g for b, g in enumerate(groups) if b != a))
+            if group & others:
+                raise ValueError(
+                    f"same-person map {path}: undecided entry {k + 1} joins ids that are "
+                    "already one person"
+                )
+            for i in group:
+                out.setdefault(i, set()).update(others)
+    return {i: frozenset(v) for i, v in out.items()}
+
+
+def _person_at(people: dict, position_m: np.ndarray, max_distance_m: float) -> int | None:
+    """The annotated person nearest `position_m` on the floor, within `max_distance_m`."""
+    best, best_d = None, max_distance_m
+    for i, (p, _) in people.items():
+        d = float(np.linalg.norm(p - position_m))
+        if d <= best_d:
+            best, best_d = i, d
+    return best
+
+
 def _person_box(people: dict, ids: tuple[int, ...]):
     """The annotation of whichever of the person's ids is present in this frame."""
     return next((people[i] for i in ids if i in people), None)
@@ -199,6 +248,10 @@ def plot(per_identifier: dict, path: str) -> None:
     from matplotlib.patches import Patch
 
     colours = {"ct": "#2ca02c", "cl": "#98df8a", "wt": "#d62728", "wl": "#ff9896"}
+    labels = {"wt?": "WT, may be the target"}
+    if any("wt?" in tally.timeline for per_target in per_identifier.values()
+           for tally in per_target.values()):  # fmt: skip
+        colours["wt?"] = "#ff7f0e"  # the ground truth cannot tell
     rows = [(name, t, tally) for name, per_target in per_identifier.items()
             for t, tally in per_target.items()]  # fmt: skip
     fig, ax = plt.subplots(figsize=(9, 0.3 * len(rows) + 1.2))
@@ -213,8 +266,8 @@ def plot(per_identifier: dict, path: str) -> None:
     ax.set_yticks(range(len(rows)), [f"{n} #{t}" for n, t, _ in rows], fontsize=7)
     ax.invert_yaxis()
     ax.set_xlabel("seconds after the target was selected")
-    ax.legend(handles=[Patch(color=c, label=k.upper()) for k, c in colours.items()],
-              ncol=4, loc="upper right", fontsize=7)  # fmt: skip
+    ax.legend(handles=[Patch(color=c, label=labels.get(k, k.upper())) for k, c in colours.items()],
+              ncol=len(colours), loc="upper right", fontsize=7)  # fmt: skip
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -233,6 +286,13 @@ def main(args) -> dict:
         print(f"{'identifier':12s} " + " ".join(f"{k.upper():>6s}" for k in OUTCOMES))
         for name, r in result.items():
             print(f"{name:12s} " + " ".join(f"{r[k]:6.3f}" for k in OUTCOMES))
+        if args.whole_sequence:
+            for name, r in result.items():
+                print(
+                    f"{name}: of WT {r['wt']:.3f}, {r['wt_undecided']:.3f} names a person "
+                    "the annotation cannot tell from the target (undecided in "
+                    f"{SAME_PERSON_FILE.name})"
+                )
     return {**result, "targets": targets, "frames": n}
 
 
@@ -278,6 +338,14 @@ def evaluate_variant(args, config: Config, setup: PetsSetup, variant=None):
         result[name] = {
             **{k: round(v, 4) for k, v in total.fractions().items()},
             "seconds": {k: round(v, 1) for k, v in total.seconds.items()},
+            **(
+                {
+                    "wt_undecided": round(total.wt_undecided_fraction(), 4),
+                    "wt_undecided_s": round(total.wt_undecided_s, 1),
+                }
+                if args.whole_sequence
+                else {}
+            ),  # fmt: skip
             "per_target": {
                 str(t): {k: round(v, 4) for k, v in tally.fractions().items()}
                 for t, tally in per_target.items()
