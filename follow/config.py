@@ -113,6 +113,11 @@ class TrackerConfig:
     max_position_std_per_range: float = 0.15
     max_unseen_s: float = 2.0
     tentative_max_unseen_s: float = 0.5
+    # An unseen track whose predicted neck lies outside the image is deleted after this
+    # long. A robot keeps it as long as any other (max_unseen_s): it turns towards a
+    # target that stepped out of the view. A fixed camera never sees that person again
+    # under this track: set it low (pets2009.toml).
+    max_unseen_outside_view_s: float = 2.0
     # Observations this far outside the image are rejected as broken input.
     max_outside_image_px: float = 2.0
 

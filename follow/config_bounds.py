@@ -117,6 +117,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "max_position_std_per_range": closed(0.0, 1.0),
         "max_unseen_s": positive(10.0),
         "tentative_max_unseen_s": positive(10.0),
+        "max_unseen_outside_view_s": closed(0.0, 10.0),
         "max_outside_image_px": closed(0.0, 1000.0),
     },
     "identify": {

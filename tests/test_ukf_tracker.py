@@ -265,3 +265,41 @@ def test_measurement_model_gait_lift_and_near_clamp(camera):
     assert np.isfinite(model.neck_ankle(behind)).all()
     unclamped = MeasurementModel(camera, Odometry.origin(), min_depth_m=0.0)
     assert np.isnan(unclamped.neck_ankle(behind)).all()
+
+
+def _walk_out_of_view(camera, config, seconds_after):
+    """A person walks left out of the view at 1.2 m/s, 4 m ahead, seen while their neck
+    is in the image; the tracks still alive `seconds_after` the last sighting."""
+    tracker = PeopleTracker(camera, config)
+    robot = Odometry.origin()
+    rng = np.random.default_rng(3)
+    k, last_seen = 0, None
+    while True:
+        xy = np.array([4.0, -2.0 + 1.2 * k / FPS])
+        o = observe(camera, robot, xy, 1.45, rng)
+        in_view = camera.in_image(o.neck_px, 5.0)[0] and camera.in_image(o.ankle_px, 5.0)[0]
+        if last_seen is None and not in_view and k > 10:
+            last_seen = k
+        t = k / FPS
+        tracks = tracker.update([o] if last_seen is None and in_view else [], t, robot)
+        if last_seen is not None and t >= last_seen / FPS + seconds_after:
+            return tracks
+        k += 1
+
+
+def test_a_track_that_walks_out_of_a_fixed_view_is_deleted_sooner_when_asked(camera):
+    kept = _walk_out_of_view(camera, TrackerConfig(), 1.0)
+    assert len(kept) == 1  # the robot's default: kept, so that it can turn towards it
+    short = TrackerConfig(max_unseen_outside_view_s=0.2)
+    assert _walk_out_of_view(camera, short, 1.0) == []
+
+
+def test_a_person_hidden_inside_the_view_keeps_the_usual_time(camera):
+    short = TrackerConfig(max_unseen_outside_view_s=0.0)
+    tracker = PeopleTracker(camera, short)
+    robot = Odometry.origin()
+    for k in range(30):
+        tracker.update([observe(camera, robot, (5.0, 0.0), 1.45)], k / FPS, robot)
+    for k in range(30, 30 + int(1.5 * FPS)):  # hidden for 1.5 s where it stands
+        tracks = tracker.update([], k / FPS, robot)
+    assert len(tracks) == 1 and tracks[0].confirmed

@@ -200,7 +200,11 @@ class PeopleTracker:
                 if e is not None:
                     born.append(InnovationGate(*e))
 
-        self._retire(stamp_s, robot)
+        outside = {
+            t.track_id for t, e in zip(self._tracks[: len(expected)], expected, strict=True)
+            if t.last_seen_s < stamp_s and e is not None and not self.camera.in_image(e[0][:2])[0]
+        }  # fmt: skip
+        self._retire(stamp_s, robot, outside)
         project_sigma_points([t.filter for t in self._tracks], model)  # the updated ones
         self._states = [self._state(t, model, associated.get(t.track_id)) for t in self._tracks]
         return self.tracks
@@ -277,12 +281,16 @@ class PeopleTracker:
         self._tracks.append(track)
         return track
 
-    def _retire(self, stamp_s: float, robot: Odometry) -> None:
+    def _retire(self, stamp_s: float, robot: Odometry, outside_view: set[int]) -> None:
+        """Delete the tracks unseen for too long (shorter while predicted outside the
+        image, `outside_view`), too uncertain, or broken."""
         cfg = self.config
         keep = []
         for t in self._tracks:
             unseen_s = stamp_s - t.last_seen_s
             limit_s = cfg.max_unseen_s if t.confirmed else cfg.tentative_max_unseen_s
+            if t.track_id in outside_view:
+                limit_s = min(limit_s, cfg.max_unseen_outside_view_s)
             mean, P = t.filter.mean, t.filter.cov
             range_m = math.hypot(mean[0] - robot.x_m, mean[1] - robot.y_m)
             pos_std = math.sqrt(max(np.linalg.eigvalsh(P[:2, :2])[-1], 0.0))
