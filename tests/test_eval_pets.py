@@ -71,6 +71,20 @@ def test_identification_evaluation_accounts_for_every_frame(pets, capsys, tmp_pa
     assert (tmp_path / "i.png").stat().st_size > 5_000
 
 
+def test_whole_sequence_scoring_counts_undecided_wrong_time_within_wrong_time(pets, capsys):
+    args = ["eval", "identification", "--frames", FRAMES, "--identifiers", "ccf10+reid",
+            "--min-visible-s", "5", "--max-targets", "2", "--json"]  # fmt: skip
+    usual = _run(capsys, *args)["ccf10+reid"]
+    whole = _run(capsys, *args, "--whole-sequence")["ccf10+reid"]
+    assert "wt_undecided" not in usual
+    assert 0.0 <= whole["wt_undecided_s"] <= whole["seconds"]["wt"]
+    assert whole["wt_undecided"] == pytest.approx(
+        whole["wt_undecided_s"] / sum(whole["seconds"].values()), abs=1e-3
+    )
+    # to the end of the run, never less than to each target's last annotated frame
+    assert sum(whole["seconds"].values()) >= sum(usual["seconds"].values())
+
+
 def test_bench_times_every_stage_and_the_runner_against_bare_inference(pets, capsys):
     r = _run(capsys, "bench", "--frames", "4", "--warmup", "1", "--json")
     assert r["frames"] == 4
