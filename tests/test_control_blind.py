@@ -109,3 +109,16 @@ def test_view_cone_of_a_camera_and_no_forward_outside_it():
 def test_safety_timeouts_are_bounded(key, value):
     with pytest.raises(ConfigError, match=key):
         FollowingController(ControlConfig(**{key: value}))
+
+
+def test_blind_speed_falls_from_the_speed_at_the_last_observation_not_the_maximum():
+    cfg = ControlConfig(max_blind_drive_s=0.5, target_timeout_s=1.0)
+    near = (cfg.following_distance_m + 0.3, 0.0)  # a slow approach, well under the maximum
+    last_seen, commands = _drive_then_lose(FollowingController(cfg), xy=near)
+    v0 = [c for t, c in commands if t <= last_seen][-1].forward_mps
+    assert 0.05 < v0 < 0.5 * cfg.max_forward_speed_mps
+    blind = [(t - last_seen, c) for t, c in commands if t > last_seen]
+    for unseen_s, c in blind:
+        assert c.forward_mps <= v0 * max(0.0, 1 - unseen_s / cfg.max_blind_drive_s) + 1e-9
+    driven_m = sum(c.forward_mps * PERIOD for _, c in blind)
+    assert driven_m <= 0.5 * v0 * cfg.max_blind_drive_s + v0 * PERIOD

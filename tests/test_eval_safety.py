@@ -25,12 +25,11 @@ def test_rover_stops_after_the_target_leaves_the_view_the_detector_hangs_and_on_
     for name, case in report["cases"].items():
         assert case["speed_at_fault_mps"] > 0.2, (name, case)  # it was driving
         assert case["stop_s"] is not None and case["stop_s"] <= safety.GOAL_STOP_S, (name, case)
-    # The goal is 0.5 m (`follow eval safety` reports whether it is met: 0.44-0.47 m on
-    # a quiet machine). This run is in real time on a shared machine, where a loaded
-    # moment delays frames and commands: 0.50-0.51 m was seen. It may go 0.1 m over, what
-    # 0.1 s more at the following speed of 1 m/s adds; a robot that drove on blind would
-    # be metres over in the 3 s after the target left.
+    # The goal is 0.5 m: 0.32-0.39 m measured in real time on this shared machine while
+    # another evaluation kept both cores busy (the blind speed limit falls from the speed
+    # at the last sighting; from the maximum speed it was 0.44-0.51 m). A robot that
+    # drove on blind would be metres over in the 3 s after the target left.
     driven_m = report["cases"]["target_leaves_view"]["driven_m"]
-    assert driven_m <= safety.GOAL_DRIVEN_AFTER_LOSS_M + 0.1, report["cases"]
+    assert driven_m <= safety.GOAL_DRIVEN_AFTER_LOSS_M, report["cases"]
     assert report["cases"]["sigterm"]["signal"] == "SIGTERM"
     assert report["cases"]["perception_stalls"]["watchdog_trips"] >= 1

@@ -6,9 +6,9 @@ place when the target is far to the side, and speed / yaw-rate / acceleration li
 Losing the target, or a last observation older than `target_timeout_s`, gives a zero
 command at once: the acceleration limits apply to driving, never to stopping. A target
 not seen in the newest frame is driven toward only blind: the forward speed limit falls
-to zero within `max_blind_drive_s` of its last observation (also ignoring the braking
-limit) and the turn is capped at the search rate; a target predicted outside the
-camera's field of view (`view`) gets no forward command at all.
+from the command at its last observation to zero within `max_blind_drive_s` (also
+ignoring the braking limit) and the turn is capped at the search rate; a target
+predicted outside the camera's field of view (`view`) gets no forward command at all.
 """
 
 from __future__ import annotations
@@ -93,6 +93,7 @@ class FollowingController:
         self._last: VelocityCommand | None = None
         self._last_bearing_rad: float | None = None
         self._lost_since_s: float | None = None
+        self._forward_when_seen_mps = 0.0  # the forward command at the last observation
 
     @property
     def period_s(self) -> float:
@@ -103,6 +104,7 @@ class FollowingController:
         self._last = None
         self._last_bearing_rad = None
         self._lost_since_s = None
+        self._forward_when_seen_mps = 0.0
 
     def update(self, target: TargetMotion | None, stamp_s: float) -> VelocityCommand:
         """The command for time `stamp_s` given the newest target estimate (None = lost)."""
@@ -184,11 +186,14 @@ class FollowingController:
             forward = min(forward, self.blind_forward_limit_mps(stamp_s - target.stamp_s))
         if self.view is not None and not self.view.contains(target.position_m):
             forward = min(forward, 0.0)
+        if target.observed:
+            self._forward_when_seen_mps = max(0.0, forward)
         return VelocityCommand(forward, yaw, stamp_s)
 
     def blind_forward_limit_mps(self, unseen_s: float) -> float:
         """The most forward speed allowed `unseen_s` after the target's last observation:
-        falling linearly from the maximum to zero at `max_blind_drive_s`."""
+        falling linearly from the forward command of that moment to zero at
+        `max_blind_drive_s` (a robot never speeds up towards a target it no longer sees)."""
         cfg = self.config
         left = 1.0 - max(0.0, unseen_s) / cfg.max_blind_drive_s
-        return cfg.max_forward_speed_mps * max(0.0, left)
+        return self._forward_when_seen_mps * max(0.0, left)
