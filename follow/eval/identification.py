@@ -145,26 +145,35 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
 SAME_PERSON_FILE = Path(__file__).with_name("pets2009_same_person.toml")
 
 
-def load_same_person(path: Path = SAME_PERSON_FILE) -> dict[int, tuple[int, ...]]:
-    """GT id -> every GT id of the same physical person (itself included), from the
-    `[[same_person]] ids = [...]` tables of `path`; ids not listed map to themselves."""
+def _id_lists(path: Path, table: str, what: str) -> list[list[int]]:
+    """The `ids = [...]` lists of the `[[table]]` entries of the TOML file `path`, each
+    checked to hold two or more ints (`what` names an entry in errors)."""
     from follow.config import tomllib
 
     try:
         data = tomllib.loads(Path(path).read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ValueError(f"same-person map {path}: {exc}") from None
-    out: dict[int, tuple[int, ...]] = {}
-    for k, group in enumerate(data.get("same_person", [])):
-        ids = group.get("ids") if isinstance(group, dict) else None
+    out = []
+    for k, entry in enumerate(data.get(table, [])):
+        ids = entry.get("ids") if isinstance(entry, dict) else None
         if (
             not isinstance(ids, list)
             or len(ids) < 2
             or not all(isinstance(i, int) and not isinstance(i, bool) for i in ids)
         ):
             raise ValueError(
-                f"same-person map {path}: group {k + 1} needs ids = [two or more ints]"
+                f"same-person map {path}: {what} {k + 1} needs ids = [two or more ints]"
             )
+        out.append(ids)
+    return out
+
+
+def load_same_person(path: Path = SAME_PERSON_FILE) -> dict[int, tuple[int, ...]]:
+    """GT id -> every GT id of the same physical person (itself included), from the
+    `[[same_person]] ids = [...]` tables of `path`; ids not listed map to themselves."""
+    out: dict[int, tuple[int, ...]] = {}
+    for ids in _id_lists(path, "same_person", "group"):
         for i in ids:
             if i in out:
                 raise ValueError(f"same-person map {path}: id {i} is in two groups")
@@ -178,21 +187,9 @@ def load_undecided(
     """GT id -> the GT ids that may be the same physical person but could not be told
     apart (`[[undecided]] ids = [...]` of `path`), each id standing for its whole
     same-person group."""
-    from follow.config import tomllib
-
     same_person = load_same_person(path) if same_person is None else same_person
-    data = tomllib.loads(Path(path).read_text())
     out: dict[int, set[int]] = {}
-    for k, entry in enumerate(data.get("undecided", [])):
-        ids = entry.get("ids") if isinstance(entry, dict) else None
-        if (
-            not isinstance(ids, list)
-            or len(ids) < 2
-            or not all(isinstance(i, int) and not isinstance(i, bool) for i in ids)
-        ):
-            raise ValueError(
-                f"same-person map {path}: undecided entry {k + 1} needs ids = [two or more ints]"
-            )
+    for k, ids in enumerate(_id_lists(path, "undecided", "undecided entry")):
         groups = [set(same_person.get(i, (i,))) for i in ids]
         for a, group in enumerate(groups):
             others = set().union(*(g for b, g in enumerate(groups) if b != a))
