@@ -15,11 +15,16 @@ from follow.pipeline import (
     ThreadedRunner,
     target_motion,
 )
-from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
+from follow.types import Frame, Observation, Odometry, TargetEstimate, TargetStatus, TrackState
+
+# The target was seen in the frame (the controller drives blind only briefly).
+SEEN = Observation(np.array([320.0, 200.0]), np.array([320.0, 400.0]))
 
 
 def _result(stamp_s: float, target_xy=(5.0, 0.0), status=TargetStatus.TRACKING) -> FrameResult:
-    track = TrackState(7, np.array([*target_xy, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, stamp_s)
+    track = TrackState(
+        7, np.array([*target_xy, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, stamp_s, observation=SEEN
+    )
     return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], [track],
                        TargetEstimate(status, 7, {7: 0.9}, stamp_s))  # fmt: skip
 

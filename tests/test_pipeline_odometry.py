@@ -13,7 +13,10 @@ from follow.config import ControlConfig
 from follow.control.controller import FollowingController
 from follow.control.odometry import OdometryPolicy
 from follow.pipeline import ControlLoop, Detections, FrameResult, ThreadedRunner, run_offline
-from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
+from follow.types import Frame, Observation, Odometry, TargetEstimate, TargetStatus, TrackState
+
+# The target was seen in the frame (the controller drives blind only briefly).
+SEEN = Observation(np.array([320.0, 200.0]), np.array([320.0, 400.0]))
 
 
 class _Base:
@@ -35,7 +38,9 @@ class _Base:
 
 
 def _tracking(stamp_s: float) -> FrameResult:
-    track = TrackState(1, np.array([4.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s)
+    track = TrackState(
+        1, np.array([4.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s, observation=SEEN
+    )
     return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], [track],
                        TargetEstimate(TargetStatus.TRACKING, 1, {1: 0.9}, stamp_s))  # fmt: skip
 

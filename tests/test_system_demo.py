@@ -13,7 +13,10 @@ from follow.control.mavlink_base import MavlinkBase
 from follow.pipeline import ControlLoop, FrameResult
 from follow.sim.demo import run_demo
 from follow.sim.rover import SimRover
-from follow.types import Odometry, TargetEstimate, TargetStatus, TrackState
+from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
+
+# The target was seen in the frame (the controller drives blind only briefly).
+SEEN = Observation(np.array([320.0, 200.0]), np.array([320.0, 400.0]))
 
 
 def test_demo_follows_the_target_through_a_crossing(tmp_path):
@@ -29,7 +32,9 @@ def test_demo_follows_the_target_through_a_crossing(tmp_path):
 
 
 def _tracking(stamp_s: float) -> FrameResult:
-    track = TrackState(1, np.array([4.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s)
+    track = TrackState(
+        1, np.array([4.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s, observation=SEEN
+    )
     return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], [track],
                        TargetEstimate(TargetStatus.TRACKING, 1, {1: 0.9}, stamp_s))  # fmt: skip
 
