@@ -47,6 +47,10 @@ class PoseConfig:
     # A (2 r + 1)-pixel median filter over the frame before it is resized for the
     # network (0 = none): sensor noise and JPEG blocking hide small, far people from it.
     median_filter_radius_px: int = 0
+    # Then an unsharp mask: unsharp_amount times the detail finer than unsharp_sigma_px
+    # added back (0 = none), steepening outlines that blur and upscaling soften.
+    unsharp_amount: float = 0.0
+    unsharp_sigma_px: float = 1.0
     keypoint_min_confidence: float = 0.05  # keypoints below this are not used as observations
     min_keypoints_per_person: int = 2  # e.g. neck + one shoulder, joined by their PAF
     border_margin_px: float = 4.0

@@ -77,6 +77,8 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "cpu_threads": THREADS,
         "warmup_runs": closed(0, 100),
         "median_filter_radius_px": closed(0, 4),
+        "unsharp_amount": closed(0.0, 3.0),
+        "unsharp_sigma_px": closed(0.3, 5.0),
         "keypoint_min_confidence": UNIT,
         "min_keypoints_per_person": closed(1, 18),
         "border_margin_px": closed(0.0, 100.0),

@@ -171,3 +171,19 @@ def test_the_median_filter_setting_reaches_the_network(model_path, pets):
     np.testing.assert_allclose(filtered_heatmaps, plain.infer(median_filtered(frame, 1))[0],
                                atol=1e-6)  # fmt: skip
     assert np.abs(filtered_heatmaps - plain.infer(frame)[0]).max() > 1e-3
+
+
+def test_the_unsharp_mask_setting_reaches_the_network(model_path, pets):
+    """`[pose] unsharp_amount` sharpens the frame the network sees, after the median."""
+    from follow.pose.preprocess import FrameFilter
+
+    pets_filter = FrameFilter(median_radius_px=1, unsharp_amount=0.5)
+    plain = PoseDetector(PoseConfig(provider="cpu", input_height_px=256), model_path(ONNX))
+    config = PoseConfig(provider="cpu", input_height_px=256, median_filter_radius_px=1,
+                        unsharp_amount=0.5)  # fmt: skip
+    sharpening = PoseDetector(config, model_path(ONNX))
+    frame = pets.read_frame(200)
+    heatmaps = sharpening.infer(frame)[0]
+    np.testing.assert_allclose(heatmaps, plain.infer(pets_filter(frame))[0], atol=1e-6)
+    median_only = FrameFilter(median_radius_px=1)
+    assert np.abs(heatmaps - plain.infer(median_only(frame))[0]).max() > 1e-3

@@ -8,11 +8,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from follow.pose.preprocess import (
+    FrameFilter,
     heatmap_to_network_px,
     median_filtered,
     plan_letterbox,
     prepare_frame,
     prepare_input,
+    unsharp_masked,
 )
 from follow.types import InvalidInput
 
@@ -92,10 +94,27 @@ def test_the_median_filter_removes_specks_and_keeps_edges():
 def test_the_network_input_is_made_from_the_filtered_frame():
     rng = np.random.default_rng(0)
     image = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
-    smooth = median_filtered(image, 2)
+    frame_filter = FrameFilter(median_radius_px=2, unsharp_amount=0.5)
+    smooth = unsharp_masked(median_filtered(image, 2), 0.5, 1.0)
     assert not np.array_equal(smooth, image)
     for prepare in (prepare_input, prepare_frame):
         want, _ = prepare(smooth, 32)
-        got, _ = prepare(image, 32, None, 2)
+        got, _ = prepare(image, 32, None, frame_filter)
         np.testing.assert_array_equal(got, want)
         assert not np.array_equal(prepare(image, 32)[0], want)
+
+
+def test_the_unsharp_mask_steepens_a_soft_edge_and_leaves_flat_areas():
+    """A step blurred by the lens gets back a steeper slope across the edge; far from
+    it, flat grey stays as it was."""
+    import cv2
+
+    step = np.zeros((20, 60, 3), np.uint8)
+    step[:, 30:] = 160
+    soft = cv2.GaussianBlur(step, (0, 0), 1.5)
+    assert unsharp_masked(soft, 0.0, 1.0) is soft
+    sharp = unsharp_masked(soft, 0.5, 1.0)
+    slope = np.abs(np.diff(soft[10, :, 0].astype(int))).max()
+    assert np.abs(np.diff(sharp[10, :, 0].astype(int))).max() > slope
+    np.testing.assert_array_equal(sharp[:, :20], soft[:, :20])
+    np.testing.assert_array_equal(sharp[:, 45:], soft[:, 45:])

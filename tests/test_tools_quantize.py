@@ -90,6 +90,7 @@ def test_bench_pose_reports_every_runtime(int8_model, capsys):
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     for key in ("ort_fp32_ms", "fast_path_ms", "ort_int8_ms", "ort_int8_frame_input_ms",
                 "prepare_input_ms", "prepare_frame_ms", "prepare_input_median1_ms",
+                "prepare_input_median1_unsharp_ms",
                 "decode_ms"):  # fmt: skip
         assert result[key] > 0, key
     if result["reference_openvino_int8_ms"] is None:

@@ -27,7 +27,7 @@ from follow.eval.pets import PetsSequence, evenly_spaced_frames
 from follow.eval.pose import data_dir
 from follow.pose.decode import decode
 from follow.pose.detector import decode_params
-from follow.pose.preprocess import prepare_frame, prepare_input
+from follow.pose.preprocess import FrameFilter, prepare_frame, prepare_input
 from follow.pose.quantize import default_int8_path, quantize_pose_model
 from follow.pose.runtime import OpenVinoBackend, OrtBackend, openvino_installed
 from follow.pose.stages import initial_stage_file
@@ -154,6 +154,7 @@ def main(args: argparse.Namespace) -> dict:
         "prepare_input_ms": preparation["prepare_input"],
         "prepare_frame_ms": preparation["prepare_frame"],
         "prepare_input_median1_ms": preparation["prepare_input_median1"],
+        "prepare_input_median1_unsharp_ms": preparation["prepare_input_median1_unsharp"],
         "fast_path_ms": med["fast_path"],
         "fast_path": fast_name,
         "fast_path_initial_stage_ms": med.get("fast_path_initial_stage"),
@@ -193,18 +194,22 @@ def main(args: argparse.Namespace) -> dict:
 def _time_preparation(images, height_px: int, repeats: int = 5) -> dict[str, float]:
     """Median of the per-frame best time to make each kind of network input, into
     reused buffers as the detector does (the float input also after a 3x3 median
-    filter, `[pose] median_filter_radius_px = 1`)."""
+    filter, `[pose] median_filter_radius_px = 1`, and after that and an unsharp mask,
+    as the PETS settings have it)."""
     out = {}
-    kinds = (("prepare_input", prepare_input, 0), ("prepare_frame", prepare_frame, 0),
-             ("prepare_input_median1", prepare_input, 1))  # fmt: skip
-    for name, prepare, median_radius_px in kinds:
+    median = FrameFilter(median_radius_px=1)
+    pets = FrameFilter(median_radius_px=1, unsharp_amount=0.5)
+    kinds = (("prepare_input", prepare_input, None), ("prepare_frame", prepare_frame, None),
+             ("prepare_input_median1", prepare_input, median),
+             ("prepare_input_median1_unsharp", prepare_input, pets))  # fmt: skip
+    for name, prepare, frame_filter in kinds:
         buffers: dict = {}
         per_frame = []
         for image in images:
             runs = []
             for _ in range(repeats):
                 t0 = time.perf_counter()
-                prepare(image, height_px, buffers, median_radius_px)
+                prepare(image, height_px, buffers, frame_filter)
                 runs.append((time.perf_counter() - t0) * 1e3)
             per_frame.append(min(runs))
         out[name] = float(np.median(per_frame))

@@ -14,6 +14,7 @@ from follow.config import PoseConfig
 from follow.pose.decode import DecodedPerson, DecodeParams, decode
 from follow.pose.preprocess import (
     NETWORK_STRIDE_PX,
+    FrameFilter,
     Letterbox,
     heatmap_to_network_px,
     prepare_frame,
@@ -122,6 +123,7 @@ class PoseDetector:
         log.info("pose: running %s (sha256 %s) on %s", self.model_path,
                  models.sha256_of(self.model_path)[:16], self.backend.name)  # fmt: skip
         self._input_buffers: dict[tuple[int, int], np.ndarray] = {}
+        self._frame_filter = FrameFilter.from_config(self.config)
         self.warm_up(frame_size)
 
     @property
@@ -140,7 +142,7 @@ class PoseDetector:
         t0 = time.perf_counter()
         prepare = prepare_frame if self.backend.frame_input else prepare_input
         tensor, plan = prepare(image_bgr, self.config.input_height_px, self._input_buffers,
-                               self.config.median_filter_radius_px)  # fmt: skip
+                               self._frame_filter)  # fmt: skip
         t1 = time.perf_counter()
         heatmaps, pafs = self.backend.run(tensor)
         t2 = time.perf_counter()

@@ -96,11 +96,41 @@ def median_filtered(image_bgr: np.ndarray, radius_px: int) -> np.ndarray:
     return cv2.medianBlur(image_bgr, 2 * radius_px + 1)
 
 
+def unsharp_masked(image_bgr: np.ndarray, amount: float, sigma_px: float) -> np.ndarray:
+    """The frame with `amount` times its detail finer than `sigma_px` added back (an
+    unsharp mask), or itself at amount 0: outlines softened by the lens, by motion or by
+    the upscaling to the network input are steepened again."""
+    if amount <= 0.0:
+        return image_bgr
+    smooth = cv2.GaussianBlur(image_bgr, (0, 0), sigma_px)
+    return cv2.addWeighted(image_bgr, 1.0 + amount, smooth, -amount, 0.0)
+
+
+@dataclass(frozen=True)
+class FrameFilter:
+    """What is done to a frame before it is resized for the network: a median (noise,
+    JPEG blocking), then an unsharp mask (soft outlines). The default does nothing."""
+
+    median_radius_px: int = 0
+    unsharp_amount: float = 0.0
+    unsharp_sigma_px: float = 1.0
+
+    @classmethod
+    def from_config(cls, config) -> FrameFilter:
+        """The filter a `PoseConfig` asks for."""
+        return cls(config.median_filter_radius_px, config.unsharp_amount, config.unsharp_sigma_px)
+
+    def __call__(self, image_bgr: np.ndarray) -> np.ndarray:
+        image_bgr = median_filtered(image_bgr, self.median_radius_px)
+        return unsharp_masked(image_bgr, self.unsharp_amount, self.unsharp_sigma_px)
+
+
 def _resized(
-    image_bgr: np.ndarray, input_height_px: int, median_radius_px: int = 0
+    image_bgr: np.ndarray, input_height_px: int, frame_filter: FrameFilter | None = None
 ) -> tuple[np.ndarray, Letterbox]:
     check_frame(image_bgr)
-    image_bgr = median_filtered(image_bgr, median_radius_px)
+    if frame_filter is not None:
+        image_bgr = frame_filter(image_bgr)
     height, width = image_bgr.shape[:2]
     plan = plan_letterbox((width, height), input_height_px)
     interpolation = cv2.INTER_AREA if plan.scale_xy[1] < 1 else cv2.INTER_LINEAR
@@ -122,16 +152,16 @@ def prepare_input(
     image_bgr: np.ndarray,
     input_height_px: int,
     buffers: dict[tuple[int, int], np.ndarray] | None = None,
-    median_radius_px: int = 0,
+    frame_filter: FrameFilter | None = None,
 ) -> tuple[np.ndarray, Letterbox]:
     """A float32 (1, 3, H, W) raw-BGR tensor for the network, and the plan to map back.
 
     With `buffers` (one per frame size, kept by the caller) the tensor is written into
     the same array every frame instead of a new one; the caller must be done with the
-    previous tensor before the next call. `median_radius_px` > 0 filters the frame
-    first (`median_filtered`).
+    previous tensor before the next call. `frame_filter` (a `FrameFilter`) filters the
+    frame first.
     """
-    resized, plan = _resized(image_bgr, input_height_px, median_radius_px)
+    resized, plan = _resized(image_bgr, input_height_px, frame_filter)
     width, height = plan.input_size
     tensor = _padded_buffer(buffers, image_bgr, (1, 3, height, width), np.float32)
     tensor[0, :, :, : plan.resized_size[0]] = resized.transpose(2, 0, 1)
@@ -142,11 +172,11 @@ def prepare_frame(
     image_bgr: np.ndarray,
     input_height_px: int,
     buffers: dict[tuple[int, int], np.ndarray] | None = None,
-    median_radius_px: int = 0,
+    frame_filter: FrameFilter | None = None,
 ) -> tuple[np.ndarray, Letterbox]:
     """The same as uint8 (1, H, W, 3), for a back-end that converts it inside the graph
     (`runtime.with_frame_input`)."""
-    resized, plan = _resized(image_bgr, input_height_px, median_radius_px)
+    resized, plan = _resized(image_bgr, input_height_px, frame_filter)
     width, height = plan.input_size
     frame = _padded_buffer(buffers, image_bgr, (1, height, width, 3), np.uint8)
     frame[0, :, : plan.resized_size[0]] = resized
