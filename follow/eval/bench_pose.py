@@ -177,7 +177,7 @@ def main(args: argparse.Namespace) -> dict:
             if key in med:
                 print(f"  {key:26s} {med[key]:8.1f} ms")
         for key, value in preparation.items():
-            print(f"  {key:26s} {value:8.2f} ms (Python, before the network)")
+            print(f"  {key:30s} {value:4.2f} ms (Python, before the network)")
         if reference:
             print(f"  fast path / reference      {result['fast_path_over_reference']:8.2f}"
                   f"   ({fast_name})")  # fmt: skip
