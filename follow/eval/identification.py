@@ -80,15 +80,20 @@ class _CachedDescribe:
         return [self.cache[(self.frame_index, tuple(r))] for r in rois]
 
 
-def _track_near(tracks, position_m, max_distance_m: float, confirmed_only: bool):
+def _nearest(candidates, position_m, max_distance_m: float):
+    """The key of the (key, position) pair nearest `position_m` on the floor, within
+    `max_distance_m` (None: none that near)."""
     best, best_d = None, max_distance_m
-    for t in tracks:
-        if confirmed_only and not t.confirmed:
-            continue
-        d = float(np.linalg.norm(t.position_m - position_m))
+    for key, p in candidates:
+        d = float(np.linalg.norm(p - position_m))
         if d <= best_d:
-            best, best_d = t, d
+            best, best_d = key, d
     return best
+
+
+def _track_near(tracks, position_m, max_distance_m: float, confirmed_only: bool):
+    chosen = [(t, t.position_m) for t in tracks if t.confirmed or not confirmed_only]
+    return _nearest(chosen, position_m, max_distance_m)
 
 
 def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame, target_ids,
@@ -109,6 +114,7 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
             cache = _CachedDescribe(identifier.model.describe)
         identifier.model.describe = cache
         tally = OutcomeTally()
+        maybe_target = undecided.get(target, frozenset())
         selected = False
         last = last_annotated(gt_per_frame, target) if not whole_sequence else len(frames) - 1
         for position, (index, image) in enumerate(setup.sequence.frames(frames[: last + 1])):
@@ -133,7 +139,6 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
                 and bool(np.linalg.norm(track.position_m - target_box[0]) <= match_m)
             )  # fmt: skip
             outcome = classify(visible, named, named_is_target)
-            maybe_target = undecided.get(target, frozenset())
             tally.add(outcome, 1.0 / PETS_FPS, undecided=(
                 outcome == "wt" and track is not None
                 and _person_at(people, track.position_m, match_m) in maybe_target
@@ -205,12 +210,7 @@ def load_undecided(
 
 def _person_at(people: dict, position_m: np.ndarray, max_distance_m: float) -> int | None:
     """The annotated person nearest `position_m` on the floor, within `max_distance_m`."""
-    best, best_d = None, max_distance_m
-    for i, (p, _) in people.items():
-        d = float(np.linalg.norm(p - position_m))
-        if d <= best_d:
-            best, best_d = i, d
-    return best
+    return _nearest(((i, p) for i, (p, _) in people.items()), position_m, max_distance_m)
 
 
 def _person_box(people: dict, ids: tuple[int, ...]):

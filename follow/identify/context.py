@@ -118,61 +118,52 @@ class IdentityContext:
         return self._by_track(frame, self.model.similarity)
 
     # ------------------------------------------------------------------ the target
-    def note_target(self, target_id: int, frame: FrameTracks) -> None:
-        """Remember where the target is, when it was seen, its height, and whether the
-        tracker could be swapping it with someone this frame."""
+    def note_target(self, target_id: int, frame: FrameTracks, confirmed: bool = False) -> None:
+        """Remember where the target is, when it was seen, its height, whether the
+        tracker could be swapping it with someone this frame, and, on a frame that
+        `confirmed` its identity, who was seen beside it (`seen_apart`)."""
         track = frame.by_id[target_id]
         self.last_target_position_m = track.position_m.copy()
         self.last_target_s = frame.stamp_s
         if track.observation is not None:
             self.last_target_seen_s = frame.stamp_s
             self.target_height = (track.neck_height_m, float(track.cov[4, 4]))
-        if self._identity_at_risk(target_id, frame):
+        near = self._near_target(target_id, frame)
+        unseen_s = frame.stamp_s - track.last_seen_s
+        if near or unseen_s > self.config.identity_risk_unseen_s:
             self.identity_risk_s = frame.stamp_s
-        self.seen_apart -= self._could_swap_with(target_id, frame)
+        swappable = near | self._touching_target(target_id, frame)
+        self.seen_apart -= swappable
+        if confirmed and track.observation is not None:
+            # Two people seen at once are two people, where the tracker cannot be
+            # confusing them: such a track is never the target come back.
+            self.seen_apart |= {
+                i for i, t in frame.by_id.items()
+                if i != target_id and t.observation is not None and i not in swappable
+            }  # fmt: skip
 
-    def _could_swap_with(self, target_id: int, frame: FrameTracks) -> set[int]:
-        """The tracks the tracker could be swapping with the target's this frame: those
-        within `identity_risk_distance_m` of it on the floor, or whose box overlaps its
-        box in the image (a person passing in front)."""
+    def _near_target(self, target_id: int, frame: FrameTracks) -> set[int]:
+        """The other tracks within `identity_risk_distance_m` of the target on the floor."""
         target = frame.by_id[target_id]
         limit = self.config.identity_risk_distance_m
-        target_box = frame.boxes.get(target_id)
-        return {
-            i for i, t in frame.by_id.items()
-            if i != target_id and (
-                float(np.linalg.norm(t.position_m - target.position_m)) <= limit
-                or (target_box is not None and i in frame.boxes
-                    and covered_fraction(target_box, frame.boxes[i]) > 0.0)
-            )
-        }  # fmt: skip
+        return {i for i, t in frame.by_id.items()
+                if i != target_id and float(np.linalg.norm(t.position_m - target.position_m))
+                <= limit}  # fmt: skip
 
-    def note_others(self, target_id: int, frame: FrameTracks) -> None:
-        """Remember every track seen in this frame beside the target's, where the tracker
-        cannot be confusing them: two people at once are two people, so such a track is
-        never the target come back (`reid_excludes_seen_beside`). Called on frames in
-        which the target's identity is confirmed."""
-        if frame.by_id[target_id].observation is None:
-            return
-        swappable = self._could_swap_with(target_id, frame)
-        self.seen_apart |= {
-            i for i, t in frame.by_id.items()
-            if i != target_id and t.observation is not None and i not in swappable
-        }  # fmt: skip
+    @staticmethod
+    def _touching_target(target_id: int, frame: FrameTracks) -> set[int]:
+        """The other tracks whose box overlaps the target's in the image (a person
+        passing in front): the tracker could swap them too."""
+        target_box = frame.boxes.get(target_id)
+        if target_box is None:
+            return set()
+        return {i for i, box in frame.boxes.items()
+                if i != target_id and covered_fraction(target_box, box) > 0.0}  # fmt: skip
 
     def seen_beside_target(self, track_id: int) -> bool:
-        """Whether the track was seen at once with the confirmed target, apart from it."""
+        """Whether the track was seen at once with the confirmed target, apart from it
+        (`reid_excludes_seen_beside`)."""
         return self.config.reid_excludes_seen_beside and track_id in self.seen_apart
-
-    def _identity_at_risk(self, target_id: int, frame: FrameTracks) -> bool:
-        """Whether the tracker could be swapping the target with someone this frame: its
-        track has gone unseen for a while, or another track stands near it on the floor."""
-        target = frame.by_id[target_id]
-        if frame.stamp_s - target.last_seen_s > self.config.identity_risk_unseen_s:
-            return True
-        limit = self.config.identity_risk_distance_m
-        return any(float(np.linalg.norm(t.position_m - target.position_m)) <= limit
-                   for i, t in frame.by_id.items() if i != target_id)  # fmt: skip
 
     def identity_trusted(self, stamp_s: float) -> bool:
         """Whether nobody could have swapped the target's track for `identity_trust_s`."""

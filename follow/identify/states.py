@@ -83,9 +83,9 @@ class InitialTraining(State):
             context.forget()
             return Initial()
         context.look(frame, only=self.target_id)
-        context.note_target(self.target_id, frame)
-        if self.target_id in frame.appearances and context.learn(self.target_id, frame):
-            context.note_others(self.target_id, frame)
+        learnt = self.target_id in frame.appearances and context.learn(self.target_id, frame)
+        context.note_target(self.target_id, frame, confirmed=learnt)
+        if learnt:
             self.frames_learnt += 1
             if self.frames_learnt >= context.config.initial_training_frames:
                 log.info("target track %d learnt: tracking", self.target_id)
@@ -109,14 +109,14 @@ class Tracking(State):
             log.info("target track %d lost: re-identification", self.target_id)
             return Reidentification().update(context, frame)
         context.look(frame, only=self.target_id)
-        context.note_target(self.target_id, frame)
         confidence = frame.confidences.get(self.target_id)
+        threshold = context.config.id_switch_confidence
+        confirmed = confidence is not None and confidence >= threshold
+        context.note_target(self.target_id, frame, confirmed)
         if confidence is None:  # not observed this frame: nothing to judge or learn
             return self
-        threshold = context.config.id_switch_confidence
-        if confidence >= threshold:
+        if confirmed:
             context.learn(self.target_id, frame)
-            context.note_others(self.target_id, frame)
             return self
         if context.identity_trusted(frame.stamp_s):
             log.debug(
@@ -186,8 +186,9 @@ class Reidentification(State):
         evidence); with a re-id cue its similarity to the gallery reaches the required
         one (`reid_accept_similarity` rising to `reid_strict_similarity` at
         `reid_strict_after_s`); it was seen in `min_target_observations` frames and never
-        beside the confirmed target (`reid_excludes_seen_beside`); it stands where the target could have walked (`reid_reach_m` + `reid_reach_speed_mps`);
-        and its neck height agrees with the target's (`reid_height_tolerance_m`)."""
+        beside the confirmed target (`reid_excludes_seen_beside`); it stands where the
+        target could have walked (`reid_reach_m` + `reid_reach_speed_mps`); and its neck
+        height agrees with the target's (`reid_height_tolerance_m`)."""
         confidences = frame.confidences
         confidence = confidences[track_id]
         runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)

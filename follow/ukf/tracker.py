@@ -200,11 +200,7 @@ class PeopleTracker:
                 if e is not None:
                     born.append(InnovationGate(*e))
 
-        outside = {
-            t.track_id for t, e in zip(self._tracks[: len(expected)], expected, strict=True)
-            if t.last_seen_s < stamp_s and e is not None and not self.camera.in_image(e[0][:2])[0]
-        }  # fmt: skip
-        self._retire(stamp_s, robot, outside)
+        self._retire(stamp_s, robot, self._unseen_outside_view(expected, stamp_s))
         project_sigma_points([t.filter for t in self._tracks], model)  # the updated ones
         self._states = [self._state(t, model, associated.get(t.track_id)) for t in self._tracks]
         return self.tracks
@@ -280,6 +276,17 @@ class PeopleTracker:
         track.confirmed = track.updates >= cfg.min_updates_to_confirm
         self._tracks.append(track)
         return track
+
+    def _unseen_outside_view(self, expected, stamp_s: float) -> set[int]:
+        """Ids of the tracks not seen at `stamp_s` whose predicted neck (`expected`, one
+        per track that existed before this frame's births) lies outside the image; none
+        looked for where `max_unseen_outside_view_s` could not shorten a track's life."""
+        if self.config.max_unseen_outside_view_s >= self.config.max_unseen_s:
+            return set()
+        return {
+            t.track_id for t, e in zip(self._tracks[: len(expected)], expected, strict=True)
+            if t.last_seen_s < stamp_s and e is not None and not self.camera.in_image(e[0][:2])[0]
+        }  # fmt: skip
 
     def _retire(self, stamp_s: float, robot: Odometry, outside_view: set[int]) -> None:
         """Delete the tracks unseen for too long (shorter while predicted outside the
