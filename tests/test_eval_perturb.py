@@ -108,6 +108,22 @@ def test_unknown_variants_are_named_in_the_error():
     )
 
 
+def test_evaluations_without_a_sequence_take_only_the_pixel_changes():
+    def pick(variants=None, perturb=False):
+        args = SimpleNamespace(variants=variants, perturb=perturb)
+        return perturb_module.selected_pixel_variants(args, "crops")
+
+    perturb_module = perturb
+    assert pick() is None
+    names = [v.name for v in pick(perturb=True)]
+    assert names[0] == "original" and "blur" in names
+    assert not any(v.first_frame for v in pick(perturb=True))
+    assert len(names) == len(SUITE) - sum(1 for v in SUITE if v.first_frame)
+    assert [v.name for v in pick("noise,dark")] == ["noise", "dark"]
+    with pytest.raises(ValueError, match="offset50 starts later: crops has no sequence"):
+        pick("noise,offset50")
+
+
 def test_mean_and_worst_take_each_metric_in_its_own_direction():
     per_variant = {
         "a": {"ours": {"mota": 0.9, "misses": 10}, "frames": 5},

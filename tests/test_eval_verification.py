@@ -52,3 +52,34 @@ def test_reid_rejects_every_hard_negative_and_accepts_the_target_on_robot_crops(
 def test_missing_data_is_a_clear_error(tmp_path):
     with pytest.raises(ValueError, match="no CUHK03 crops"):
         load_cuhk03(tmp_path)
+
+
+def _args(root, **given) -> argparse.Namespace:
+    options = dict(data_dir=str(root), identifiers="reid", identities=8, config=None,
+                   json=True, perturb=False, variants=None, only_after_learning=False)  # fmt: skip
+    return argparse.Namespace(**{**options, **given})
+
+
+def test_verification_under_perturbation_reports_each_variant_mean_and_worst(
+    data_path, model_path
+):
+    model_path("reid/person-reidentification-retail-0248.onnx")
+    root = data_path("cuhk03_val").parent
+    plain = main(_args(root))["identifiers"]["reid"]
+    suite = main(_args(root, variants="original,dark,blur"))
+    assert list(suite["variants"]) == ["original", "dark", "blur"]
+    original = suite["variants"]["original"]
+    # The original variant is the plain run, figure for figure.
+    assert original["reid cuhk03_test"] == plain["cuhk03_test"]
+    assert original["reid robot_crops"] == plain["robot_crops"]
+    blurred = suite["variants"]["blur"]["reid cuhk03_test"]
+    assert blurred["auc"] != plain["cuhk03_test"]["auc"]  # the crops were changed
+    worst = suite["worst"]["reid cuhk03_test"]
+    lowest = min(r["reid cuhk03_test"]["auc"] for r in suite["variants"].values())
+    assert worst["auc"] == pytest.approx(lowest, abs=1e-4)
+    # Enrolled as they are, then seen blurred: another score than blurred throughout.
+    after = main(_args(root, variants="blur", only_after_learning=True))
+    assert after["only_after_learning"] is True
+    assert after["variants"]["blur"]["reid cuhk03_test"] != blurred
+    with pytest.raises(ValueError, match="offset50 starts later"):
+        main(_args(root, variants="offset50"))

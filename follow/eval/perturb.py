@@ -153,6 +153,27 @@ def selected_variants(args) -> list[Variant] | None:
     return list(SUITE) if getattr(args, "perturb", False) else None
 
 
+def selected_pixel_variants(args, what: str) -> list[Variant] | None:
+    """`selected_variants` for an evaluation without a sequence (`what`: crops, pasted
+    frames, a simulation): `--perturb` keeps the variants that change pixels (and the
+    original); a later start named in `--variants` means nothing there and is refused."""
+    chosen = selected_variants(args)
+    if chosen is None:
+        return None
+    for v in chosen:
+        if v.first_frame and getattr(args, "variants", None) is not None:
+            raise ValueError(f"variant {v.name} starts later: {what} has no sequence")
+    return [v for v in chosen if not v.first_frame]
+
+
+def add_after_learning_argument(p) -> None:
+    """`--only-after-learning`, for evaluations that learn a target first."""
+    p.add_argument("--only-after-learning", action="store_true",
+                   help="show the target as it is while it is learnt and only what comes "
+                        "after through the variant (light, focus or compression that "
+                        "change once the target is known)")  # fmt: skip
+
+
 # A metric's worst value is its lowest when higher is better, else its highest.
 Metrics = dict[str, bool]  # metric -> higher is better
 
@@ -243,11 +264,12 @@ def plot_spread(suite: dict, metrics: list[str], path: str, title: str) -> None:
 def print_suite(suite: dict, metrics: list[str], method_label: str = "method") -> None:
     """A per-variant table of every method's figures, then the mean and the worst."""
     methods = list(suite["mean"])
-    header = f"{'variant':14s} {method_label:12s} " + " ".join(f"{m:>12s}" for m in metrics)
+    width = max(12, len(method_label), *(len(m) for m in methods))
+    header = f"{'variant':14s} {method_label:{width}s} " + " ".join(f"{m:>12s}" for m in metrics)
     print(header)
     rows = [(name, r) for name, r in suite["variants"].items()]
     rows += [("MEAN", suite["mean"]), ("WORST", suite["worst"])]
     for name, r in rows:
         for method in methods:
             cells = " ".join(f"{float(r[method].get(k, float('nan'))):12.3f}" for k in metrics)
-            print(f"{name:14s} {method:12s} {cells}")
+            print(f"{name:14s} {method:{width}s} {cells}")

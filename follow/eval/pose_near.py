@@ -40,18 +40,6 @@ def add_arguments(p) -> None:
                         "the frames (docs/robustness.md; default original)")  # fmt: skip
 
 
-def pixel_variants(args):
-    """The suite's variants `--variants` names; a later start means nothing for one
-    pasted frame per crop, so those are refused."""
-    from follow.eval.perturb import selected_variants
-
-    chosen = selected_variants(args)
-    for v in chosen:
-        if v.first_frame:
-            raise ValueError(f"variant {v.name} starts later: pose-near has no sequence")
-    return chosen
-
-
 def crop_files(given: str | None) -> list[Path]:
     """Every .jpg crop in the folder (`follow eval crops`'s folder by default)."""
     from follow.eval.crops import default_crops_dir
@@ -106,11 +94,12 @@ def detection_rates(detector, frames) -> tuple[float, float, float]:
 
 def main(args) -> dict:
     from follow.config import Config
+    from follow.eval.perturb import selected_pixel_variants
     from follow.pose.detector import PoseDetector
 
     config = Config.load(args.config) if args.config else Config()
     crop_paths = crop_files(args.crops_dir)
-    variants = pixel_variants(args)
+    variants = selected_pixel_variants(args, "pose-near")
     rows = []
     for person_px in args.person_heights:
         pasted = frames_with_people(crop_paths, person_px)

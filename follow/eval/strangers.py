@@ -13,6 +13,11 @@ the controller. The truth is exact, so the evaluation reports:
   the named one;
 - re-acquisition: seconds from the target's first detection on its return until it is
   the named target again (goal: within 3 s).
+
+With `--perturb` (or `--variants`) the rendered images are seen through each pixel
+change of the perturbation suite (docs/robustness.md); with `--only-after-learning` only
+from the moment the target starts to leave, as when the light changes after the target
+was learnt. The skeletons are the simulation's, so what is tested is the identifier.
 """
 
 from __future__ import annotations
@@ -22,6 +27,14 @@ import logging
 import numpy as np
 
 from follow.config import Config
+from follow.eval.perturb import (
+    Variant,
+    add_after_learning_argument,
+    add_perturb_arguments,
+    print_suite,
+    run_suite,
+    selected_pixel_variants,
+)
 from follow.sim.appearance import Appearance, render_scene
 from follow.sim.demo import DEMO_CAMERA, LOOKALIKE, TARGET_LOOK, horizon_row, person_views
 from follow.sim.people import Walker
@@ -38,6 +51,9 @@ STAND_S = 4.0
 WALK_MPS = 1.2
 # The target's shirt and trousers on a stranger: only the face and hair differ.
 TWIN = Appearance(TARGET_LOOK.shirt_bgr, TARGET_LOOK.trousers_bgr, (60, 90, 140), (20, 20, 20))
+# Figures summarised over the perturbation suite: metric -> higher is better.
+SUITE_METRICS = {"wrong_person_s": False, "driving_toward_stranger_s": False,
+                 "reacquired_after_s": False, "never_reacquired": False}  # fmt: skip
 
 
 def add_arguments(p) -> None:
@@ -46,6 +62,8 @@ def add_arguments(p) -> None:
     p.add_argument("--strangers", type=int, default=5, help="people who walk in (default 5)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--config", help="TOML configuration over the defaults")
+    add_perturb_arguments(p)
+    add_after_learning_argument(p)
 
 
 def scenario(strangers: int, rng: np.random.Generator):
@@ -74,8 +92,10 @@ def scenario(strangers: int, rng: np.random.Generator):
     return walkers, looks, back_s, end_s
 
 
-def run_scenario(config: Config, strangers: int = 5, seed: int = 0) -> dict:
-    """Run it for the identifier in `config`; the figures of the module docstring."""
+def run_scenario(config: Config, strangers: int = 5, seed: int = 0, variant: Variant | None = None,
+                 perturb_from_s: float = 0.0) -> dict:  # fmt: skip
+    """Run it for the identifier in `config`; the figures of the module docstring. With a
+    `variant`, every image from `perturb_from_s` on is seen through it."""
     from follow.control.controller import FollowingController
     from follow.identify.factory import build_identifier
     from follow.pipeline import Perception, target_motion
@@ -109,6 +129,8 @@ def run_scenario(config: Config, strangers: int = 5, seed: int = 0) -> dict:
         current["detections"] = detections
         image = render_scene(camera.image_size, horizon,
                              person_views(wf, robot, camera, looks), seed=seed)  # fmt: skip
+        if variant is not None and wf.stamp_s >= perturb_from_s:
+            image = variant.apply(image, k)
         result = perception.process(Frame(image, wf.stamp_s), Odometry(0, 0, 0, wf.stamp_s), k)
         command = controller.update(target_motion(result, robot), wf.stamp_s)
         named = _person_of(result, wf)
@@ -148,11 +170,14 @@ def main(args) -> dict:
     base = Config.load(args.config) if args.config else Config()
     if args.strangers < 1:
         raise ValueError(f"--strangers must be >= 1, got {args.strangers}")
+    variants = selected_pixel_variants(args, "identification-sim")
     names = [s.strip() for s in args.identifiers.split(",") if s.strip()]
+    configs = {n: base.replace("identify", identifier=n, seed=args.seed) for n in names}
+    if variants is not None:
+        return _main_perturbed(args, configs, variants)
     out = {}
     for name in tqdm(names, desc="identifiers", unit="id", leave=False):
-        config = base.replace("identify", identifier=name, seed=args.seed)
-        out[name] = run_scenario(config, args.strangers, args.seed)
+        out[name] = run_scenario(configs[name], args.strangers, args.seed)
     if not args.json:
         print(
             f"{'identifier':<12} {'wrong s':>8} {'driving s':>10} {'re-acquired s':>14}  strangers named"
@@ -162,3 +187,25 @@ def main(args) -> dict:
             print(f"{name:<12} {r['wrong_person_s']:8.2f} {r['driving_toward_stranger_s']:10.2f} "
                   f"{back:>14}  {r['strangers_named'] or '-'}")  # fmt: skip
     return out
+
+
+def _main_perturbed(args, configs: dict[str, Config], variants: list[Variant]) -> dict:
+    from_s = LEARN_S if args.only_after_learning else 0.0
+
+    def one(variant: Variant) -> dict:
+        out = {}
+        for name, config in configs.items():
+            r = run_scenario(config, args.strangers, args.seed, variant, from_s)
+            # A target never re-acquired has no time to average: it is counted apart.
+            r["never_reacquired"] = int(r["reacquired_after_s"] is None)
+            out[name] = {k: v for k, v in r.items() if v is not None}
+        return out
+
+    suite = run_suite(variants, one, SUITE_METRICS)
+    suite["only_after_learning"] = args.only_after_learning
+    if not args.json:
+        print(f"stranger scenario under {len(variants)} pixel changes"
+              f"{' after learning' if args.only_after_learning else ''}, "
+              f"{args.strangers} strangers")  # fmt: skip
+        print_suite(suite, list(SUITE_METRICS), "identifier")
+    return suite

@@ -14,6 +14,12 @@ that 1 % and 0.1 % of other people's crops reach, `reid_accept_similarity` and
 (`ccf_crops`: p01-p05 enrol the target, p06-p14 are probes, the two hard negatives
 n*.jpg are the others) are scored too.
 
+With `--perturb` (or `--variants`) the same is done over the pixel changes of the
+perturbation suite (re-encoding, light, noise, blur: docs/robustness.md), every crop seen
+through each in turn; with `--only-after-learning` the target is enrolled from its crops
+as they are and only the crops scored after it are changed, as when the light or the
+focus changes once the robot knows its target.
+
 The score of an identifier is its re-identification decision moved to 0: the lowest of
 the fused confidence over `reid_confidence`, with two cues the boosted classifier's own
 confidence over the same bar, and, with re-id, the gallery similarity over its bar; so
@@ -23,6 +29,7 @@ confidence over the same bar, and, with re-id, the gallery similarity over its b
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import os
 from pathlib import Path
@@ -32,12 +39,24 @@ import numpy as np
 
 from follow.config import Config, IdentifyConfig
 from follow.eval.crops import roc_auc
+from follow.eval.perturb import (
+    Variant,
+    add_after_learning_argument,
+    add_perturb_arguments,
+    print_suite,
+    run_suite,
+    selected_pixel_variants,
+)
 
 log = logging.getLogger(__name__)
 
 IDENTIFIERS = ("ccf10", "reid", "ccf10+reid")
 FARS = (0.01, 0.001)
 ENROL_CCF_CROPS = 5
+SETS = ("cuhk03_test", "robot_crops")
+# Figures summarised over the perturbation suite: metric -> higher is better.
+SUITE_METRICS = {"auc": True, "tar_at_far_0.01": True, "shipped_tar": True,
+                 "shipped_far": False}  # fmt: skip
 
 
 def add_arguments(p) -> None:
@@ -48,6 +67,8 @@ def add_arguments(p) -> None:
     p.add_argument("--identities", type=int,
                    help="use only the first N CUHK03 identities (a quick run)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration ([identify] section used)")
+    add_perturb_arguments(p)
+    add_after_learning_argument(p)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,6 +98,16 @@ def load_cuhk03(folder: Path, limit: int | None = None) -> list[Person]:
         people.setdefault(int(identity), ([], []))[int(view) >= 5].append(_read(path))
     out = [Person(i, v) for i, v in sorted(people.items()) if v[0] and v[1]]
     return out[:limit] if limit else out
+
+
+def perturbed_people(people: list[Person], variant: Variant) -> list[Person]:
+    """The same people with every crop seen through `variant` (the k-th crop of the list
+    seeds its noise, so a run is repeatable)."""
+    index = itertools.count()
+    return [
+        Person(p.identity, tuple([variant.apply(c, next(index)) for c in view] for view in p.views))
+        for p in people
+    ]
 
 
 def decision_scores(model, enrol: list, probes: list, config: IdentifyConfig) -> np.ndarray:
@@ -113,11 +144,17 @@ def operating_figures(pos: np.ndarray, neg: np.ndarray) -> dict:
     return out
 
 
-def verify_cuhk03(model, people: list[Person], config: IdentifyConfig) -> tuple[dict, dict]:
-    """(figures, raw scores) over enrolments of every identity in `people`, both ways."""
+def verify_cuhk03(model, people: list[Person], config: IdentifyConfig,
+                  seen: list[Person] | None = None) -> tuple[dict, dict]:  # fmt: skip
+    """(figures, raw scores) over enrolments of every identity in `people`, both ways;
+    the crops scored after each enrolment are those of `seen` (the same people, e.g. seen
+    through a perturbation; default `people`)."""
     from tqdm import tqdm
 
     described = {p.identity: [model.describe_crops(v) for v in p.views] for p in people}
+    scored = described if seen is None or seen is people else {
+        p.identity: [model.describe_crops(v) for v in p.views] for p in seen
+    }  # fmt: skip
     crops = {p.identity: p.views for p in people}
     pos, neg = [], []
     for person in tqdm(people, desc=f"enrolments ({model.name})", unit="id", leave=False):
@@ -129,9 +166,9 @@ def verify_cuhk03(model, people: list[Person], config: IdentifyConfig) -> tuple[
                     described[person.identity][cam], crops[person.identity][cam], strict=True
                 )  # fmt: skip
             ]
-            probes = list(described[person.identity][1 - cam])
+            probes = list(scored[person.identity][1 - cam])
             others = [a for p in people if p.identity != person.identity
-                      for view in described[p.identity] for a in view]  # fmt: skip
+                      for view in scored[p.identity] for a in view]  # fmt: skip
             scores = decision_scores(model, enrol, probes + others, config)
             pos.append(scores[: len(probes)])
             neg.append(scores[len(probes) :])
@@ -162,14 +199,21 @@ def calibrate_similarity(model, people: list[Person], config: IdentifyConfig) ->
     return {f"similarity_at_far_{far:g}": float(np.quantile(negatives, 1 - far)) for far in FARS}
 
 
-def verify_robot_crops(model, folder: Path, config: IdentifyConfig) -> dict:
-    """Enrol p01-p05 of the robot-camera crops; p06-p14 must pass, n*.jpg must not."""
+def verify_robot_crops(model, folder: Path, config: IdentifyConfig, variant: Variant | None = None,
+                       only_after_learning: bool = False) -> dict:  # fmt: skip
+    """Enrol p01-p05 of the robot-camera crops; p06-p14 must pass, n*.jpg must not. With
+    a `variant` every crop is seen through it (only those after enrolment with
+    `only_after_learning`)."""
     targets = [_read(folder / f"p{i:02d}.jpg") for i in range(1, 15)]
     others = [_read(p) for p in sorted(folder.glob("n*.jpg"))]
     if not others:
         raise ValueError(f"no hard negatives n*.jpg in {folder}")
     size = (config.crop_width_px, config.crop_height_px)
     enrol_crops = targets[:ENROL_CCF_CROPS]
+    if variant is not None:
+        seen = [variant.apply(c, k) for k, c in enumerate(targets + others)]
+        targets, others = seen[: len(targets)], seen[len(targets) :]
+        enrol_crops = enrol_crops if only_after_learning else targets[:ENROL_CCF_CROPS]
     enrol = list(zip(model.describe_crops(enrol_crops),
                      [cv2.resize(c, size, interpolation=cv2.INTER_AREA) for c in enrol_crops],
                      strict=True))  # fmt: skip
@@ -185,23 +229,52 @@ def main(args) -> dict:
     root = Path(args.data_dir or os.environ.get("FOLLOW_DATA_DIR") or "")
     if not str(root) or not root.is_dir():
         raise ValueError("no --data-dir given and $FOLLOW_DATA_DIR is not set to a folder")
+    variants = selected_pixel_variants(args, "verification")
     people = load_cuhk03(root / "cuhk03_val", args.identities)
     calibration = [p for p in people if p.identity % 2 == 0]
     test = [p for p in people if p.identity % 2 == 1]
     if len(calibration) < 2 or len(test) < 2:
         raise ValueError("need at least 2 even and 2 odd identities")
     identifiers = [s.strip() for s in args.identifiers.split(",") if s.strip()]
-    results: dict = {"calibration": None, "identifiers": {}}
+    models = {}
     for name in identifiers:
         parse_identifier(name)
-        model = build_appearance_model(dataclasses.replace(config, identifier=name))
-        if model.reid is not None and results["calibration"] is None:
-            results["calibration"] = calibrate_similarity(model, calibration, config)
-        cuhk, _ = verify_cuhk03(model, test, config)
-        robot = verify_robot_crops(model, root / "ccf_crops", config)
-        results["identifiers"][name] = {"cuhk03_test": cuhk, "robot_crops": robot}
+        models[name] = build_appearance_model(dataclasses.replace(config, identifier=name))
+    reid = next((m for m in models.values() if m.reid is not None), None)
+    results: dict = {
+        "calibration": None if reid is None else calibrate_similarity(reid, calibration, config)
+    }
+    after = getattr(args, "only_after_learning", False)
+
+    def verify(variant: Variant | None) -> dict:
+        seen = test if variant is None else perturbed_people(test, variant)
+        enrolled = test if after else seen
+        return {
+            name: {
+                "cuhk03_test": verify_cuhk03(model, enrolled, config, seen)[0],
+                "robot_crops": verify_robot_crops(
+                    model, root / "ccf_crops", config, variant, after
+                ),
+            }
+            for name, model in models.items()
+        }
+
+    if variants is None:
+        results["identifiers"] = verify(None)
+        if not args.json:
+            _print(results, len(calibration), len(test))
+        return results
+
+    def one(variant: Variant) -> dict:  # {"<identifier> <set>": figures}
+        return {f"{name} {key}": figures for name, sets in verify(variant).items()
+                for key, figures in sets.items()}  # fmt: skip
+
+    results.update(run_suite(variants, one, SUITE_METRICS))
+    results["only_after_learning"] = after
     if not args.json:
-        _print(results, len(calibration), len(test))
+        print(f"open-set verification under {len(variants)} pixel changes"
+              f"{' after learning' if after else ''}, {len(test)} CUHK03 test identities")  # fmt: skip
+        print_suite(results, list(SUITE_METRICS), "identifier set")
     return results
 
 
