@@ -192,6 +192,10 @@ class IdentifyConfig:
     # differs from the target's last estimate by more than this (plus twice the two
     # estimates' combined std) is not the target.
     reid_height_tolerance_m: float = 0.05
+    # A re-identified target is on probation this long: the stature test runs again every
+    # frame on its settling estimate (a new track's starts wide), a failure sends it back
+    # to re-identification for good, and nothing is learnt meanwhile.
+    reid_probation_s: float = 2.0
     # Two people seen at once are two people: a track seen beside the target while its
     # identity was confirmed (apart from it: farther than identity_risk_distance_m, the
     # boxes not touching, ever since) is never taken for the target come back.

@@ -148,6 +148,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "crop_height_px": closed(16, 1024),
         "crop_width_px": closed(8, 1024),
         "feature_threads": THREADS,
+        "reid_probation_s": closed(0.0, 60.0),
         "roi_height_per_neck_ankle": positive(10.0),
         "roi_width_per_neck_ankle": positive(10.0),
         "roi_center_offset_per_neck_ankle": closed(-1.0, 1.0),

@@ -15,7 +15,13 @@ import pytest
 from follow.config import IdentifyConfig
 from follow.identify.appearance import Appearance
 from follow.identify.context import FrameTracks, IdentityContext
-from follow.identify.states import Initial, InitialTraining, Reidentification, Tracking
+from follow.identify.states import (
+    Initial,
+    InitialTraining,
+    Probation,
+    Reidentification,
+    Tracking,
+)
 from follow.types import Observation, Odometry, TargetStatus, TrackState
 
 CFG = IdentifyConfig(
@@ -219,7 +225,7 @@ def test_reidentification_takes_a_candidate_with_absolute_evidence_in_enough_fra
     ok = CFG.reid_accept_similarity + 0.05
     states = reid_frames(state, ctx, back, 10.1, {7: CFG.reid_confidence + 0.1}, {7: ok})
     assert states[:-1] == [state] * (CFG.reid_frames - 1)
-    assert isinstance(states[-1], Tracking) and states[-1].target_id == 7
+    assert isinstance(states[-1], Probation) and states[-1].target_id == 7
 
 
 def test_reidentification_stays_for_a_stranger_who_fails_the_absolute_evidence():
@@ -233,7 +239,7 @@ def test_reidentification_stays_for_a_stranger_who_fails_the_absolute_evidence()
     # Without a re-id cue the same confidence is evidence enough: the rule that held it.
     plain = tracked_context(stamp_s=10.0, observed={8: 5}, reid=False)
     assert isinstance(
-        reid_frames(Reidentification(), plain, stranger, 10.1, confident)[-1], Tracking
+        reid_frames(Reidentification(), plain, stranger, 10.1, confident)[-1], Probation
     )
 
 
@@ -254,9 +260,9 @@ def test_with_two_cues_each_must_agree_not_only_their_mean():
         ]
 
     assert all(isinstance(s, Reidentification) for s in run(CFG.reid_confidence - 0.05))
-    assert isinstance(run(CFG.reid_confidence + 0.05)[-1], Tracking)
+    assert isinstance(run(CFG.reid_confidence + 0.05)[-1], Probation)
     ctx.model.config = dataclasses.replace(CFG, reid_cues_must_agree=False)  # the mean alone
-    assert isinstance(run(CFG.reid_confidence - 0.05)[-1], Tracking)
+    assert isinstance(run(CFG.reid_confidence - 0.05)[-1], Probation)
 
 
 def test_the_evidence_needed_rises_the_longer_the_target_is_gone():
@@ -264,7 +270,7 @@ def test_the_evidence_needed_rises_the_longer_the_target_is_gone():
     between = 0.5 * (CFG.reid_accept_similarity + CFG.reid_strict_similarity)
     confident = {7: CFG.reid_strict_confidence + 0.1}
     soon = reid_frames(Reidentification(), ctx, [person(7, 2.5)], 10.1, confident, {7: between})
-    assert isinstance(soon[-1], Tracking)
+    assert isinstance(soon[-1], Probation)
     late_s = 10.0 + CFG.reid_strict_after_s + 1.0  # close by, but long gone
     ctx.last_target_s = late_s
     late = reid_frames(Reidentification(), ctx, [person(7, 2.5)], late_s, confident, {7: between})
@@ -293,7 +299,7 @@ def test_reidentification_rejects_a_look_alike_too_far_too_new_or_of_another_hei
         for s in reid_frames(Reidentification(), ctx, new, 10.1, *good_new)
     )
     same = [person(5, 2.5, neck_height_m=1.45 + 0.5 * CFG.reid_height_tolerance_m)]
-    assert isinstance(reid_frames(Reidentification(), ctx, same, 10.1, *good)[-1], Tracking)
+    assert isinstance(reid_frames(Reidentification(), ctx, same, 10.1, *good)[-1], Probation)
 
 
 def test_reidentification_needs_a_lead_and_an_unbroken_streak():
@@ -308,7 +314,7 @@ def test_reidentification_needs_a_lead_and_an_unbroken_streak():
     assert state.update(ctx, frame(twins, 10.6, {5: 0.8, 6: 0.7}, sims)) is state  # broken
     assert state.streaks == {5: 0, 6: 0}
     nxt = reid_frames(state, ctx, twins, 10.7, {5: 0.8, 6: 0.5}, sims)[-1]
-    assert isinstance(nxt, Tracking) and nxt.target_id == 5
+    assert isinstance(nxt, Probation) and nxt.target_id == 5
 
 
 @pytest.mark.parametrize("state", [Initial(), InitialTraining(3), Tracking(3), Reidentification()])
@@ -339,7 +345,7 @@ def test_a_person_seen_beside_the_confirmed_target_is_never_taken_for_it():
 
     assert isinstance(run(CFG), Reidentification)
     off = dataclasses.replace(CFG, reid_excludes_seen_beside=False)
-    assert isinstance(run(off), Tracking)  # the evidence alone would have named it
+    assert isinstance(run(off), Probation)  # the evidence alone would have named it
 
 
 def test_a_person_who_came_near_the_target_may_still_be_it():
@@ -358,3 +364,37 @@ def test_a_person_who_came_near_the_target_may_still_be_it():
     ctx.seen_apart.add(2)
     tracking.update(ctx, frame(apart, 10.3, {1: 0.9, 2: -0.5}, boxes=touching))
     assert not ctx.seen_beside_target(2)
+
+
+# ----------------------------------------------------------------------------- probation
+def test_probation_sends_back_a_candidate_whose_settling_stature_is_not_the_targets():
+    ctx = tracked_context(stamp_s=10.0, observed={7: 20})
+    target_height = ctx.target_height
+    state = Probation(7, since_s=10.5)
+    assert state.status == TargetStatus.TRACKING  # named and followed meanwhile
+    same = [person(7, 2.5)]
+    assert state.update(ctx, frame(same, 10.6, {7: 0.9}, {7: 0.9})) is state
+    assert ctx.target_height == target_height  # compared with the target, not itself
+    assert ctx.model.learnt == []  # nothing learnt from an unproven identity
+    taller = [person(7, 2.5, neck_height_m=1.45 + 0.2)]
+    nxt = state.update(ctx, frame(taller, 10.7, {7: 0.9}, {7: 0.9}))
+    assert isinstance(nxt, Reidentification) and 7 in ctx.rejected
+    # The same track is never named again, however good its evidence.
+    strong = reid_frames(nxt, ctx, [person(7, 2.5)], 10.8, {7: 0.95}, {7: 0.95}, n=20)
+    assert all(isinstance(s, Reidentification) for s in strong)
+    # Losing the track on probation is re-identification too.
+    assert isinstance(Probation(8, 10.5).update(ctx, frame(same, 10.9, {7: 0.9})),
+                      Reidentification)  # fmt: skip
+
+
+def test_probation_ends_in_tracking_once_the_stature_held_for_its_time():
+    ctx = tracked_context(stamp_s=10.0, observed={7: 20})
+    state = Probation(7, since_s=10.5)
+    t, states = 10.5, []
+    while t < 10.5 + CFG.reid_probation_s + 0.25:
+        t += 0.1
+        states.append(state.update(ctx, frame([person(7, 2.5)], t, {7: 0.9}, {7: 0.9})))
+    waiting = [s for s in states if s is state]
+    assert len(waiting) >= int(CFG.reid_probation_s / 0.1) - 1
+    assert isinstance(states[-1], Tracking) and states[-1].target_id == 7
+    assert ctx.model.learnt  # learning starts with tracking

@@ -55,6 +55,7 @@ class IdentityContext:
         self.last_target_seen_s = -math.inf  # when the target was last observed
         self.target_height: tuple[float, float] | None = None  # neck height mean, var
         self.seen_apart: set[int] = set()  # tracks seen beside the target: other people
+        self.rejected: set[int] = set()  # tracks whose stature failed probation
 
     def count_observations(self, by_id: dict[int, TrackState]) -> None:
         """One more frame for each track observed in it; tracks gone are dropped."""

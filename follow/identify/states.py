@@ -1,6 +1,7 @@
 """The target state machine, one small class per state.
 
-initial -> initial training -> tracking <-> re-identification
+initial -> initial training -> tracking -> re-identification -> probation -> tracking
+                                                      ^-- stature disagrees --'
 
 Each state's `update(context, frame)` returns the state for the next frame: itself, or
 its successor. A state that hands over within a frame (a target chosen, a target lost)
@@ -169,8 +170,8 @@ class Reidentification(State):
         if not ready:
             return self
         target_id = max(ready, key=lambda i: confidences[i])
-        log.info("target re-identified as track %d", target_id)
-        return Tracking(target_id)
+        log.info("target re-identified as track %d: on probation", target_id)
+        return Probation(target_id, frame.stamp_s)
 
     @staticmethod
     def _passes(
@@ -204,7 +205,42 @@ class Reidentification(State):
                 or similarities[track_id] >= context.required_similarity(frame.stamp_s)
             )
             and context.established(track)
+            and track_id not in context.rejected
             and not context.seen_beside_target(track_id)
             and context.reachable(track, frame.stamp_s)
             and context.same_height(track)
         )
+
+
+class Probation(State):
+    """A re-identified target, named and followed, but not yet trusted: a new track's
+    stature estimate starts wide and settles over its first second, so a stranger in the
+    target's clothes can pass the stature test for the few frames re-identification
+    needs. For `reid_probation_s` the stature test is run again every frame on the
+    settling estimate, and one that fails sends the track back to re-identification,
+    never to be named again; nothing is learnt meanwhile, so a wrong pick does not teach
+    the model the stranger. Then it is the target: tracking."""
+
+    status = TargetStatus.TRACKING
+
+    def __init__(self, target_id: int, since_s: float):
+        self.target_id = target_id
+        self.since_s = since_s
+
+    def update(self, context: IdentityContext, frame: FrameTracks) -> State:
+        track = frame.by_id.get(self.target_id)
+        if track is None:
+            log.info("target track %d lost on probation: re-identification", self.target_id)
+            return Reidentification().update(context, frame)
+        if not context.same_height(track):
+            log.info("re-identified track %d is not the target's stature: re-identification",
+                     self.target_id)  # fmt: skip
+            context.rejected.add(self.target_id)
+            return Reidentification().update(context, frame)
+        if frame.stamp_s - self.since_s >= context.config.reid_probation_s:
+            log.info("re-identified track %d kept its stature: tracking", self.target_id)
+            return Tracking(self.target_id).update(context, frame)
+        # Where and how tall the target was stays as it was before this track was named:
+        # the stature test compares with the target's, never with the candidate's own.
+        context.look(frame, only=self.target_id)
+        return self
