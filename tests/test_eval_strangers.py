@@ -35,3 +35,23 @@ def test_the_default_identifier_does_not_take_the_stranger_in_the_targets_clothe
     out = run_scenario(config, strangers=4, seed=0)
     assert out["wrong_person_s"] == 0.0 and out["driving_toward_stranger_s"] == 0.0
     assert out["reacquired_after_s"] is not None and out["reacquired_after_s"] <= 3.0
+
+
+def test_under_a_pixel_change_after_learning_no_stranger_is_followed(model_path):
+    """The suite's sensor noise, from the moment the target starts to leave: the default
+    identifier still names nobody else and still finds the target again."""
+    import argparse
+
+    from follow.eval.strangers import main
+
+    model_path("ccf/ccf10")
+    model_path("reid/person-reidentification-retail-0248.onnx")
+    args = argparse.Namespace(identifiers="ccf10+reid", strangers=2, seed=0, config=None,
+                              json=True, perturb=False, variants="noise",
+                              only_after_learning=True)  # fmt: skip
+    out = main(args)
+    assert out["only_after_learning"] is True and list(out["variants"]) == ["noise"]
+    noisy = out["variants"]["noise"]["ccf10+reid"]
+    assert noisy["wrong_person_s"] == 0.0 and noisy["driving_toward_stranger_s"] == 0.0
+    assert noisy["never_reacquired"] == 0 and noisy["reacquired_after_s"] <= 3.0
+    assert out["worst"]["ccf10+reid"]["wrong_person_s"] == 0.0
