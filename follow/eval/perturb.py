@@ -166,8 +166,10 @@ def selected_pixel_variants(args, what: str) -> list[Variant] | None:
     return [v for v in chosen if not v.first_frame]
 
 
-def add_after_learning_argument(p) -> None:
-    """`--only-after-learning`, for evaluations that learn a target first."""
+def add_learnt_target_perturb_arguments(p) -> None:
+    """`--perturb` / `--variants`, and `--only-after-learning`, for evaluations without a
+    sequence that learn a target first."""
+    add_perturb_arguments(p)
     p.add_argument("--only-after-learning", action="store_true",
                    help="show the target as it is while it is learnt and only what comes "
                         "after through the variant (light, focus or compression that "

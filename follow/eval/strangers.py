@@ -29,8 +29,7 @@ import numpy as np
 from follow.config import Config
 from follow.eval.perturb import (
     Variant,
-    add_after_learning_argument,
-    add_perturb_arguments,
+    add_learnt_target_perturb_arguments,
     print_suite,
     run_suite,
     selected_pixel_variants,
@@ -62,8 +61,7 @@ def add_arguments(p) -> None:
     p.add_argument("--strangers", type=int, default=5, help="people who walk in (default 5)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--config", help="TOML configuration over the defaults")
-    add_perturb_arguments(p)
-    add_after_learning_argument(p)
+    add_learnt_target_perturb_arguments(p)
 
 
 def scenario(strangers: int, rng: np.random.Generator):

@@ -41,8 +41,7 @@ from follow.config import Config, IdentifyConfig
 from follow.eval.crops import roc_auc
 from follow.eval.perturb import (
     Variant,
-    add_after_learning_argument,
-    add_perturb_arguments,
+    add_learnt_target_perturb_arguments,
     print_suite,
     run_suite,
     selected_pixel_variants,
@@ -67,8 +66,7 @@ def add_arguments(p) -> None:
     p.add_argument("--identities", type=int,
                    help="use only the first N CUHK03 identities (a quick run)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration ([identify] section used)")
-    add_perturb_arguments(p)
-    add_after_learning_argument(p)
+    add_learnt_target_perturb_arguments(p)
 
 
 @dataclasses.dataclass(frozen=True)
