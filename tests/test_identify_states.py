@@ -60,6 +60,12 @@ class RecordingModel:
     def learn(self, positives, negatives, synthetic=()) -> None:
         self.learnt.append((len(positives), len(negatives)))
 
+    def snapshot(self):
+        return list(self.learnt)
+
+    def restore(self, snapshot) -> None:
+        self.learnt = list(snapshot)
+
     def lacks_embedding(self, appearance) -> bool:
         return self.reid and appearance.embedding is None
 
@@ -375,10 +381,12 @@ def test_probation_sends_back_a_candidate_whose_settling_stature_is_not_the_targ
     same = [person(7, 2.5)]
     assert state.update(ctx, frame(same, 10.6, {7: 0.9}, {7: 0.9})) is state
     assert ctx.target_height == target_height  # compared with the target, not itself
-    assert ctx.model.learnt == []  # nothing learnt from an unproven identity
+    assert len(ctx.model.learnt) == 1 and ctx.last_target_s == 10.6  # tracked meanwhile
     taller = [person(7, 2.5, neck_height_m=1.45 + 0.2)]
     nxt = state.update(ctx, frame(taller, 10.7, {7: 0.9}, {7: 0.9}))
     assert isinstance(nxt, Reidentification) and 7 in ctx.rejected
+    # What it taught and where it walked are undone: it was never the target.
+    assert ctx.model.learnt == [] and ctx.last_target_s == 10.0
     # The same track is never named again, however good its evidence.
     strong = reid_frames(nxt, ctx, [person(7, 2.5)], 10.8, {7: 0.95}, {7: 0.95}, n=20)
     assert all(isinstance(s, Reidentification) for s in strong)
@@ -397,4 +405,4 @@ def test_probation_ends_in_tracking_once_the_stature_held_for_its_time():
     waiting = [s for s in states if s is state]
     assert len(waiting) >= int(CFG.reid_probation_s / 0.1) - 1
     assert isinstance(states[-1], Tracking) and states[-1].target_id == 7
-    assert ctx.model.learnt  # learning starts with tracking
+    assert len(ctx.model.learnt) == len(states)  # learnt on probation as when tracking

@@ -8,6 +8,7 @@ confidence in [-1, 1]; with both cues the confidences are fused as a weighted me
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -56,6 +57,14 @@ class AppearanceModel:
             else None
         )
         self.gallery = ReidGallery(self.config) if self.reid is not None else None
+
+    def snapshot(self) -> tuple:
+        """A copy of what has been learnt, to be put back with `restore` (the networks
+        are not copied)."""
+        return copy.deepcopy((self.classifier, self.gallery))
+
+    def restore(self, snapshot: tuple) -> None:
+        self.classifier, self.gallery = copy.deepcopy(snapshot)
 
     @property
     def name(self) -> str:

@@ -119,16 +119,19 @@ class IdentityContext:
         return self._by_track(frame, self.model.similarity)
 
     # ------------------------------------------------------------------ the target
-    def note_target(self, target_id: int, frame: FrameTracks, confirmed: bool = False) -> None:
-        """Remember where the target is, when it was seen, its height, whether the
-        tracker could be swapping it with someone this frame, and, on a frame that
-        `confirmed` its identity, who was seen beside it (`seen_apart`)."""
+    def note_target(self, target_id: int, frame: FrameTracks, confirmed: bool = False,
+                    stature: bool = True) -> None:  # fmt: skip
+        """Remember where the target is, when it was seen, its height (unless not
+        `stature`), whether the tracker could be swapping it with someone this frame,
+        and, on a frame that `confirmed` its identity, who was seen beside it
+        (`seen_apart`)."""
         track = frame.by_id[target_id]
         self.last_target_position_m = track.position_m.copy()
         self.last_target_s = frame.stamp_s
         if track.observation is not None:
             self.last_target_seen_s = frame.stamp_s
-            self.target_height = (track.neck_height_m, float(track.cov[4, 4]))
+            if stature:
+                self.target_height = (track.neck_height_m, float(track.cov[4, 4]))
         near = self._near_target(target_id, frame)
         unseen_s = frame.stamp_s - track.last_seen_s
         if near or unseen_s > self.config.identity_risk_unseen_s:
@@ -142,6 +145,16 @@ class IdentityContext:
                 i for i, t in frame.by_id.items()
                 if i != target_id and t.observation is not None and i not in swappable
             }  # fmt: skip
+
+    def whereabouts(self) -> tuple:
+        """Where and when the target was last named and seen, and when its identity was
+        last at risk: what `note_target` moves, to be put back with `restore`."""
+        return (self.last_target_position_m, self.last_target_s, self.last_target_seen_s,
+                self.identity_risk_s)  # fmt: skip
+
+    def restore(self, whereabouts: tuple) -> None:
+        (self.last_target_position_m, self.last_target_s, self.last_target_seen_s,
+         self.identity_risk_s) = whereabouts  # fmt: skip
 
     def _near_target(self, target_id: int, frame: FrameTracks) -> set[int]:
         """The other tracks within `identity_risk_distance_m` of the target on the floor."""

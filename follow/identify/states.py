@@ -101,41 +101,48 @@ class Tracking(State):
     covers its crop (judged once the crop is clear); losing the track also ends it."""
 
     status = TargetStatus.TRACKING
+    notes_stature = True  # the track's height is the target's
 
     def __init__(self, target_id: int):
         self.target_id = target_id
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
+        if self._keeps(context, frame):
+            return self
+        return Reidentification().update(context, frame)
+
+    def _keeps(self, context: IdentityContext, frame: FrameTracks) -> bool:
+        """Whether the track stays the target after this frame (learnt where confirmed)."""
         if self.target_id not in frame.by_id:
             log.info("target track %d lost: re-identification", self.target_id)
-            return Reidentification().update(context, frame)
+            return False
         context.look(frame, only=self.target_id)
         confidence = frame.confidences.get(self.target_id)
         threshold = context.config.id_switch_confidence
         confirmed = confidence is not None and confidence >= threshold
-        context.note_target(self.target_id, frame, confirmed)
+        context.note_target(self.target_id, frame, confirmed, stature=self.notes_stature)
         if confidence is None:  # not observed this frame: nothing to judge or learn
-            return self
+            return True
         if confirmed:
             context.learn(self.target_id, frame)
-            return self
+            return True
         if context.identity_trusted(frame.stamp_s):
             log.debug(
                 "target track %d confidence %.2f is low, but nobody came near it: not learnt",
                 self.target_id, confidence,
             )  # fmt: skip
-            return self
+            return True
         if context.crop_shows_another(self.target_id, frame):
             log.debug(
                 "target track %d confidence %.2f is low while another person covers it: "
                 "judged once it is clear", self.target_id, confidence,
             )  # fmt: skip
-            return self
+            return True
         log.info(
             "target track %d confidence %.2f below %.2f: re-identification",
             self.target_id, confidence, threshold,
         )  # fmt: skip
-        return Reidentification().update(context, frame)
+        return False
 
 
 class Evidence(NamedTuple):
@@ -212,35 +219,42 @@ class Reidentification(State):
         )
 
 
-class Probation(State):
-    """A re-identified target, named and followed, but not yet trusted: a new track's
+class Probation(Tracking):
+    """A re-identified target, tracked as any target but not yet trusted: a new track's
     stature estimate starts wide and settles over its first second, so a stranger in the
     target's clothes can pass the stature test for the few frames re-identification
-    needs. For `reid_probation_s` the stature test is run again every frame on the
-    settling estimate, and one that fails sends the track back to re-identification,
-    never to be named again; nothing is learnt meanwhile, so a wrong pick does not teach
-    the model the stranger. Then it is the target: tracking."""
+    needs. For `reid_probation_s` the stature test runs again every frame on the
+    settling estimate (against the target's height from before, which the candidate does
+    not replace), and a failure sends the track back to re-identification, never to be
+    named again. Whatever ends the probation early (that, a lost track, a doubted
+    identity) also undoes what the candidate taught the model and where it walked, so a
+    wrong pick leaves nothing behind. Then it is the target: tracking."""
 
-    status = TargetStatus.TRACKING
+    notes_stature = False
 
     def __init__(self, target_id: int, since_s: float):
-        self.target_id = target_id
+        super().__init__(target_id)
         self.since_s = since_s
+        self.before: tuple | None = None  # the model and the target's whereabouts when named
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
+        if self.before is None:
+            self.before = (context.model.snapshot(), context.whereabouts())
         track = frame.by_id.get(self.target_id)
-        if track is None:
-            log.info("target track %d lost on probation: re-identification", self.target_id)
-            return Reidentification().update(context, frame)
-        if not context.same_height(track):
+        if track is not None and not context.same_height(track):
             log.info("re-identified track %d is not the target's stature: re-identification",
                      self.target_id)  # fmt: skip
             context.rejected.add(self.target_id)
-            return Reidentification().update(context, frame)
+            return self._undo(context, frame)
+        if not self._keeps(context, frame):
+            return self._undo(context, frame)
         if frame.stamp_s - self.since_s >= context.config.reid_probation_s:
             log.info("re-identified track %d kept its stature: tracking", self.target_id)
-            return Tracking(self.target_id).update(context, frame)
-        # Where and how tall the target was stays as it was before this track was named:
-        # the stature test compares with the target's, never with the candidate's own.
-        context.look(frame, only=self.target_id)
+            return Tracking(self.target_id)
         return self
+
+    def _undo(self, context: IdentityContext, frame: FrameTracks) -> State:
+        model, whereabouts = self.before
+        context.model.restore(model)
+        context.restore(whereabouts)
+        return Reidentification().update(context, frame)
