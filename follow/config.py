@@ -193,8 +193,8 @@ class IdentifyConfig:
     # estimates' combined std) is not the target.
     reid_height_tolerance_m: float = 0.05
     # A re-identified target is on probation this long: the stature test runs again every
-    # frame on its settling estimate (a new track's starts wide), a failure sends it back
-    # to re-identification for good, and nothing is learnt meanwhile.
+    # frame on its settling estimate (a new track's starts wide), and a failure sends it
+    # back to re-identification for good, undoing what it taught the model.
     reid_probation_s: float = 2.0
     # Two people seen at once are two people: a track seen beside the target while its
     # identity was confirmed (apart from it: farther than identity_risk_distance_m, the

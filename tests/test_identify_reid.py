@@ -121,3 +121,30 @@ def test_a_full_gallery_drops_the_most_redundant_view_not_the_oldest():
     gallery.add(basis[2])  # nearly the back view again
     sims = gallery.similarity(np.stack([front, side, basis[2]]))
     assert len(gallery) == 3 and np.allclose(sims, 1.0, atol=1e-6)
+
+
+def test_a_snapshot_puts_back_what_was_learnt_after_it():
+    """Probation's undo: learning a stranger after the snapshot leaves no trace."""
+    cfg = IdentifyConfig(initial_training_frames=1)
+    model = AppearanceModel(cfg, ChannelFeatureExtractor(), _FakeReid())
+    rng = np.random.default_rng(1)
+
+    def crops(bgr):
+        return [np.clip(rng.normal(bgr, 10, (64, 32, 3)), 0, 255).astype(np.uint8)
+                for _ in range(4)]  # fmt: skip
+
+    red, blue, green = crops((30, 30, 200)), crops((200, 30, 30)), crops((30, 200, 30))
+    for r, b in zip(red[:3], blue[:3], strict=True):
+        model.learn(model.describe_crops([r]), model.describe_crops([b]))
+    probes = model.describe_crops([red[3], green[3]])
+    before, gallery_size = model.confidence(probes), len(model.gallery)
+    saved = model.snapshot()
+    for g, r in zip(green[:3], red[:3], strict=True):  # a stranger taken for the target
+        model.learn(model.describe_crops([g]), model.describe_crops([r]))
+    assert not np.allclose(model.confidence(probes), before)
+    model.restore(saved)
+    np.testing.assert_allclose(model.confidence(probes), before)
+    assert len(model.gallery) == gallery_size
+    model.learn(model.describe_crops([green[0]]), [])  # the copy put back is its own
+    model.restore(saved)
+    np.testing.assert_allclose(model.confidence(probes), before)
