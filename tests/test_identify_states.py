@@ -379,14 +379,17 @@ def test_probation_sends_back_a_candidate_whose_settling_stature_is_not_the_targ
     state = Probation(7, since_s=10.5)
     assert state.status == TargetStatus.TRACKING  # named and followed meanwhile
     same = [person(7, 2.5)]
-    assert state.update(ctx, frame(same, 10.6, {7: 0.9}, {7: 0.9})) is state
+    beside = [person(7, 2.5), person(9, 2.5, y_m=5.0)]  # someone else, well apart
+    assert state.update(ctx, frame(beside, 10.6, {7: 0.9, 9: 0.0}, {7: 0.9})) is state
     assert ctx.target_height == target_height  # compared with the target, not itself
     assert len(ctx.model.learnt) == 1 and ctx.last_target_s == 10.6  # tracked meanwhile
+    assert ctx.seen_beside_target(9)
     taller = [person(7, 2.5, neck_height_m=1.45 + 0.2)]
     nxt = state.update(ctx, frame(taller, 10.7, {7: 0.9}, {7: 0.9}))
     assert isinstance(nxt, Reidentification) and 7 in ctx.rejected
     # What it taught and where it walked are undone: it was never the target.
     assert ctx.model.learnt == [] and ctx.last_target_s == 10.0
+    assert not ctx.seen_beside_target(9)  # seen beside a stranger, it may be the target
     # The same track is never named again, however good its evidence.
     strong = reid_frames(nxt, ctx, [person(7, 2.5)], 10.8, {7: 0.95}, {7: 0.95}, n=20)
     assert all(isinstance(s, Reidentification) for s in strong)

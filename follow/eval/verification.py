@@ -52,7 +52,6 @@ log = logging.getLogger(__name__)
 IDENTIFIERS = ("ccf10", "reid", "ccf10+reid")
 FARS = (0.01, 0.001)
 ENROL_CCF_CROPS = 5
-SETS = ("cuhk03_test", "robot_crops")
 # Figures summarised over the perturbation suite: metric -> higher is better.
 SUITE_METRICS = {"auc": True, "tar_at_far_0.01": True, "shipped_tar": True,
                  "shipped_far": False}  # fmt: skip

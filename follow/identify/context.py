@@ -147,14 +147,16 @@ class IdentityContext:
             }  # fmt: skip
 
     def whereabouts(self) -> tuple:
-        """Where and when the target was last named and seen, and when its identity was
-        last at risk: what `note_target` moves, to be put back with `restore`."""
+        """Where and when the target was last named and seen, when its identity was last
+        at risk, and who was seen beside it: what `note_target` moves, besides its
+        height, to be put back with `restore`."""
         return (self.last_target_position_m, self.last_target_s, self.last_target_seen_s,
-                self.identity_risk_s)  # fmt: skip
+                self.identity_risk_s, set(self.seen_apart))  # fmt: skip
 
     def restore(self, whereabouts: tuple) -> None:
         (self.last_target_position_m, self.last_target_s, self.last_target_seen_s,
-         self.identity_risk_s) = whereabouts  # fmt: skip
+         self.identity_risk_s, seen_apart) = whereabouts  # fmt: skip
+        self.seen_apart = set(seen_apart)
 
     def _near_target(self, target_id: int, frame: FrameTracks) -> set[int]:
         """The other tracks within `identity_risk_distance_m` of the target on the floor."""
