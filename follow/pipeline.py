@@ -28,6 +28,8 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from follow.capture import LatestSlot
 from follow.config import ControlConfig
 from follow.control.odometry import OdometryPolicy
@@ -120,20 +122,37 @@ class Perception:
         return self.conclude(frame, robot, frame_index, self.detect_people(frame))
 
 
-def target_motion(result: FrameResult | None, robot_now: Odometry) -> TargetMotion | None:
+# The longest capture-to-command latency carried forward: a frame on its way through
+# perception (pose network, tracker, identifier) on a laptop CPU or an embedded GPU.
+MAX_CARRY_FORWARD_S = 0.25
+
+
+def target_motion(
+    result: FrameResult | None, robot_now: Odometry, now_s: float | None = None
+) -> TargetMotion | None:
     """The target's position and velocity in the robot frame as the robot stands now,
     stamped with the time of its track's last observation (a coasting track ages).
 
     The track lives in `odom`, so the newest odometry (not the pose at the frame's time)
-    is used: the robot may have turned since the frame was taken.
-    """
+    is used: the robot may have turned since the frame was taken. Given `now_s`, the
+    position is also carried forward at the track's velocity from the frame's time to
+    now: the person kept walking while perception worked on the frame, and a controller
+    fed where they were lags them by that latency times their speed. Only within
+    `MAX_CARRY_FORWARD_S`: an older result is late, not in flight, and stalled
+    perception must not make a target seem to walk on ahead while the robot closes in
+    (the watchdog stops the base at its own time-out)."""
     if result is None or result.target.status != TargetStatus.TRACKING:
         return None
     track = result.target_track
     if track is None or track.observation is None and not track.confirmed:
         return None
+    position_m = np.asarray(track.position_m, dtype=float)
+    if now_s is not None:
+        ahead_s = max(0.0, now_s - result.stamp_s)
+        if ahead_s <= MAX_CARRY_FORWARD_S:
+            position_m = position_m + np.asarray(track.velocity_mps) * ahead_s
     return TargetMotion(
-        odom_to_base(track.position_m, robot_now),
+        odom_to_base(position_m, robot_now),
         vector_odom_to_base(track.velocity_mps, robot_now),
         min(track.last_seen_s, result.stamp_s),
         observed=track.observation is not None,
@@ -210,7 +229,7 @@ class ControlLoop:
                     "perception stalled (%.2f s since the last frame): stopping the base",
                     now - result.stamp_s,
                 )
-        target = None if stalled else target_motion(result, robot)
+        target = None if stalled else target_motion(result, robot, now)
         command = self.controller.update(target, now)
         if stalled:
             command = VelocityCommand.stop(now)

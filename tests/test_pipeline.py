@@ -8,6 +8,7 @@ from follow.config import ControlConfig
 from follow.control.base import NullBase
 from follow.control.controller import FollowingController
 from follow.pipeline import (
+    MAX_CARRY_FORWARD_S,
     ControlLoop,
     Detections,
     FrameResult,
@@ -37,6 +38,26 @@ def test_target_motion_uses_the_robot_pose_now():
     assert motion.stamp_s == 1.0
     assert target_motion(_result(1.0, status=TargetStatus.REIDENTIFICATION), turned) is None
     assert target_motion(None, turned) is None
+
+
+def test_target_motion_carries_the_target_forward_over_the_latency():
+    # Seen at 3 m walking away at 1 m/s; the command is computed 0.2 s after the frame.
+    walking = TrackState(7, np.array([3.0, 0.0, 1.0, 0.0, 1.5]), np.eye(5) * 0.01, True, 1.0,
+                         observation=SEEN)  # fmt: skip
+    result = FrameResult(0, 1.0, Odometry.origin(1.0), [], [walking],
+                         TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, 1.0))  # fmt: skip
+    robot = Odometry(0.5, 0.0, 0.0, 1.2)  # the robot drove 0.5 m meanwhile
+    later = target_motion(result, robot, now_s=1.2)
+    np.testing.assert_allclose(later.position_m, [2.7, 0.0], atol=1e-9)
+    np.testing.assert_allclose(later.velocity_mps, [1.0, 0.0], atol=1e-9)
+    assert later.stamp_s == 1.0  # still aged from the observation: staleness unchanged
+    np.testing.assert_allclose(target_motion(result, robot).position_m, [2.5, 0.0], atol=1e-9)
+    earlier = target_motion(result, robot, now_s=0.9)  # a clock behind the frame: no rewind
+    np.testing.assert_allclose(earlier.position_m, [2.5, 0.0], atol=1e-9)
+    # A result older than MAX_CARRY_FORWARD_S is stalled perception, not latency: not
+    # carried at all (a target must not seem to walk on while nothing new is seen).
+    stalled = target_motion(result, robot, now_s=1.0 + MAX_CARRY_FORWARD_S + 0.01)
+    np.testing.assert_allclose(stalled.position_m, [2.5, 0.0], atol=1e-9)
 
 
 def test_watchdog_stops_the_base_when_perception_stalls():

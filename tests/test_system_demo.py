@@ -21,12 +21,18 @@ SEEN = Observation(np.array([320.0, 200.0]), np.array([320.0, 400.0]))
 
 def test_demo_follows_the_target_through_a_crossing(tmp_path):
     # 12 s: the target starts walking at 2 s and a person crosses between robot and
-    # target at about 7 s, hiding it.
+    # target at about 7 s, hiding it. The demo runs in real time, so its distance error
+    # depends on the machine: each frame that misses the target slows the robot in
+    # proportion to the time since its last sighting (the blind-driving rule), which grows
+    # with the capture-to-command latency. Mean measured 0.2-0.35 m on a 2-core machine,
+    # 0.3-0.65 m with 60 ms added to every frame's detection; a robot left behind by a
+    # walking target would be off by metres.
     summary = run_demo(seconds=12.0, seed=0, identifier="channels", output=tmp_path)
     seconds = summary["seconds"]
     assert seconds["tracked"] >= 10.0, summary
     assert seconds["wrong"] == 0.0 and summary["person_switches"] == 0, summary
-    assert summary["distance_error_mean_m"] < 0.4, summary
+    assert summary["distance_error_mean_m"] < 0.7, summary
+    assert summary["distance_error_worst_m"] < 1.5, summary
     for name in ("demo.mp4", "demo_top_down.png", "demo.jsonl"):
         assert (tmp_path / name).stat().st_size > 1000
 

@@ -293,6 +293,7 @@ def run_demo(
         "dropped_frames": runner.dropped_frames,
         "watchdog_trips": runner.control.watchdog_trips,
         "perception_ms_median": round(float(np.median(timing)), 2) if timing else None,
+        "capture_to_command_ms": runner.control.latency.summary_ms(),
     }
     if output:
         plot_top_down(trajectory, output / "demo_top_down.png")
