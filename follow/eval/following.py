@@ -93,7 +93,8 @@ class ScriptedPerception:
         xy, v = self.path.state(max(seen_at, 0.0))
         xy = xy + self.rng.normal(0.0, s.position_noise_m, 2)
         v = v + self.rng.normal(0.0, s.velocity_noise_mps, 2)
-        # Predict the latency away with the estimated velocity, as the tracker's filter would.
+        # Predict the latency away with the estimated velocity, as the control loop carries a
+        # real result forward from its capture (`target_motion`); this one is handed over at once.
         xy = xy + v * s.perception_latency_s
         track = TrackState(1, np.array([xy[0], xy[1], v[0], v[1], 1.45]), np.eye(5) * 0.01,
                            True, frame.stamp_s, observation=Observation(np.zeros(2)))  # fmt: skip
