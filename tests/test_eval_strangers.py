@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from follow.config import Config
-from follow.eval.strangers import TARGET_ID, TWIN, run_scenario, scenario
+from follow.eval.strangers import TARGET_ID, TWIN, parse_seeds, run_scenario, scenario
 from follow.sim.demo import LOOKALIKE
 
 
@@ -55,3 +56,37 @@ def test_under_a_pixel_change_after_learning_no_stranger_is_followed(model_path)
     assert noisy["wrong_person_s"] == 0.0 and noisy["driving_toward_stranger_s"] == 0.0
     assert noisy["never_reacquired"] == 0 and noisy["reacquired_after_s"] <= 3.0
     assert out["worst"]["ccf10+reid"]["wrong_person_s"] == 0.0
+
+
+def test_seeds_are_read_as_ranges_and_lists_and_bad_ones_named():
+    assert parse_seeds("0-4") == [0, 1, 2, 3, 4]
+    assert parse_seeds("3, 0-1,3") == [3, 0, 1]
+    for bad in ("4-2", "a", "1-x", " , "):
+        with pytest.raises(ValueError, match="--seeds"):
+            parse_seeds(bad)
+
+
+def test_over_several_seeds_each_run_is_the_single_seed_run(model_path):
+    """Each seed's row is exactly that seed's run; mean, worst and the count of runs that
+    named a stranger are taken over them; a perturbation is refused beside --seeds."""
+    import argparse
+
+    from follow.eval.strangers import main
+
+    model_path("ccf/ccf10")
+    args = argparse.Namespace(identifiers="ccf10", strangers=1, seed=0, seeds="0-1",
+                              config=None, json=True, perturb=False, variants=None,
+                              only_after_learning=False)  # fmt: skip
+    out = main(args)
+    assert list(out["seeds"]) == ["seed 0", "seed 1"]
+    one = run_scenario(Config().replace("identify", identifier="ccf10", seed=1), 1, 1)
+    row = out["seeds"]["seed 1"]["ccf10"]
+    for key in ("wrong_person_s", "driving_toward_stranger_s", "strangers_named"):
+        assert row[key] == one[key], key
+    wrong = [r["ccf10"]["wrong_person_s"] for r in out["seeds"].values()]
+    assert out["worst"]["ccf10"]["wrong_person_s"] == max(wrong)
+    assert out["mean"]["ccf10"]["wrong_person_s"] == pytest.approx(np.mean(wrong), abs=1e-4)
+    named = sum(bool(r["ccf10"]["strangers_named"]) for r in out["seeds"].values())
+    assert out["runs_with_a_stranger_named"]["ccf10"] == named
+    with pytest.raises(ValueError, match="--seeds"):
+        main(argparse.Namespace(**{**vars(args), "variants": "dark"}))

@@ -263,13 +263,16 @@ def plot_spread(suite: dict, metrics: list[str], path: str, title: str) -> None:
     plt.close(fig)
 
 
-def print_suite(suite: dict, metrics: list[str], method_label: str = "method") -> None:
-    """A per-variant table of every method's figures, then the mean and the worst."""
+def print_suite(suite: dict, metrics: list[str], method_label: str = "method",
+                rows_key: str = "variants") -> None:  # fmt: skip
+    """A per-variant (or per-`rows_key` entry) table of every method's figures, then the
+    mean and the worst."""
     methods = list(suite["mean"])
     width = max(12, len(method_label), *(len(m) for m in methods))
-    header = f"{'variant':14s} {method_label:{width}s} " + " ".join(f"{m:>12s}" for m in metrics)
+    row_label = rows_key.rstrip("s")
+    header = f"{row_label:14s} {method_label:{width}s} " + " ".join(f"{m:>12s}" for m in metrics)
     print(header)
-    rows = [(name, r) for name, r in suite["variants"].items()]
+    rows = [(name, r) for name, r in suite[rows_key].items()]
     rows += [("MEAN", suite["mean"]), ("WORST", suite["worst"])]
     for name, r in rows:
         for method in methods:

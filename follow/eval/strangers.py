@@ -33,6 +33,7 @@ from follow.eval.perturb import (
     print_suite,
     run_suite,
     selected_pixel_variants,
+    summarise,
 )
 from follow.sim.appearance import Appearance, render_scene
 from follow.sim.demo import DEMO_CAMERA, LOOKALIKE, TARGET_LOOK, horizon_row, person_views
@@ -59,7 +60,10 @@ def add_arguments(p) -> None:
     p.add_argument("--identifiers", default="ccf10,ccf10+reid",
                    help="comma-separated identifier configurations (default ccf10,ccf10+reid)")  # fmt: skip
     p.add_argument("--strangers", type=int, default=5, help="people who walk in (default 5)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="the strangers' heights and looks, and the detector's noise (default 0)")  # fmt: skip
+    p.add_argument("--seeds", help="run several draws of the scenario, e.g. 0-4 or 0,3,7, and "
+                   "report each plus the mean and the worst (not with --perturb)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration over the defaults")
     add_learnt_target_perturb_arguments(p)
 
@@ -170,6 +174,11 @@ def main(args) -> dict:
         raise ValueError(f"--strangers must be >= 1, got {args.strangers}")
     variants = selected_pixel_variants(args, "identification-sim")
     names = [s.strip() for s in args.identifiers.split(",") if s.strip()]
+    seeds = parse_seeds(args.seeds) if getattr(args, "seeds", None) else None
+    if seeds is not None:
+        if variants is not None:
+            raise ValueError("--seeds runs the plain scenario: take --perturb one --seed at a time")
+        return _main_seeds(args, base, names, seeds)
     configs = {n: base.replace("identify", identifier=n, seed=args.seed) for n in names}
     if variants is not None:
         return _main_perturbed(args, configs, variants)
@@ -184,6 +193,55 @@ def main(args) -> dict:
             back = "never" if r["reacquired_after_s"] is None else f"{r['reacquired_after_s']:.2f}"
             print(f"{name:<12} {r['wrong_person_s']:8.2f} {r['driving_toward_stranger_s']:10.2f} "
                   f"{back:>14}  {r['strangers_named'] or '-'}")  # fmt: skip
+    return out
+
+
+def parse_seeds(text: str) -> list[int]:
+    """`0-4` or `0,3,7` (or both: `0-2,9`) as a list of distinct seeds, in order."""
+    seeds: list[int] = []
+    try:
+        for part in (p.strip() for p in text.split(",")):
+            if not part:
+                continue
+            first, _, last = part.partition("-")
+            lo, hi = int(first), int(last) if last else int(first)
+            if hi < lo:
+                raise ValueError
+            seeds += [s for s in range(lo, hi + 1) if s not in seeds]
+    except ValueError:
+        raise ValueError(f"--seeds must look like 0-4 or 0,3,7 (seeds >= 0), got {text!r}") from None
+    if not seeds:
+        raise ValueError(f"--seeds names no seed: {text!r}")
+    return seeds
+
+
+def _main_seeds(args, base: Config, names: list[str], seeds: list[int]) -> dict:
+    """One run per seed and identifier: a single draw of the strangers' heights decides
+    whether stature can tell the one in the target's clothes apart, so one seed is not a
+    figure (docs/identification.md)."""
+    from tqdm import tqdm
+
+    per_seed: dict[str, dict] = {}
+    for seed in tqdm(seeds, desc="seeds", unit="seed"):
+        row = {}
+        for name in names:
+            config = base.replace("identify", identifier=name, seed=seed)
+            r = run_scenario(config, args.strangers, seed)
+            r["never_reacquired"] = int(r["reacquired_after_s"] is None)
+            row[name] = {k: v for k, v in r.items() if v is not None}
+        per_seed[f"seed {seed}"] = row
+        log.info("seed %d: %s", seed, row)
+    summary = summarise(per_seed, SUITE_METRICS)
+    summary["worst_seed"] = summary.pop("worst_variant")
+    out = {"seeds": per_seed, **summary}
+    out["runs_with_a_stranger_named"] = {
+        name: sum(bool(r[name]["strangers_named"]) for r in per_seed.values()) for name in names
+    }
+    if not args.json:
+        print(f"stranger scenario over {len(seeds)} seeds, {args.strangers} strangers")
+        print_suite(out, list(SUITE_METRICS), "identifier", rows_key="seeds")
+        for name, count in out["runs_with_a_stranger_named"].items():
+            print(f"{name}: a stranger named in {count} of {len(seeds)} runs")
     return out
 
 
