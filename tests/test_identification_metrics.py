@@ -89,3 +89,25 @@ def test_a_named_track_is_the_nearest_annotated_person_within_the_match_distance
     assert _person_at(people, np.array([0.5, 0.0]), 1.0) == 5
     assert _person_at(people, np.array([0.3, 0.0]), 1.0) == 3
     assert _person_at(people, np.array([3.0, 0.0]), 1.0) is None
+
+
+def test_the_target_is_selected_only_on_a_track_that_is_its_own():
+    """A confirmed track within reach of the target but nearer its companion is the
+    companion's: selecting it would score following the companion as wrong-target time."""
+    import numpy as np
+
+    from follow.eval.identification import _is_of, _track_near
+    from follow.types import TrackState
+
+    def track(track_id, x_m):
+        return TrackState(track_id, np.array([x_m, 0.0, 0.0, 0.0, 1.5]), np.eye(5), True, 0.0)
+
+    people = {3: (np.array([0.0, 0.0]), 0.0), 4: (np.array([0.7, 0.0]), 0.0)}
+    companions = [track(28, 0.68)]  # only the companion has a confirmed track yet
+    near = _track_near(companions, people[3][0], 1.0, confirmed_only=True)
+    assert near.track_id == 28 and not _is_of(near, people, (3,), 1.0)
+    both = companions + [track(30, 0.05)]
+    near = _track_near(both, people[3][0], 1.0, confirmed_only=True)
+    assert near.track_id == 30 and _is_of(near, people, (3,), 1.0)
+    returning = {11: (np.array([0.0, 0.0]), 0.0)}  # the same person under another id
+    assert _is_of(track(31, 0.1), returning, (3, 11), 1.0)

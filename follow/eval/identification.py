@@ -115,21 +115,28 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
         identifier.model.describe = cache
         tally = OutcomeTally()
         maybe_target = undecided.get(target, frozenset())
-        selected = False
+        selected_id: int | None = None
+        ids = same_person.get(target, (target,))
         last = last_annotated(gt_per_frame, target) if not whole_sequence else len(frames) - 1
         for position, (index, image) in enumerate(setup.sequence.frames(frames[: last + 1])):
             tracks = tracks_per_frame[position]
             people = gt_per_frame[position]
-            target_box = _person_box(people, same_person.get(target, (target,)))
+            target_box = _person_box(people, ids)
             visible = target_box is not None and target_box[1] <= max_hidden
-            if not selected:
-                if not visible:
-                    continue
+            # Selected, as a user would, on the first frame the target has a track of its
+            # own; and again, as a user would, if that track ends before it was learnt
+            # (the identifier waits for the selected id, which never comes back).
+            reselect = (
+                selected_id is not None and identifier.status == TargetStatus.INITIAL
+                and all(t.track_id != selected_id for t in tracks)
+            )  # fmt: skip
+            if (selected_id is None or reselect) and visible:
                 track = _track_near(tracks, target_box[0], match_m, confirmed_only=True)
-                if track is None:
-                    continue
-                identifier.select_target(track.track_id)
-                selected = True
+                if track is not None and _is_of(track, people, ids, match_m):
+                    identifier.select_target(track.track_id)
+                    selected_id = track.track_id
+            if selected_id is None:
+                continue
             cache.frame_index = index
             estimate = identifier.update(image, tracks, index / PETS_FPS)
             named = estimate.target_id if estimate.status in NAMING_STATES else None
@@ -211,6 +218,13 @@ def load_undecided(
 def _person_at(people: dict, position_m: np.ndarray, max_distance_m: float) -> int | None:
     """The annotated person nearest `position_m` on the floor, within `max_distance_m`."""
     return _nearest(((i, p) for i, (p, _) in people.items()), position_m, max_distance_m)
+
+
+def _is_of(track, people: dict, ids: tuple[int, ...], max_distance_m: float) -> bool:
+    """Whether the annotated person nearest the track is the one with `ids`: a track
+    within reach of the target may be a companion's walking beside it, and selecting it
+    would score the identifier for following whom it was told to."""
+    return _person_at(people, track.position_m, max_distance_m) in ids
 
 
 def _person_box(people: dict, ids: tuple[int, ...]):
