@@ -111,3 +111,26 @@ def test_the_target_is_selected_only_on_a_track_that_is_its_own():
     assert near.track_id == 30 and _is_of(near, people, (3,), 1.0)
     returning = {11: (np.array([0.0, 0.0]), 0.0)}  # the same person under another id
     assert _is_of(track(31, 0.1), returning, (3, 11), 1.0)
+
+
+def test_a_target_is_selected_again_only_when_its_track_ended_before_it_was_learnt():
+    import numpy as np
+
+    from follow.eval.identification import track_to_select
+    from follow.types import TargetStatus, TrackState
+
+    def track(track_id, x_m):
+        return TrackState(track_id, np.array([x_m, 0.0, 0.0, 0.0, 1.5]), np.eye(5), True, 0.0)
+
+    people = {4: (np.array([0.0, 0.0]), 0.0)}
+    box = people[4]
+    fresh = [track(26, 0.1)]
+    assert track_to_select(None, TargetStatus.INITIAL, fresh, people, (4,), box, 1.0) == 26
+    assert track_to_select(None, TargetStatus.INITIAL, fresh, people, (4,), None, 1.0) is None
+    # Track 23 was selected and ended untrained: select the target's new track.
+    assert track_to_select(23, TargetStatus.INITIAL, fresh, people, (4,), box, 1.0) == 26
+    # Still there, or already learnt (re-identification is the identifier's job): keep it.
+    there = fresh + [track(23, 3.0)]
+    assert track_to_select(23, TargetStatus.INITIAL, there, people, (4,), box, 1.0) is None
+    for status in (TargetStatus.TRACKING, TargetStatus.REIDENTIFICATION):
+        assert track_to_select(23, status, fresh, people, (4,), box, 1.0) is None

@@ -123,18 +123,11 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
             people = gt_per_frame[position]
             target_box = _person_box(people, ids)
             visible = target_box is not None and target_box[1] <= max_hidden
-            # Selected, as a user would, on the first frame the target has a track of its
-            # own; and again, as a user would, if that track ends before it was learnt
-            # (the identifier waits for the selected id, which never comes back).
-            reselect = (
-                selected_id is not None and identifier.status == TargetStatus.INITIAL
-                and all(t.track_id != selected_id for t in tracks)
-            )  # fmt: skip
-            if (selected_id is None or reselect) and visible:
-                track = _track_near(tracks, target_box[0], match_m, confirmed_only=True)
-                if track is not None and _is_of(track, people, ids, match_m):
-                    identifier.select_target(track.track_id)
-                    selected_id = track.track_id
+            chosen = track_to_select(selected_id, identifier.status, tracks, people, ids,
+                                     target_box if visible else None, match_m)  # fmt: skip
+            if chosen is not None:
+                identifier.select_target(chosen)
+                selected_id = chosen
             if selected_id is None:
                 continue
             cache.frame_index = index
@@ -218,6 +211,24 @@ def load_undecided(
 def _person_at(people: dict, position_m: np.ndarray, max_distance_m: float) -> int | None:
     """The annotated person nearest `position_m` on the floor, within `max_distance_m`."""
     return _nearest(((i, p) for i, (p, _) in people.items()), position_m, max_distance_m)
+
+
+def track_to_select(selected_id: int | None, status: TargetStatus, tracks, people: dict,
+                    ids: tuple[int, ...], target_box, match_m: float) -> int | None:  # fmt: skip
+    """The track id to select for the target now, as a user would, else None: on the
+    first frame the target (`target_box`, None when not visible) has a confirmed track
+    of its own, and again if the selected track ended before the target was learnt (the
+    identifier would wait for that id for ever)."""
+    lost_untrained = (
+        selected_id is not None and status == TargetStatus.INITIAL
+        and all(t.track_id != selected_id for t in tracks)
+    )  # fmt: skip
+    if target_box is None or not (selected_id is None or lost_untrained):
+        return None
+    track = _track_near(tracks, target_box[0], match_m, confirmed_only=True)
+    if track is None or not _is_of(track, people, ids, match_m):
+        return None
+    return track.track_id
 
 
 def _is_of(track, people: dict, ids: tuple[int, ...], max_distance_m: float) -> bool:
