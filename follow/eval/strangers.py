@@ -215,6 +215,13 @@ def parse_seeds(text: str) -> list[int]:
     return seeds
 
 
+def _suite_row(result: dict) -> dict:
+    """One run's figures for a summary over runs: a target never re-acquired has no time
+    to average, so it is counted apart (`never_reacquired`) and its time left out."""
+    row = {**result, "never_reacquired": int(result["reacquired_after_s"] is None)}
+    return {k: v for k, v in row.items() if v is not None}
+
+
 def _main_seeds(args, base: Config, names: list[str], seeds: list[int]) -> dict:
     """One run per seed and identifier: a single draw of the strangers' heights decides
     whether stature can tell the one in the target's clothes apart, so one seed is not a
@@ -226,9 +233,7 @@ def _main_seeds(args, base: Config, names: list[str], seeds: list[int]) -> dict:
         row = {}
         for name in names:
             config = base.replace("identify", identifier=name, seed=seed)
-            r = run_scenario(config, args.strangers, seed)
-            r["never_reacquired"] = int(r["reacquired_after_s"] is None)
-            row[name] = {k: v for k, v in r.items() if v is not None}
+            row[name] = _suite_row(run_scenario(config, args.strangers, seed))
         per_seed[f"seed {seed}"] = row
         log.info("seed %d: %s", seed, row)
     summary = summarise(per_seed, SUITE_METRICS)
@@ -251,10 +256,8 @@ def _main_perturbed(args, configs: dict[str, Config], variants: list[Variant]) -
     def one(variant: Variant) -> dict:
         out = {}
         for name, config in configs.items():
-            r = run_scenario(config, args.strangers, args.seed, variant, from_s)
-            # A target never re-acquired has no time to average: it is counted apart.
-            r["never_reacquired"] = int(r["reacquired_after_s"] is None)
-            out[name] = {k: v for k, v in r.items() if v is not None}
+            out[name] = _suite_row(run_scenario(config, args.strangers, args.seed, variant,
+                                                from_s))  # fmt: skip
         return out
 
     suite = run_suite(variants, one, SUITE_METRICS)
