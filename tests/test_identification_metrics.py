@@ -85,52 +85,76 @@ def test_a_named_track_is_the_nearest_annotated_person_within_the_match_distance
 
     from follow.eval.identification import _person_at
 
-    people = {3: (np.array([0.0, 0.0]), 0.0), 5: (np.array([0.8, 0.0]), 0.0)}
+    people = {3: _annotated(0.0, 100.0), 5: _annotated(0.8, 160.0)}
     assert _person_at(people, np.array([0.5, 0.0]), 1.0) == 5
     assert _person_at(people, np.array([0.3, 0.0]), 1.0) == 3
     assert _person_at(people, np.array([3.0, 0.0]), 1.0) is None
 
 
-def test_the_target_is_selected_only_on_a_track_that_is_its_own():
-    """A confirmed track within reach of the target but nearer its companion is the
-    companion's: selecting it would score following the companion as wrong-target time."""
+def _annotated(x_m: float, box_left_px: float):
+    """An annotated person at (x_m, 0) on the floor, box 40 px wide and 100 px tall."""
     import numpy as np
 
-    from follow.eval.identification import _is_of, _track_near
-    from follow.types import TrackState
+    from follow.eval.identification import Annotated
+    from follow.eval.pets import GtBox
 
-    def track(track_id, x_m):
-        return TrackState(track_id, np.array([x_m, 0.0, 0.0, 0.0, 1.5]), np.eye(5), True, 0.0)
+    return Annotated(np.array([x_m, 0.0]), 0.0, GtBox(0, box_left_px + 20.0, 100.0, 40.0, 100.0))
 
-    people = {3: (np.array([0.0, 0.0]), 0.0), 4: (np.array([0.7, 0.0]), 0.0)}
-    companions = [track(28, 0.68)]  # only the companion has a confirmed track yet
-    near = _track_near(companions, people[3][0], 1.0, confirmed_only=True)
-    assert near.track_id == 28 and not _is_of(near, people, (3,), 1.0)
-    both = companions + [track(30, 0.05)]
-    near = _track_near(both, people[3][0], 1.0, confirmed_only=True)
-    assert near.track_id == 30 and _is_of(near, people, (3,), 1.0)
-    returning = {11: (np.array([0.0, 0.0]), 0.0)}  # the same person under another id
-    assert _is_of(track(31, 0.1), returning, (3, 11), 1.0)
+
+def _track(track_id: int, x_m: float, neck_u_px: float | None):
+    """A confirmed track at (x_m, 0), its neck detected at column `neck_u_px` (None:
+    not detected in this frame)."""
+    import numpy as np
+
+    from follow.types import Observation, TrackState
+
+    seen = None if neck_u_px is None else Observation(np.array([neck_u_px, 70.0]))
+    return TrackState(track_id, np.array([x_m, 0.0, 0.0, 0.0, 1.5]), np.eye(5), True, 0.0,
+                      observation=seen)  # fmt: skip
+
+
+def test_the_target_is_selected_only_where_a_click_would_pick_out_its_track():
+    """PETS targets 3 and 4 walk shoulder to shoulder; the ground points of the two (one
+    box mostly hidden) are tenths of a metre off, so the track nearest the target on the
+    floor was its companion's. A user clicks on the person in the image: the track is
+    selected where its detected neck lies in the target's box and in no one else's."""
+    from follow.eval.identification import track_to_select
+    from follow.types import TargetStatus
+
+    status = TargetStatus.INITIAL
+    overlapping = {3: _annotated(0.0, 100.0), 4: _annotated(0.7, 120.0)}
+    box = overlapping[3]
+    # The companion's track is nearest the target on the floor, its neck in both boxes.
+    tracks = [_track(28, 0.09, 130.0), _track(26, 0.18, 170.0)]
+    assert track_to_select(None, status, tracks, overlapping, (3,), box, 1.0) is None
+    apart = {3: _annotated(0.0, 100.0), 4: _annotated(0.7, 160.0)}
+    tracks = [_track(28, 0.5, 180.0), _track(26, 0.15, 110.0)]
+    assert track_to_select(None, status, tracks, apart, (3,), apart[3], 1.0) == 26
+    # Not detected in this frame: nothing to click on.
+    tracks = [_track(26, 0.15, None)]
+    assert track_to_select(None, status, tracks, apart, (3,), apart[3], 1.0) is None
+    # Picked out in the image but too far on the floor to be the target's.
+    tracks = [_track(26, 1.5, 110.0)]
+    assert track_to_select(None, status, tracks, apart, (3,), apart[3], 1.0) is None
+    # The same person under another id (whole-sequence scoring) is the target.
+    returning = {11: _annotated(0.0, 100.0)}
+    tracks = [_track(31, 0.1, 110.0)]
+    assert track_to_select(None, status, tracks, returning, (3, 11), returning[11], 1.0) == 31
 
 
 def test_a_target_is_selected_again_only_when_its_track_ended_before_it_was_learnt():
-    import numpy as np
-
     from follow.eval.identification import track_to_select
-    from follow.types import TargetStatus, TrackState
+    from follow.types import TargetStatus
 
-    def track(track_id, x_m):
-        return TrackState(track_id, np.array([x_m, 0.0, 0.0, 0.0, 1.5]), np.eye(5), True, 0.0)
-
-    people = {4: (np.array([0.0, 0.0]), 0.0)}
+    people = {4: _annotated(0.0, 100.0)}
     box = people[4]
-    fresh = [track(26, 0.1)]
+    fresh = [_track(26, 0.1, 110.0)]
     assert track_to_select(None, TargetStatus.INITIAL, fresh, people, (4,), box, 1.0) == 26
     assert track_to_select(None, TargetStatus.INITIAL, fresh, people, (4,), None, 1.0) is None
     # Track 23 was selected and ended untrained: select the target's new track.
     assert track_to_select(23, TargetStatus.INITIAL, fresh, people, (4,), box, 1.0) == 26
     # Still there, or already learnt (re-identification is the identifier's job): keep it.
-    there = fresh + [track(23, 3.0)]
+    there = fresh + [_track(23, 3.0, None)]
     assert track_to_select(23, TargetStatus.INITIAL, there, people, (4,), box, 1.0) is None
     for status in (TargetStatus.TRACKING, TargetStatus.REIDENTIFICATION):
         assert track_to_select(23, status, fresh, people, (4,), box, 1.0) is None

@@ -1,8 +1,10 @@
 """`follow eval identification`: who is the target, on PETS 2009 S2.L1.
 
 Each ground-truth person visible for at least `--min-visible-s` becomes the target in
-turn: on the first frame where they are visible and a confirmed track lies within the
-match distance, that track is selected and the identifier learns from there on. Every
+turn: on the first frame where they are visible and a confirmed track can be picked out
+as theirs, as a user clicking on them would (its detected neck in their box and in no
+one else's, its position within the match distance), that track is selected and the
+identifier learns from there on. Every
 later frame is then CT, CL, WT or WL (see `identification_metrics`). A person is
 visible when annotated and not more than half hidden behind someone nearer the camera;
 a named track is the target when its position lies within the match distance of the
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -28,6 +31,7 @@ from follow.config import Config
 from follow.eval.identification_metrics import OUTCOMES, OutcomeTally, classify
 from follow.eval.perturb import add_perturb_arguments, plot_spread, print_suite, run_suite
 from follow.eval.perturb import selected_variants as perturb_variants
+from follow.eval.pets import GT_IMAGE_SIZE, GtBox
 from follow.eval.pets_setup import (
     PETS_FPS,
     PetsSetup,
@@ -38,6 +42,16 @@ from follow.eval.pets_setup import (
 from follow.types import TargetStatus
 
 IDENTIFIERS = ("ccf10", "ccf10+reid", "reid")
+
+
+class Annotated(NamedTuple):
+    """One annotated person in one frame: ground point, hidden fraction and box (in the
+    camera model's pixels, where the tracks' observations are)."""
+
+    position_m: np.ndarray
+    hidden_fraction: float
+    box: GtBox
+
 NAMING_STATES = (TargetStatus.INITIAL_TRAINING, TargetStatus.TRACKING)
 # Figures summarised over the perturbation suite: metric -> higher is better.
 SUITE_METRICS = {"ct": True, "cl": True, "ct_cl": True, "wt": False, "wl": False}
@@ -122,7 +136,7 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
             tracks = tracks_per_frame[position]
             people = gt_per_frame[position]
             target_box = _person_box(people, ids)
-            visible = target_box is not None and target_box[1] <= max_hidden
+            visible = target_box is not None and target_box.hidden_fraction <= max_hidden
             chosen = track_to_select(selected_id, identifier.status, tracks, people, ids,
                                      target_box if visible else None, match_m)  # fmt: skip
             if chosen is not None:
@@ -136,7 +150,7 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
             track = next((t for t in tracks if t.track_id == named), None)
             named_is_target = (
                 track is not None and target_box is not None
-                and bool(np.linalg.norm(track.position_m - target_box[0]) <= match_m)
+                and bool(np.linalg.norm(track.position_m - target_box.position_m) <= match_m)
             )  # fmt: skip
             outcome = classify(visible, named, named_is_target)
             tally.add(outcome, 1.0 / PETS_FPS, undecided=(
@@ -210,32 +224,36 @@ def load_undecided(
 
 def _person_at(people: dict, position_m: np.ndarray, max_distance_m: float) -> int | None:
     """The annotated person nearest `position_m` on the floor, within `max_distance_m`."""
-    return _nearest(((i, p) for i, (p, _) in people.items()), position_m, max_distance_m)
+    return _nearest(((i, a.position_m) for i, a in people.items()), position_m, max_distance_m)
 
 
 def track_to_select(selected_id: int | None, status: TargetStatus, tracks, people: dict,
                     ids: tuple[int, ...], target_box, match_m: float) -> int | None:  # fmt: skip
     """The track id to select for the target now, as a user would, else None: on the
-    first frame the target (`target_box`, None when not visible) has a confirmed track
-    of its own, and again if the selected track ended before the target was learnt (the
-    identifier would wait for that id for ever)."""
+    first frame the target (`target_box`, None when not visible) can be picked out in
+    the image (`_picked_out`), and again if the selected track ended before the target
+    was learnt (the identifier would wait for that id for ever)."""
     lost_untrained = (
         selected_id is not None and status == TargetStatus.INITIAL
         and all(t.track_id != selected_id for t in tracks)
     )  # fmt: skip
     if target_box is None or not (selected_id is None or lost_untrained):
         return None
-    track = _track_near(tracks, target_box[0], match_m, confirmed_only=True)
-    if track is None or not _is_of(track, people, ids, match_m):
-        return None
-    return track.track_id
+    mine = [t for t in tracks if t.confirmed and _picked_out(t, people, ids)]
+    track = _track_near(mine, target_box.position_m, match_m, confirmed_only=True)
+    return None if track is None else track.track_id
 
 
-def _is_of(track, people: dict, ids: tuple[int, ...], max_distance_m: float) -> bool:
-    """Whether the annotated person nearest the track is the one with `ids`: a track
-    within reach of the target may be a companion's walking beside it, and selecting it
-    would score the identifier for following whom it was told to."""
-    return _person_at(people, track.position_m, max_distance_m) in ids
+def _picked_out(track, people: dict, ids: tuple[int, ...]) -> bool:
+    """Whether a user clicking on the target would get this track: it was detected in
+    this frame with its neck inside the target's box and inside no one else's. People
+    walking together overlap in the image and their ground points (from boxes partly
+    hidden) are noisy by tenths of a metre, so a track nearest the target on the floor
+    may be its companion's; the user waits for a frame where the two are apart."""
+    if track.observation is None:
+        return False
+    neck = track.observation.neck_px
+    return all(a.box.contains(*neck) == (i in ids) for i, a in people.items())
 
 
 def _person_box(people: dict, ids: tuple[int, ...]):
@@ -328,13 +346,14 @@ def evaluate_variant(args, config: Config, setup: PetsSetup, variant=None):
     n = len(frames)
     tracker = PeopleTracker(setup.camera, config.tracker)
     tracks_per_frame, gt_per_frame = [], []
+    to_camera_px = setup.camera.image_size[0] / GT_IMAGE_SIZE[0]
     visible_frames: dict[int, int] = {}
     for index in frames:
         observations = skeletons_to_observations(skeletons[index], setup.camera.image_size,
                                                  config.pose)  # fmt: skip
         tracks_per_frame.append(tracker.update(observations, index / PETS_FPS))
         ids, positions, boxes = setup.ground_truth(index)
-        gt_per_frame.append({i: (p, b.hidden_fraction)
+        gt_per_frame.append({i: Annotated(p, b.hidden_fraction, b.scaled(to_camera_px))
                              for i, p, b in zip(ids, positions, boxes, strict=True)})  # fmt: skip
         for i, b in zip(ids, boxes, strict=True):
             if b.hidden_fraction <= args.max_hidden_fraction:
