@@ -110,6 +110,10 @@ class TrackerConfig:
     sigma_beta: float = 2.0
     sigma_kappa: float = 0.0
     gate_chi2_quantile: float = 0.99
+    # A detection whose ankles fit no track but whose neck fits a track left unseen
+    # updates that track by the neck alone, instead of starting a second track: a person
+    # half hidden behind a nearer one is often given the nearer one's feet.
+    neck_fallback_association: bool = True
     min_updates_to_confirm: int = 3
     # Deletion when the position std exceeds max_position_std_m plus this fraction of the
     # range (far people are always uncertain along the viewing ray).

@@ -303,3 +303,60 @@ def test_a_person_hidden_inside_the_view_keeps_the_usual_time(camera):
     for k in range(30, 30 + int(1.5 * FPS)):  # hidden for 1.5 s where it stands
         tracks = tracker.update([], k / FPS, robot)
     assert len(tracks) == 1 and tracks[0].confirmed
+
+
+def _walk_pair_then_hide(camera, config, stranger_s: float = 0.0):
+    """A (8 m away) and B (4 m, in front of A) stand still, both seen for 2 s; then for
+    1 s B hides A's legs: the skeleton assembly gives A B's feet, and B is seen by the
+    neck alone. With `stranger_s` > 0, A is then hidden altogether for that long while a
+    child C, 3 m away, stands where A's neck is in the image."""
+    robot = Odometry.origin()
+    tracker = PeopleTracker(camera, config)
+    a, b, c = (8.0, 0.3), (4.0, 0.15), (3.0, 0.1125)
+    t = 0.0
+    for _ in range(int(2 * FPS)):
+        t += 1 / FPS
+        tracks = tracker.update([observe(camera, robot, a, 1.45), observe(camera, robot, b, 1.5)], t)
+    a_id = min(tracks, key=lambda s: np.linalg.norm(s.position_m - a)).track_id
+    for _ in range(int(FPS)):
+        t += 1 / FPS
+        feet_of_b = observe(camera, robot, b, 1.5).ankle_px
+        a_seen = Observation(observe(camera, robot, a, 1.45).neck_px, feet_of_b)
+        b_seen = observe(camera, robot, b, 1.5, ankle=False)
+        tracks = tracker.update([a_seen, b_seen], t)
+    after_hiding = {s.track_id: s for s in tracks}
+    for _ in range(int(stranger_s * FPS)):
+        t += 1 / FPS
+        # C's neck height puts its neck on A's pixel: 0.6 + 3.0 * 0.85 / 8 = 0.92 m.
+        tracks = tracker.update([observe(camera, robot, b, 1.5), observe(camera, robot, c, 0.92)], t)
+    return a_id, after_hiding, {s.track_id: s for s in tracks}
+
+
+def test_a_half_hidden_person_given_anothers_feet_keeps_its_track_by_the_neck(camera):
+    """PETS frames 559-575: a man walking behind another is handed the other's feet; the
+    ankle fits no track and would start a second track with a neck height read from the
+    wrong feet (2.0-2.3 m there; his own 1.5 m)."""
+    logging.disable(logging.WARNING)
+    try:
+        a_id, tracks, _ = _walk_pair_then_hide(camera, TrackerConfig())
+        assert len(tracks) == 2 and a_id in tracks
+        assert abs(tracks[a_id].neck_height_m - 1.45) < 0.05
+        assert np.linalg.norm(tracks[a_id].position_m - (8.0, 0.3)) < 0.3
+        off = TrackerConfig(neck_fallback_association=False)
+        _, tracks_off, _ = _walk_pair_then_hide(camera, off)
+        assert len(tracks_off) == 3  # without it, the wrong feet start a track of their own
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def test_a_stranger_on_a_hidden_persons_neck_pixel_starts_its_own_track(camera):
+    """The neck alone is used only for feet another track expects: a whole person of
+    their own whose neck happens to fall on a hidden track's neck pixel is a new track."""
+    logging.disable(logging.WARNING)
+    try:
+        a_id, before, tracks = _walk_pair_then_hide(camera, TrackerConfig(), stranger_s=0.4)
+        assert a_id in tracks and tracks[a_id].last_seen_s == before[a_id].last_seen_s
+        new = [s for i, s in tracks.items() if i not in before]
+        assert len(new) == 1 and np.linalg.norm(new[0].position_m - (3.0, 0.1125)) < 0.3
+    finally:
+        logging.disable(logging.NOTSET)

@@ -164,11 +164,14 @@ class PeopleTracker:
         no_noise = np.zeros((4, 4))
         expected = [t.filter.expected_measurement(model, no_noise, True) for t in self._tracks]
         pairs, in_some_gate = self._associate(obs, expected, depths)
+        used = pairs + self._associate_necks(obs, expected, depths, pairs, in_some_gate)
 
         associated: dict[int, Observation] = {}
         claimed = set()
-        for i, j in pairs:
+        for i, j in used:
             track, o = self._tracks[j], obs[i]
+            if (i, j) not in pairs:
+                o = Observation(o.neck_px, None, o.touches_border, o.skeleton)
             R = self._measurement_cov(depths[j], _single_ankle(o))
             z, R = (
                 (np.concatenate([o.neck_px, o.ankle_px]), R)
@@ -242,6 +245,48 @@ class PeopleTracker:
                 d2, nll = InnovationGate(zp[:k], S0[:k, :k] + R[:k, :k]).costs(Z)
                 cost[rows, j] = np.where(d2 <= limit, nll, np.inf)
         return global_nearest_neighbour(cost), np.isfinite(cost).any(axis=1)
+
+    def _associate_necks(self, obs, expected, depths_m, pairs, in_some_gate):
+        """(observation, track) pairs by the neck alone, for a person whose feet were
+        given to someone else (`neck_fallback_association`). A person half hidden behind
+        a nearer one is often handed the nearer one's feet by the skeleton assembly: the
+        ankle then fits no track, and the observation would start a second track with a
+        neck height read from the wrong feet. Such an observation (in no track's gate,
+        its ankle in the ankle gate of another track that was given no feet of its own
+        this frame) is paired with a track left without an observation whose neck gate
+        holds its neck. A whole person of their own (a stranger stepping in front of a
+        hidden target) has feet no footless track expects, and starts a track as before."""
+        if not self.config.neck_fallback_association:
+            return []
+        taken = {j for _, j in pairs}
+        footed = {j for i, j in pairs if obs[i].has_ankle}
+        footless = [j for j in range(len(expected)) if j not in footed]
+        rows = [i for i, o in enumerate(obs) if o.has_ankle and not in_some_gate[i]]
+        cols = [j for j in range(len(expected)) if j not in taken and expected[j] is not None]
+        if not rows or not cols or len(footless) < 2:
+            return []
+        necks = [Observation(obs[i].neck_px) for i in rows]
+        found, _ = self._associate(necks, [expected[j] for j in cols], [depths_m[j] for j in cols])
+        out = []
+        for a, b in found:
+            i, j = rows[a], cols[b]
+            owners = [k for k in footless if k != j]
+            if self._feet_expected_by(obs[i], owners, expected, depths_m):
+                out.append((i, j))
+        return out
+
+    def _feet_expected_by(self, o: Observation, tracks: list[int], expected, depths_m) -> bool:
+        """Whether the observation's ankle lies in the ankle gate of one of `tracks`."""
+        limit = gate_mahalanobis_sq(2, self.config.gate_chi2_quantile)
+        for k in tracks:
+            e = expected[k]
+            if e is None or len(e[0]) < 4:
+                continue
+            zp, S0 = e
+            R = self._measurement_cov(depths_m[k], _single_ankle(o))
+            if InnovationGate(zp[2:4], S0[2:4, 2:4] + R[2:4, 2:4]).cost(o.ankle_px)[0] <= limit:
+                return True
+        return False
 
     def _start_track(self, o: Observation, stamp_s: float, robot: Odometry) -> _Track | None:
         cfg = self.config
