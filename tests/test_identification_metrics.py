@@ -113,48 +113,69 @@ def _track(track_id: int, x_m: float, neck_u_px: float | None):
                       observation=seen)  # fmt: skip
 
 
+def _pick(picker, tracks, people, ids, box, status=None, frames=1):
+    from follow.types import TargetStatus
+
+    status = status or TargetStatus.INITIAL
+    return [picker.update(status, tracks, people, ids, box, 1.0) for _ in range(frames)][-1]
+
+
 def test_the_target_is_selected_only_where_a_click_would_pick_out_its_track():
     """PETS targets 3 and 4 walk shoulder to shoulder; the ground points of the two (one
     box mostly hidden) are tenths of a metre off, so the track nearest the target on the
     floor was its companion's. A user clicks on the person in the image: the track is
     selected where its detected neck lies in the target's box and in no one else's."""
-    from follow.eval.identification import track_to_select
-    from follow.types import TargetStatus
+    from follow.eval.identification import TargetPicker
 
-    status = TargetStatus.INITIAL
     overlapping = {3: _annotated(0.0, 100.0), 4: _annotated(0.7, 120.0)}
-    box = overlapping[3]
     # The companion's track is nearest the target on the floor, its neck in both boxes.
     tracks = [_track(28, 0.09, 130.0), _track(26, 0.18, 170.0)]
-    assert track_to_select(None, status, tracks, overlapping, (3,), box, 1.0) is None
+    assert _pick(TargetPicker(1), tracks, overlapping, (3,), overlapping[3]) is None
     apart = {3: _annotated(0.0, 100.0), 4: _annotated(0.7, 160.0)}
     tracks = [_track(28, 0.5, 180.0), _track(26, 0.15, 110.0)]
-    assert track_to_select(None, status, tracks, apart, (3,), apart[3], 1.0) == 26
+    assert _pick(TargetPicker(1), tracks, apart, (3,), apart[3]) == 26
     # Not detected in this frame: nothing to click on.
-    tracks = [_track(26, 0.15, None)]
-    assert track_to_select(None, status, tracks, apart, (3,), apart[3], 1.0) is None
+    assert _pick(TargetPicker(1), [_track(26, 0.15, None)], apart, (3,), apart[3]) is None
     # Picked out in the image but too far on the floor to be the target's.
-    tracks = [_track(26, 1.5, 110.0)]
-    assert track_to_select(None, status, tracks, apart, (3,), apart[3], 1.0) is None
+    assert _pick(TargetPicker(1), [_track(26, 1.5, 110.0)], apart, (3,), apart[3]) is None
+    # Two tracks picked out in the target's box alone: a click would be a guess.
+    both = [_track(26, 0.15, 110.0), _track(30, 0.3, 115.0)]
+    assert _pick(TargetPicker(1), both, apart, (3,), apart[3]) is None
     # The same person under another id (whole-sequence scoring) is the target.
     returning = {11: _annotated(0.0, 100.0)}
     tracks = [_track(31, 0.1, 110.0)]
-    assert track_to_select(None, status, tracks, returning, (3, 11), returning[11], 1.0) == 31
+    assert _pick(TargetPicker(1), tracks, returning, (3, 11), returning[11]) == 31
+
+
+def test_the_target_is_selected_on_a_track_picked_out_for_a_steady_second():
+    """PETS person 3 walks inside person 4's box for 20 frames before the annotation
+    gives him a box of his own: a single frame in which his track is the only neck in
+    person 4's box must not hand him to the identifier as target 4."""
+    from follow.eval.identification import TargetPicker
+
+    people = {4: _annotated(0.0, 100.0)}
+    his, hers = [_track(25, 0.3, 110.0)], [_track(27, 0.1, 118.0)]
+    picker = TargetPicker(3)
+    assert _pick(picker, his, people, (4,), people[4], frames=2) is None
+    assert _pick(picker, hers, people, (4,), people[4], frames=2) is None  # streak restarts
+    assert _pick(picker, hers, people, (4,), people[4]) == 27 and picker.selected_id == 27
+    assert _pick(picker, hers, people, (4,), people[4]) is None  # selected once
 
 
 def test_a_target_is_selected_again_only_when_its_track_ended_before_it_was_learnt():
-    from follow.eval.identification import track_to_select
+    from follow.eval.identification import TargetPicker
     from follow.types import TargetStatus
 
     people = {4: _annotated(0.0, 100.0)}
     box = people[4]
     fresh = [_track(26, 0.1, 110.0)]
-    assert track_to_select(None, TargetStatus.INITIAL, fresh, people, (4,), box, 1.0) == 26
-    assert track_to_select(None, TargetStatus.INITIAL, fresh, people, (4,), None, 1.0) is None
-    # Track 23 was selected and ended untrained: select the target's new track.
-    assert track_to_select(23, TargetStatus.INITIAL, fresh, people, (4,), box, 1.0) == 26
+    assert _pick(TargetPicker(1), fresh, people, (4,), None) is None
+    picker = TargetPicker(1)
+    picker.selected_id = 23
     # Still there, or already learnt (re-identification is the identifier's job): keep it.
     there = fresh + [_track(23, 3.0, None)]
-    assert track_to_select(23, TargetStatus.INITIAL, there, people, (4,), box, 1.0) is None
+    assert _pick(picker, there, people, (4,), box) is None
     for status in (TargetStatus.TRACKING, TargetStatus.REIDENTIFICATION):
-        assert track_to_select(23, status, fresh, people, (4,), box, 1.0) is None
+        assert _pick(picker, fresh, people, (4,), box, status) is None
+    # Track 23 was selected and ended untrained: select the target's new track.
+    assert _pick(picker, fresh, people, (4,), box) == 26

@@ -1,10 +1,10 @@
 """`follow eval identification`: who is the target, on PETS 2009 S2.L1.
 
 Each ground-truth person visible for at least `--min-visible-s` becomes the target in
-turn: on the first frame where they are visible and a confirmed track can be picked out
-as theirs, as a user clicking on them would (its detected neck in their box and in no
-one else's, its position within the match distance), that track is selected and the
-identifier learns from there on. Every
+turn: once one confirmed track, the same for a second, can be picked out as theirs, as
+a user clicking on them would (its detected neck in their box and in no one else's, its
+position within the match distance), that track is selected and the identifier learns
+from there on. Every
 later frame is then CT, CL, WT or WL (see `identification_metrics`). A person is
 visible when annotated and not more than half hidden behind someone nearer the camera;
 a named track is the target when its position lies within the match distance of the
@@ -53,6 +53,7 @@ class Annotated(NamedTuple):
     box: GtBox
 
 NAMING_STATES = (TargetStatus.INITIAL_TRAINING, TargetStatus.TRACKING)
+PICK_STEADY_S = 1.0  # a target is selected on a track picked out as its own this long
 # Figures summarised over the perturbation suite: metric -> higher is better.
 SUITE_METRICS = {"ct": True, "cl": True, "ct_cl": True, "wt": False, "wl": False}
 
@@ -105,11 +106,6 @@ def _nearest(candidates, position_m, max_distance_m: float):
     return best
 
 
-def _track_near(tracks, position_m, max_distance_m: float, confirmed_only: bool):
-    chosen = [(t, t.position_m) for t in tracks if t.confirmed or not confirmed_only]
-    return _nearest(chosen, position_m, max_distance_m)
-
-
 def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame, target_ids,
              identifier_name: str, config: Config, match_m: float, max_hidden: float,
              whole_sequence: bool = False):  # fmt: skip
@@ -129,7 +125,7 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
         identifier.model.describe = cache
         tally = OutcomeTally()
         maybe_target = undecided.get(target, frozenset())
-        selected_id: int | None = None
+        picker = TargetPicker(round(PICK_STEADY_S * PETS_FPS))
         ids = same_person.get(target, (target,))
         last = last_annotated(gt_per_frame, target) if not whole_sequence else len(frames) - 1
         for position, (index, image) in enumerate(setup.sequence.frames(frames[: last + 1])):
@@ -137,12 +133,11 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
             people = gt_per_frame[position]
             target_box = _person_box(people, ids)
             visible = target_box is not None and target_box.hidden_fraction <= max_hidden
-            chosen = track_to_select(selected_id, identifier.status, tracks, people, ids,
-                                     target_box if visible else None, match_m)  # fmt: skip
+            chosen = picker.update(identifier.status, tracks, people, ids,
+                                   target_box if visible else None, match_m)  # fmt: skip
             if chosen is not None:
                 identifier.select_target(chosen)
-                selected_id = chosen
-            if selected_id is None:
+            if picker.selected_id is None:
                 continue
             cache.frame_index = index
             estimate = identifier.update(image, tracks, index / PETS_FPS)
@@ -227,21 +222,42 @@ def _person_at(people: dict, position_m: np.ndarray, max_distance_m: float) -> i
     return _nearest(((i, a.position_m) for i, a in people.items()), position_m, max_distance_m)
 
 
-def track_to_select(selected_id: int | None, status: TargetStatus, tracks, people: dict,
-                    ids: tuple[int, ...], target_box, match_m: float) -> int | None:  # fmt: skip
-    """The track id to select for the target now, as a user would, else None: on the
-    first frame the target (`target_box`, None when not visible) can be picked out in
-    the image (`_picked_out`), and again if the selected track ended before the target
-    was learnt (the identifier would wait for that id for ever)."""
-    lost_untrained = (
-        selected_id is not None and status == TargetStatus.INITIAL
-        and all(t.track_id != selected_id for t in tracks)
-    )  # fmt: skip
-    if target_box is None or not (selected_id is None or lost_untrained):
-        return None
-    mine = [t for t in tracks if t.confirmed and _picked_out(t, people, ids)]
-    track = _track_near(mine, target_box.position_m, match_m, confirmed_only=True)
-    return None if track is None else track.track_id
+class TargetPicker:
+    """Which track to select for the target, as a user would: one that has been picked
+    out as the target's (`_picked_out`), alone, for `PICK_STEADY_S` in a row (a user
+    watches a moment before clicking, and a click on one frame where two people overlap
+    is a guess); and again if the selected track ended before the target was learnt
+    (the identifier would wait for that id for ever)."""
+
+    def __init__(self, steady_frames: int):
+        self.steady_frames = steady_frames
+        self.selected_id: int | None = None
+        self._candidate: int | None = None
+        self._streak = 0
+
+    def update(self, status: TargetStatus, tracks, people: dict, ids: tuple[int, ...],
+               target_box, match_m: float) -> int | None:  # fmt: skip
+        """The track id to select in this frame (`target_box`: the target's annotation,
+        None when not visible), else None."""
+        lost_untrained = (
+            self.selected_id is not None and status == TargetStatus.INITIAL
+            and all(t.track_id != self.selected_id for t in tracks)
+        )  # fmt: skip
+        if not (self.selected_id is None or lost_untrained):
+            return None
+        mine = [] if target_box is None else [
+            t for t in tracks
+            if t.confirmed and _picked_out(t, people, ids)
+            and float(np.linalg.norm(t.position_m - target_box.position_m)) <= match_m
+        ]  # fmt: skip
+        only = mine[0].track_id if len(mine) == 1 else None
+        self._streak = self._streak + 1 if only is not None and only == self._candidate else (
+            int(only is not None))  # fmt: skip
+        self._candidate = only
+        if only is None or self._streak < self.steady_frames:
+            return None
+        self.selected_id, self._streak = only, 0
+        return only
 
 
 def _picked_out(track, people: dict, ids: tuple[int, ...]) -> bool:
