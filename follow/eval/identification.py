@@ -43,6 +43,11 @@ from follow.types import TargetStatus
 
 IDENTIFIERS = ("ccf10", "ccf10+reid", "reid")
 
+NAMING_STATES = (TargetStatus.INITIAL_TRAINING, TargetStatus.TRACKING)
+PICK_STEADY_S = 1.0  # a target is selected on a track picked out as its own this long
+# Figures summarised over the perturbation suite: metric -> higher is better.
+SUITE_METRICS = {"ct": True, "cl": True, "ct_cl": True, "wt": False, "wl": False}
+
 
 class Annotated(NamedTuple):
     """One annotated person in one frame: ground point, hidden fraction and box (in the
@@ -51,11 +56,6 @@ class Annotated(NamedTuple):
     position_m: np.ndarray
     hidden_fraction: float
     box: GtBox
-
-NAMING_STATES = (TargetStatus.INITIAL_TRAINING, TargetStatus.TRACKING)
-PICK_STEADY_S = 1.0  # a target is selected on a track picked out as its own this long
-# Figures summarised over the perturbation suite: metric -> higher is better.
-SUITE_METRICS = {"ct": True, "cl": True, "ct_cl": True, "wt": False, "wl": False}
 
 
 def add_arguments(p) -> None:
