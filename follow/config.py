@@ -31,7 +31,20 @@ class PoseConfig:
     # pose-near`). PETS 2009's ~50 px surveillance people need other settings, kept in
     # follow/eval/pets2009.toml.
     # Network input height; the width follows the frame's aspect ratio (multiple of 8).
+    # With input_height_from_camera (the default) `follow run` and the ROS 2 node choose
+    # it from the camera instead (follow/pose/input_size.py): the height at which a
+    # person far_person_height_m tall, far_person_distance_m away, is
+    # min_person_input_px tall in the input, within 256-576 px. This value is used
+    # without a camera (benchmarks, evaluations on bare videos) or with the rule off.
     input_height_px: int = 368
+    input_height_from_camera: bool = True
+    far_person_distance_m: float = 8.0
+    far_person_height_m: float = 1.6
+    # The height in the network input from which the detector finds a person's neck and
+    # ankles: 95 % of real crops and more from 85 px with the INT8 model (74 px FP32),
+    # chosen on the robot-camera crops, checked on CUHK03 (`follow eval pose-near`;
+    # docs/pose.md). A 640x480 camera of 60 degrees gets 376 px, a 16:9 one of 70 336 px.
+    min_person_input_px: float = 85.0
     provider: str = "auto"  # auto | cpu | cuda | tensorrt | openvino
     # int8: the INT8 model made by tools/quantize_pose.py (user cache), the fast CPU path;
     # auto: that model when it has been made, else fp32.

@@ -73,6 +73,9 @@ BOUNDS: dict[str, dict[str, Range]] = {
     "pose": {
         # Up to a 1080p frame at full size; the network needs multiples of its stride 8.
         "input_height_px": Range(96, 1088, multiple_of=8),
+        "far_person_distance_m": closed(1.0, 50.0),
+        "far_person_height_m": closed(0.5, 2.5),
+        "min_person_input_px": closed(16.0, 576.0),
         "network_stages": closed(1, 2),
         "cpu_threads": THREADS,
         "warmup_runs": closed(0, 100),

@@ -67,10 +67,12 @@ def build_perception(config: Config, camera: CameraModel, detect=None) -> Percep
 
     if detect is None:
         from follow.pose.detector import PoseDetector
+        from follow.pose.input_size import pose_config_for_camera
 
         # warmed up at the frames' size: a runtime that compiles per input shape does
         # it before the first real frame, not on it
-        detector = PoseDetector(config.pose, frame_size=camera.image_size)
+        pose = pose_config_for_camera(config.pose, camera)
+        detector = PoseDetector(pose, frame_size=camera.image_size)
 
         def detect(frame: Frame):
             return detector.detect(frame.image)

@@ -12,7 +12,7 @@ from follow.capture import FrameSource
 from follow.types import Frame, Odometry
 
 START_S = 1000.0  # a bag's stamps are wall-clock seconds, not frame indices
-CONFIG_TOML = "[pose]\ninput_height_px = 368\n"
+CONFIG_TOML = "[pose]\ninput_height_px = 368\ninput_height_from_camera = false\n"
 
 
 def robot_pose(stamp_s: float) -> Odometry:

@@ -35,19 +35,27 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--crops-dir", help="folder of person crops (default $FOLLOW_DATA_DIR/ccf_crops)"
     )
+    p.add_argument("--max-crops", type=int, default=0,
+                   help="use at most this many crops, evenly spaced in name order (0 = all)")
     p.add_argument("--variants", default="original",
                    help="comma-separated pixel changes of the perturbation suite to apply to "
                         "the frames (docs/robustness.md; default original)")  # fmt: skip
 
 
-def crop_files(given: str | None) -> list[Path]:
-    """Every .jpg crop in the folder (`follow eval crops`'s folder by default)."""
+def crop_files(given: str | None, max_crops: int = 0) -> list[Path]:
+    """The .jpg crops in the folder (`follow eval crops`'s folder by default): all, or
+    `max_crops` of them evenly spaced in name order (a large folder such as CUHK03's)."""
     from follow.eval.crops import default_crops_dir
 
     folder = Path(given) if given else default_crops_dir()
     crops = sorted(folder.glob("*.jpg"))
     if not crops:
         raise ValueError(f"no .jpg person crops in {folder}")
+    if max_crops < 0:
+        raise ValueError(f"--max-crops must be >= 0, got {max_crops}")
+    if 0 < max_crops < len(crops):
+        picks = np.linspace(0, len(crops) - 1, max_crops).round().astype(int)
+        crops = [crops[i] for i in picks]
     return crops
 
 
@@ -98,7 +106,7 @@ def main(args) -> dict:
     from follow.pose.detector import PoseDetector
 
     config = Config.load(args.config) if args.config else Config()
-    crop_paths = crop_files(args.crops_dir)
+    crop_paths = crop_files(args.crops_dir, getattr(args, "max_crops", 0))
     variants = selected_pixel_variants(args, "pose-near")
     rows = []
     for person_px in args.person_heights:
@@ -110,16 +118,20 @@ def main(args) -> dict:
                     pose = dataclasses.replace(config.pose, input_height_px=size,
                                                network_stages=stages, warmup_runs=0)  # fmt: skip
                     neck, ankle, dup = detection_rates(PoseDetector(pose), frames)
-                    rows.append({"person_px": person_px, "variant": v.name,
+                    rows.append({"person_px": person_px,
+                                 "person_input_px": round(person_px * size / FRAME_SIZE[1], 1),
+                                 "variant": v.name,
                                  "network_stages": stages, "input_height_px": size,
                                  "neck": neck, "ankle": ankle,
                                  "duplicates_per_person": dup})  # fmt: skip
     if not args.json:
         print(f"{len(crop_paths)} real person crops pasted into a 640x480 frame")
-        print(f"{'person px':>9s} {'variant':>12s} {'stages':>6s} {'input':>5s} {'neck':>6s} "
+        print(f"{'person px':>9s} {'in input':>8s} {'variant':>12s} {'stages':>6s} {'input':>5s} "
+              f"{'neck':>6s} "
               f"{'ankle':>6s} {'dup':>5s}")  # fmt: skip
         for r in rows:
-            print(f"{r['person_px']:9d} {r['variant']:>12s} {r['network_stages']:6d} "
+            print(f"{r['person_px']:9d} {r['person_input_px']:8.0f} {r['variant']:>12s} "
+                  f"{r['network_stages']:6d} "
                   f"{r['input_height_px']:5d} {r['neck']:6.2f} {r['ankle']:6.2f} "
                   f"{r['duplicates_per_person']:5.2f}")  # fmt: skip
     return {"crops": len(crop_paths), "rows": rows}

@@ -82,8 +82,9 @@ class FollowNode(Node):
         self.model_name = "given detector"
         if detect is None:
             from follow.pose.detector import PoseDetector
+            from follow.pose.input_size import pose_config_for_camera
 
-            detector = PoseDetector(self.config.pose)
+            detector = PoseDetector(pose_config_for_camera(self.config.pose, mounted))
             self.model_name = f"{detector.model_path.name} on {detector.backend_name}"
 
             def detect(frame: Frame):
