@@ -78,3 +78,17 @@ def test_switched_off_the_configured_height_stays_and_a_too_small_one_is_warned(
 def test_an_impossible_camera_is_refused(focal, rows):
     with pytest.raises(ValueError, match="camera"):
         input_height_for_camera(focal, rows, PoseConfig())
+
+
+def test_follow_run_sizes_the_network_for_its_camera(model_path, caplog):
+    """The wiring: `follow run`'s perception asks the rule, and the detector it builds runs
+    at the chosen height."""
+    from follow.config import Config
+    from follow.run import build_perception
+
+    model_path("pose/human-pose-estimation-0001.onnx")
+    config = Config().replace("pose", precision="fp32", warmup_runs=0)
+    with caplog.at_level(logging.INFO):
+        build_perception(config, camera((640, 480), 90.0))
+    assert "pose input 576 px (chosen for the camera)" in caplog.text
+    assert "may miss them" in caplog.text  # clamped: 77 px, under the 85 px needed

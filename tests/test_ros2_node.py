@@ -45,6 +45,7 @@ TARGET_TIMEOUT_S = 2.0
 CONFIG = f"""
 [pose]
 input_height_px = 368
+input_height_from_camera = false
 [identify]
 initial_training_frames = 2
 [control]

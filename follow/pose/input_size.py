@@ -65,11 +65,12 @@ def pose_config_for_camera(config, camera):
         config.min_person_input_px,
     )  # fmt: skip
     if in_input < config.min_person_input_px:
+        advice = ("a wider input than the rule's 576 px limit, a narrower camera or a nearer "
+                  "[pose] far_person_distance_m" if config.input_height_from_camera else
+                  "[pose] input_height_from_camera = true sizes the input for the camera")  # fmt: skip
         log.warning(
-            "pose input %d px: a person %g m away is only %.0f px tall in it; the detector "
-            "may miss them (input %d px, or [pose] input_height_from_camera = true, "
-            "would reach %g px)", config.input_height_px, config.far_person_distance_m,
-            in_input, input_height_for_camera(float(camera.K[1, 1]), camera.image_size[1],
-                                              config), config.min_person_input_px,
+            "pose input %d px: a person %g m away is only %.0f px tall in it, under the "
+            "%g px the detector needs: it may miss them (%s)", config.input_height_px,
+            config.far_person_distance_m, in_input, config.min_person_input_px, advice,
         )  # fmt: skip
     return config
