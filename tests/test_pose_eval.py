@@ -84,6 +84,40 @@ def test_near_people_evaluation_finds_large_real_people(data_path, model_path, c
     assert "does not fit" in capsys.readouterr().err
 
 
+def test_far_people_need_their_size_in_the_input(data_path, model_path, capsys, tmp_path):
+    """The measurement behind [pose] min_person_input_px: the same crops, 96 px tall in the
+    frame, are found less often at a 256 px input (51 px in it) than at 368 px (74 px)."""
+    import json
+
+    from follow import cli
+
+    data_path("ccf_crops/p01.jpg")
+    model_path("pose/human-pose-estimation-0001.onnx")
+    fp32 = tmp_path / "fp32.toml"
+    fp32.write_text('[pose]\nprecision = "fp32"\n')
+    capsys.readouterr()
+    assert cli.main(["eval", "pose-near", "--person-heights", "96", "--sizes", "256", "368",
+                     "--stages", "2", "--max-crops", "12", "--config", str(fp32),
+                     "--json"]) == 0  # fmt: skip
+    r = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert r["crops"] == 12
+    small, large = sorted(r["rows"], key=lambda row: row["input_height_px"])
+    assert (small["person_input_px"], large["person_input_px"]) == (51.2, 73.6)
+    assert large["neck"] >= 0.9 and small["neck"] < large["neck"], r["rows"]
+
+
+def test_max_crops_takes_evenly_spaced_crops(tmp_path):
+    from follow.eval.pose_near import crop_files
+
+    for i in range(10):
+        (tmp_path / f"c{i}.jpg").write_bytes(b"")
+    picked = [p.name for p in crop_files(str(tmp_path), 4)]
+    assert picked == ["c0.jpg", "c3.jpg", "c6.jpg", "c9.jpg"]
+    assert len(crop_files(str(tmp_path), 0)) == 10 == len(crop_files(str(tmp_path), 50))
+    with pytest.raises(ValueError, match="max-crops"):
+        crop_files(str(tmp_path), -1)
+
+
 def test_frames_are_taken_from_the_half_asked_for():
     """Settings are chosen on frames 0-399 and checked on 400-794: the two never share a
     frame, and a later-starting variant starts where it starts."""

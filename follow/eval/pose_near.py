@@ -126,12 +126,10 @@ def main(args) -> dict:
                                  "duplicates_per_person": dup})  # fmt: skip
     if not args.json:
         print(f"{len(crop_paths)} real person crops pasted into a 640x480 frame")
-        print(f"{'person px':>9s} {'in input':>8s} {'variant':>12s} {'stages':>6s} {'input':>5s} "
-              f"{'neck':>6s} "
-              f"{'ankle':>6s} {'dup':>5s}")  # fmt: skip
+        print(f"{'person px':>9s} {'in input':>8s} {'variant':>12s} {'stages':>6s} "
+              f"{'input':>5s} {'neck':>6s} {'ankle':>6s} {'dup':>5s}")  # fmt: skip
         for r in rows:
             print(f"{r['person_px']:9d} {r['person_input_px']:8.0f} {r['variant']:>12s} "
-                  f"{r['network_stages']:6d} "
-                  f"{r['input_height_px']:5d} {r['neck']:6.2f} {r['ankle']:6.2f} "
-                  f"{r['duplicates_per_person']:5.2f}")  # fmt: skip
+                  f"{r['network_stages']:6d} {r['input_height_px']:5d} {r['neck']:6.2f} "
+                  f"{r['ankle']:6.2f} {r['duplicates_per_person']:5.2f}")  # fmt: skip
     return {"crops": len(crop_paths), "rows": rows}
