@@ -207,8 +207,13 @@ class IdentifyConfig:
     reid_cues_must_agree: bool = True
     # Clothes can match; stature rarely does: a candidate whose estimated neck height
     # differs from the target's last estimate by more than this (plus twice the two
-    # estimates' combined std) is not the target.
-    reid_height_tolerance_m: float = 0.05
+    # estimates' combined std) is not the target. Posture and where the network puts
+    # the neck, front or back, move one person's estimate by 1-2 cm; a camera pitch
+    # 0.06 deg off (follow-calib, rendered views) by about 1 cm between 2 and 8 m.
+    # Chosen on seeds 0-4 of `follow eval identification-sim`, checked on seeds 5-9 and
+    # PETS 2009 (docs/identification.md); a base that pitches hard when braking, or an
+    # uncalibrated camera, needs more.
+    reid_height_tolerance_m: float = 0.03
     # A re-identified target is on probation this long: the stature test runs again every
     # frame on its settling estimate (a new track's starts wide), and a failure sends it
     # back to re-identification for good, undoing what it taught the model.
