@@ -95,6 +95,18 @@ def _source_model_file(config: PoseConfig) -> Path:
     return models.resolve(config.model)
 
 
+def _advise_on_int8_without_dot_product(model_path: Path, backend_name: str) -> None:
+    """A CPU without 8-bit dot products runs the INT8 model no faster than FP32, and the
+    INT8 model finds far people less well (docs/pose.md): say so, with the setting."""
+    from follow.pose.cpu_features import cpu_flags, has_int8_dot_product
+
+    int8 = "int8" in Path(model_path).name.lower()
+    if int8 and "CPU" in backend_name and has_int8_dot_product(cpu_flags()) is False:
+        log.warning("pose: this CPU has no 8-bit dot-product instructions (VNNI), so the INT8 "
+                    "model runs no faster than FP32 and finds far people less well: "
+                    '[pose] precision = "fp32" with min_person_input_px = 75 (docs/pose.md)')  # fmt: skip
+
+
 class PoseDetector:
     """Lightweight OpenPose on onnxruntime (or OpenVINO), with our own decoding.
 
@@ -122,6 +134,7 @@ class PoseDetector:
         self.last_timing_ms: dict[str, float] = {}
         log.info("pose: running %s (sha256 %s) on %s", self.model_path,
                  models.sha256_of(self.model_path)[:16], self.backend.name)  # fmt: skip
+        _advise_on_int8_without_dot_product(self.model_path, self.backend.name)
         self._input_buffers: dict[tuple[int, int], np.ndarray] = {}
         self._frame_filter = FrameFilter.from_config(self.config)
         self.warm_up(frame_size)
