@@ -17,8 +17,8 @@ import math
 
 from follow.pose.preprocess import NETWORK_STRIDE_PX
 
-# The input sizes the detector was measured at (docs/pose.md): below, near people
-# lose detail; above, every frame costs more than the far person gains.
+# The range of input sizes the detector was measured at, far and near people alike
+# (docs/pose.md, `follow eval pose-near`): the rule stays inside what was measured.
 MIN_INPUT_HEIGHT_PX = 256
 MAX_INPUT_HEIGHT_PX = 576
 
