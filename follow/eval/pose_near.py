@@ -106,7 +106,7 @@ def main(args) -> dict:
     from follow.pose.detector import PoseDetector
 
     config = Config.load(args.config) if args.config else Config()
-    crop_paths = crop_files(args.crops_dir, getattr(args, "max_crops", 0))
+    crop_paths = crop_files(args.crops_dir, args.max_crops)
     variants = selected_pixel_variants(args, "pose-near")
     rows = []
     for person_px in args.person_heights:
