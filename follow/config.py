@@ -227,6 +227,13 @@ class IdentifyConfig:
     # colour-changed copies of the target's crop as negatives (brightness inverted, hue
     # turned in steps round the circle), which teach it that the target's colours matter.
     min_negatives_per_update: int = 6
+    # The target's crop mirrored left-right is learnt as a positive too (the boosted
+    # classifier only): seen from its other side, the target wears the same clothes.
+    # "with_reid": only beside a re-id cue, where the classifier's part is to veto and a
+    # veto keyed on which side a colour is holds the real target back; alone, the
+    # classifier must reject strangers by itself, and mirroring loosens it (measured:
+    # docs/identification.md, Mirrored positives). "always" | "never".
+    mirrored_positives: str = "with_reid"
     seed: int = 0
     # Region of interest cut from a track's neck and ankle pixels.
     crop_height_px: int = 128  # every ROI is resized to this before feature extraction

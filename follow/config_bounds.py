@@ -18,6 +18,7 @@ from dataclasses import dataclass
 # Text keys that take one of a fixed set of values.
 POSE_PROVIDERS = ("auto", "cpu", "cuda", "tensorrt", "openvino")
 POSE_PRECISIONS = ("auto", "fp32", "int8")
+MIRRORED_POSITIVES = ("with_reid", "always", "never")
 IDENTIFIERS = ("ccf10", "ccf25", "channels", "reid", "ccf10+reid", "ccf25+reid", "channels+reid")
 AUTOPILOTS = ("ardupilot", "px4")
 # Text keys with free values (a model name is checked by the model registry, a file
@@ -215,7 +216,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
 
 CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
     "pose": {"provider": POSE_PROVIDERS, "precision": POSE_PRECISIONS},
-    "identify": {"identifier": IDENTIFIERS},
+    "identify": {"identifier": IDENTIFIERS, "mirrored_positives": MIRRORED_POSITIVES},
     "mavlink": {"autopilot": AUTOPILOTS},
 }
 

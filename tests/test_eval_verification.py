@@ -26,12 +26,15 @@ def test_cuhk03_reader_groups_views_by_camera(data_path):
 
 
 def test_reid_rejects_every_hard_negative_and_accepts_the_target_on_robot_crops(
-    data_path, model_path
+    data_path, model_path, tmp_path
 ):
     model_path("reid/person-reidentification-retail-0248.onnx")
     root = data_path("cuhk03_val").parent
+    # ccf10 alone learns mirrored positives too, as it does inside ccf10+reid
+    config = tmp_path / "mirrored.toml"
+    config.write_text('[identify]\nmirrored_positives = "always"\n')
     args = argparse.Namespace(data_dir=str(root), identifiers="reid,ccf10,ccf10+reid",
-                              identities=12, config=None, json=True)  # fmt: skip
+                              identities=12, config=str(config), json=True)  # fmt: skip
     out = main(args)
     cal = out["calibration"]
     assert 0.3 < cal["similarity_at_far_0.01"] < cal["similarity_at_far_0.001"] < 1.0
@@ -83,3 +86,24 @@ def test_verification_under_perturbation_reports_each_variant_mean_and_worst(
     assert after["variants"]["blur"]["reid cuhk03_test"] != blurred
     with pytest.raises(ValueError, match="offset50 starts later"):
         main(_args(root, variants="offset50"))
+
+
+def test_mirrored_positives_accept_more_of_the_target_and_no_hard_negative(data_path, model_path):
+    """Robot-camera crops, the default ccf10+reid: learnt with its mirrored crops as
+    positives too (`mirrored_positives`), the classifier's veto holds back fewer of the
+    target's later views than without, and still lets none of the 28 hard-negative crops
+    through."""
+    from follow.config import IdentifyConfig
+    from follow.eval.verification import verify_robot_crops
+    from follow.identify.factory import build_appearance_model
+
+    model_path("ccf/ccf10")
+    model_path("reid/person-reidentification-retail-0248.onnx")
+    folder = data_path("ccf_crops")
+    assert IdentifyConfig().mirrored_positives == "with_reid"
+    figures = {}
+    for mirrored in ("with_reid", "never"):
+        config = IdentifyConfig(mirrored_positives=mirrored)
+        figures[mirrored] = verify_robot_crops(build_appearance_model(config), folder, config)
+    assert figures["with_reid"]["shipped_far"] == 0.0
+    assert figures["with_reid"]["shipped_tar"] > figures["never"]["shipped_tar"]

@@ -189,9 +189,9 @@ def _count_learning(identifier):
     calls = []
     learn = identifier.model.learn
 
-    def spy(positives, negatives, synthetic=()):
+    def spy(positives, negatives, synthetic=(), mirrored=()):
         calls.append(len(negatives))
-        learn(positives, negatives, synthetic)
+        learn(positives, negatives, synthetic, mirrored)
 
     identifier.model.learn = spy
     return calls

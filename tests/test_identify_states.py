@@ -57,8 +57,14 @@ class RecordingModel:
             return None
         return np.array([float(a.maps[0]) for a in appearances])
 
-    def learn(self, positives, negatives, synthetic=()) -> None:
+    def learn(self, positives, negatives, synthetic=(), mirrored=()) -> None:
         self.learnt.append((len(positives), len(negatives)))
+
+    def crop(self, image_bgr, roi):
+        return None
+
+    def mirrored_positives(self, crop_bgr) -> list:
+        return []
 
     def snapshot(self):
         return list(self.learnt)

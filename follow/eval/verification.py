@@ -115,7 +115,7 @@ def decision_scores(model, enrol: list, probes: list, config: IdentifyConfig) ->
     for k in range(updates):
         appearance, crop = enrol[k % len(enrol)]
         synthetic = model.synthetic_negatives(crop, config.min_negatives_per_update)
-        model.learn([appearance], [], synthetic)
+        model.learn([appearance], [], synthetic, model.mirrored_positives(crop))
     scores = []
     if model.classifier is not None:
         scores.append(model.confidence(probes) - config.reid_confidence)

@@ -137,6 +137,17 @@ class AppearanceModel:
             return []
         return self.extractor.extract_crops(recoloured_copies(crop_bgr, count))
 
+    def mirrored_positives(self, crop_bgr: np.ndarray) -> list:
+        """Feature maps of the target's crop mirrored left-right, a second positive for
+        the boosted classifier (`mirrored_positives`): the target seen from its other
+        side, or turned, still wears the same clothes, and a classifier learnt from a
+        few seconds of one view otherwise keys on which side a pattern is on. None
+        with "never", nor with "with_reid" (the default) where there is no re-id cue."""
+        mode = self.config.mirrored_positives
+        if self.extractor is None or mode == "never" or (mode == "with_reid" and self.reid is None):
+            return []
+        return self.extractor.extract_crops([np.ascontiguousarray(crop_bgr[:, ::-1])])
+
     def crop(self, image_bgr: np.ndarray, roi: Roi) -> np.ndarray:
         """The ROI of an image at the classifier's crop size."""
         size = (self.config.crop_width_px, self.config.crop_height_px)
@@ -147,12 +158,14 @@ class AppearanceModel:
         positives: Sequence[Appearance],
         negatives: Sequence[Appearance],
         synthetic_negative_maps: Sequence[FeatureMaps] = (),
+        synthetic_positive_maps: Sequence[FeatureMaps] = (),
     ) -> None:
         """One frame's samples: the target (positives) and others (negatives); the
-        synthetic negatives train only the boosted classifier."""
+        synthetic ones (recoloured negatives, mirrored positives) train only the boosted
+        classifier."""
         if self.classifier is not None:
             self.classifier.train(
-                [a.maps for a in positives],
+                [a.maps for a in positives] + list(synthetic_positive_maps),
                 [a.maps for a in negatives] + list(synthetic_negative_maps),
             )
         if self.gallery is not None:

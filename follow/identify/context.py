@@ -198,20 +198,16 @@ class IdentityContext:
 
     def learn(self, target_id: int, frame: FrameTracks) -> bool:
         """Learn the frame unless the target's crop shows someone else; whether it did.
-        Too few other people are topped up with recoloured copies of the target."""
+        Too few other people are topped up with recoloured copies of the target; its
+        mirrored crop is learnt as a positive too (`mirrored_positives`)."""
         if self.crop_shows_another(target_id, frame):
             return False
         positives = [frame.appearances[target_id]]
         negatives = [a for i, a in frame.appearances.items() if i != target_id]
         missing = self.config.min_negatives_per_update - len(negatives)
-        synthetic = (
-            self.model.synthetic_negatives(
-                self.model.crop(frame.image_bgr, frame.rois[target_id]), missing
-            )
-            if missing > 0
-            else []
-        )
-        self.model.learn(positives, negatives, synthetic)
+        crop = self.model.crop(frame.image_bgr, frame.rois[target_id])
+        synthetic = self.model.synthetic_negatives(crop, missing) if missing > 0 else []
+        self.model.learn(positives, negatives, synthetic, self.model.mirrored_positives(crop))
         return True
 
     # ------------------------------------------------------------ who may be it
