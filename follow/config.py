@@ -206,14 +206,21 @@ class IdentifyConfig:
     # is weak (PETS's 50-px people; docs/identification.md).
     reid_cues_must_agree: bool = True
     # Clothes can match; stature rarely does: a candidate whose estimated neck height
-    # differs from the target's last estimate by more than this (plus twice the two
-    # estimates' combined std) is not the target. Posture and where the network puts
+    # differs from the target's last estimate by more than this and
+    # reid_height_tolerance_stds of the two estimates' combined std, added in quadrature,
+    # is not the target. Posture and where the network puts
     # the neck, front or back, move one person's estimate by 1-2 cm; a camera pitch
     # 0.06 deg off (follow-calib, rendered views) by about 1 cm between 2 and 8 m.
     # Chosen on seeds 0-4 of `follow eval identification-sim`, checked on seeds 5-9 and
     # PETS 2009 (docs/identification.md); a base that pitches hard when braking, or an
     # uncalibrated camera, needs more.
     reid_height_tolerance_m: float = 0.03
+    # The filter's part of that allowance: a new track's estimate starts wide and needs
+    # the room; a settled one's std is the filter's floor (height_noise_mps), about 1.4
+    # cm at the robot's distances, 3-5 cm for PETS's far people. The two parts are
+    # independent errors, so they add in quadrature: added up, they let the twin 5 cm
+    # taller through at 3 m (docs/identification.md, *Stature in quadrature*).
+    reid_height_tolerance_stds: float = 2.0
     # A re-identified target is on probation this long: the stature test runs again every
     # frame on its settling estimate (a new track's starts wide), and a failure sends it
     # back to re-identification for good, undoing what it taught the model.

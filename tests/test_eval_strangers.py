@@ -90,3 +90,20 @@ def test_over_several_seeds_each_run_is_the_single_seed_run(model_path):
     assert out["runs_with_a_stranger_named"]["ccf10"] == named
     with pytest.raises(ValueError, match="--seeds"):
         main(argparse.Namespace(**{**vars(args), "variants": "dark"}))
+
+
+def test_the_twin_a_few_centimetres_taller_is_dropped_within_probation(model_path):
+    """Seed 2: the stranger in the target's shirt and trousers stands 5.0 cm taller at the
+    neck. The stature rule, tolerance and the estimates' spread added in quadrature,
+    sends it back within probation; added up, it let the twin be followed for its whole
+    stay (8.9 s)."""
+    model_path("ccf/ccf10")
+    model_path("reid/person-reidentification-retail-0248.onnx")
+    config = Config()
+    out = run_scenario(config, strangers=4, seed=2)
+    assert out["wrong_person_s"] <= config.identify.reid_probation_s
+    assert out["reacquired_after_s"] is not None and out["reacquired_after_s"] <= 3.0
+    # an allowance as wide as the two added up for settled estimates (std 1.5 cm each)
+    added_up = config.replace("identify", reid_height_tolerance_stds=0.0,
+                              reid_height_tolerance_m=0.03 + 2 * 0.021)  # fmt: skip
+    assert run_scenario(added_up, strangers=4, seed=2)["wrong_person_s"] > 5.0

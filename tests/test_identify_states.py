@@ -76,10 +76,12 @@ class RecordingModel:
         return self.reid and appearance.embedding is None
 
 
-def person(track_id, x_m, y_m=0.0, neck_height_m=1.45, observed=True, last_seen_s=0.0):
+def person(track_id, x_m, y_m=0.0, neck_height_m=1.45, observed=True, last_seen_s=0.0,
+           height_std_m=0.01):  # fmt: skip
+    cov = np.eye(5) * 1e-4
+    cov[4, 4] = height_std_m**2
     return TrackState(
-        track_id, np.array([x_m, y_m, 0.0, 0.0, neck_height_m]), np.eye(5) * 1e-4, True,
-        last_seen_s,
+        track_id, np.array([x_m, y_m, 0.0, 0.0, neck_height_m]), cov, True, last_seen_s,
         observation=Observation(np.array([0.0, 0.0]), np.array([0.0, 1.0])) if observed else None,
     )  # fmt: skip
 
@@ -312,6 +314,19 @@ def test_reidentification_rejects_a_look_alike_too_far_too_new_or_of_another_hei
     )
     same = [person(5, 2.5, neck_height_m=1.45 + 0.5 * CFG.reid_height_tolerance_m)]
     assert isinstance(reid_frames(Reidentification(), ctx, same, 10.1, *good)[-1], Probation)
+
+
+def test_the_stature_allowance_adds_the_estimates_std_to_the_tolerance_in_quadrature():
+    ctx = tracked_context(stamp_s=10.0)  # target neck height 1.45 m, std 0.01 m
+    tol_m = CFG.reid_height_tolerance_m  # 0.03; 2 combined stds of two settled estimates: 0.028
+    assert ctx.same_height(person(5, 2.5, neck_height_m=1.45 + 0.035))
+    # 5 cm off: within the two added up (0.058), not within them in quadrature (0.041)
+    assert not ctx.same_height(person(5, 2.5, neck_height_m=1.45 + 0.05))
+    # a new track's wide estimate (std 0.06 m) leaves room for its error
+    assert ctx.same_height(person(5, 2.5, neck_height_m=1.45 + 0.08, height_std_m=0.06))
+    ctx.config = dataclasses.replace(CFG, reid_height_tolerance_stds=0.0)
+    assert not ctx.same_height(person(5, 2.5, neck_height_m=1.45 + tol_m + 0.005))
+    assert ctx.same_height(person(5, 2.5, neck_height_m=1.45 + tol_m - 0.005))
 
 
 def test_reidentification_needs_a_lead_and_an_unbroken_streak():

@@ -228,12 +228,15 @@ class IdentityContext:
         return float(np.linalg.norm(track.position_m - self.last_target_position_m)) <= reach_m
 
     def same_height(self, track: TrackState) -> bool:
-        """Whether the track's estimated neck height could be the target's."""
+        """Whether the track's estimated neck height could be the target's: within the
+        tolerance for posture and calibration and the two estimates' spread, independent
+        errors, so added in quadrature."""
         if self.target_height is None:
             return True
         height, var = self.target_height
-        spread = 2.0 * math.sqrt(max(0.0, var) + max(0.0, float(track.cov[4, 4])))
-        limit = self.config.reid_height_tolerance_m + spread
+        combined_std = math.sqrt(max(0.0, var) + max(0.0, float(track.cov[4, 4])))
+        spread = self.config.reid_height_tolerance_stds * combined_std
+        limit = math.hypot(self.config.reid_height_tolerance_m, spread)
         return abs(track.neck_height_m - height) <= limit
 
     def _strictness(self, stamp_s: float) -> float:
