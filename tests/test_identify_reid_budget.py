@@ -7,6 +7,7 @@ import pytest
 from follow.config import IdentifyConfig
 from follow.identify.appearance import Appearance, AppearanceModel
 from follow.identify.context import FrameTracks, IdentityContext
+from follow.types import TargetStatus
 
 IMAGE = np.zeros((240, 320, 3), np.uint8)
 
@@ -123,3 +124,78 @@ def test_the_classifier_speaks_alone_only_with_two_cues_that_must_agree():
     off = dataclasses.replace(IdentifyConfig(), reid_cues_must_agree=False)
     assert trained(off, CountingReid())[0].classifier_confidence(described) is None
     assert trained(IdentifyConfig(), None)[0].classifier_confidence(described) is None
+
+
+class ColourReid:
+    """Embeds a ROI by its mean colour about mid-grey (a unit vector), so the same
+    clothes are similar and other clothes are not; counts the ROIs it ran on."""
+
+    def __init__(self):
+        self.embedded = 0
+
+    def embed(self, image_bgr, rois):
+        self.embedded += len(rois)
+        out = np.zeros((len(rois), 256), np.float32)
+        for k, (x0, y0, x1, y1) in enumerate(rois):
+            crop = image_bgr[int(y0) : int(y1), int(x0) : int(x1)].reshape(-1, 3)
+            mean = crop.mean(axis=0) - 120.0
+            out[k, :3] = mean / max(float(np.linalg.norm(mean)), 1e-6)
+        return out
+
+
+def _two_cue_identifier():
+    from test_identify_state_machine import CFG
+
+    from follow.ccf.channels import ChannelFeatureExtractor
+    from follow.identify.identifier import TargetIdentifier
+
+    reid = ColourReid()
+    extractor = ChannelFeatureExtractor((CFG.crop_width_px, CFG.crop_height_px))
+    return TargetIdentifier(CFG, extractor, reid), reid
+
+
+def _stranger_then_target(identifier, reid):
+    """The target is learnt, leaves, a stranger in other clothes stands in view, the
+    target comes back under a new track id: (statuses, target ids, ROIs embedded) per
+    phase."""
+    from test_identify_state_machine import BLUE, GREEN, RED, Person, run
+
+    rng = np.random.default_rng(3)
+    target = Person(1, 2.0, 180, RED)
+    run(identifier, [target], 12, rng)
+    phases = {}
+    for name, people, frames, t0 in (
+        ("stranger", [Person(5, 2.2, 300, GREEN, trousers=BLUE)], 8, 2.0),
+        ("target back", [Person(9, 2.4, 320, RED)], 6, 3.0),
+    ):
+        before = reid.embedded
+        ests = run(identifier, people, frames, rng, t0=t0)
+        phases[name] = ([e.status for e in ests], [e.target_id for e in ests],
+                        reid.embedded - before)  # fmt: skip
+    return phases
+
+
+def test_reidentification_embeds_nobody_while_no_track_passes_the_other_tests():
+    """A stranger whom the boosted classifier alone already rejects is never embedded:
+    re-id could not make them the target. The target come back is embedded and taken."""
+    identifier, reid = _two_cue_identifier()
+    phases = _stranger_then_target(identifier, reid)
+    statuses, named, embedded = phases["stranger"]
+    assert all(s == TargetStatus.REIDENTIFICATION for s in statuses) and set(named) == {None}
+    assert embedded == 0
+    statuses, named, embedded = phases["target back"]
+    assert named[-1] == 9 and embedded > 0
+
+
+def test_skipping_the_embeddings_changes_no_decision(monkeypatch):
+    """The same frames with re-id forced on every track in re-identification name the
+    same target in every frame: the embeddings left out decided nothing."""
+    identifier, reid = _two_cue_identifier()
+    lazy = _stranger_then_target(identifier, reid)
+    look = IdentityContext.look
+    monkeypatch.setattr(IdentityContext, "look",
+                        lambda self, frame, only=None, embed=True: look(self, frame, only))  # fmt: skip
+    identifier, reid = _two_cue_identifier()
+    full = _stranger_then_target(identifier, reid)
+    assert [p[:2] for p in lazy.values()] == [p[:2] for p in full.values()]
+    assert full["stranger"][2] == 8  # forced: the stranger embedded in each of 8 frames

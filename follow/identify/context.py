@@ -65,17 +65,19 @@ class IdentityContext:
         }
 
     # ------------------------------------------------------------------ the frame
-    def look(self, frame: FrameTracks, only: int | None = None) -> None:
+    def look(self, frame: FrameTracks, only: int | None = None, embed: bool = True) -> None:
         """Cut and describe every observed track's crop, and score it (once a frame).
         Confidences are those of the model before this frame is learnt.
 
-        The re-id network (~7 ms a person on a laptop core) runs only where it decides
+        The re-id network (~5-7 ms a person on a laptop core) runs only where it decides
         something: with `only`, on that track alone (the target, while it is learnt and
-        checked); without, on everyone (re-identification), completing what an earlier
-        look this frame left out."""
+        checked); with `embed` false, on nobody (re-identification, until a track passes
+        every test that needs no embedding); otherwise on everyone, completing what an
+        earlier look this frame left out. A track without an embedding is scored by the
+        classifier alone."""
         if frame.looked:
-            if only is None and any(self.model.lacks_embedding(a)
-                                    for a in frame.appearances.values()):  # fmt: skip
+            if embed and only is None and any(self.model.lacks_embedding(a)
+                                              for a in frame.appearances.values()):  # fmt: skip
                 ids = list(frame.appearances)
                 completed = self.model.complete(
                     frame.image_bgr, [frame.rois[i] for i in ids],
@@ -88,8 +90,8 @@ class IdentityContext:
         h, w = frame.image_bgr.shape[:2]
         frame.rois = track_rois(frame.tracks, (w, h), self.config)
         ids = list(frame.rois)
-        embed = [only is None or i == only for i in ids]
-        described = self.model.describe(frame.image_bgr, [frame.rois[i] for i in ids], embed)
+        wanted = [embed and (only is None or i == only) for i in ids]
+        described = self.model.describe(frame.image_bgr, [frame.rois[i] for i in ids], wanted)
         frame.appearances = dict(zip(ids, described, strict=True))
         frame.boxes = person_boxes(frame.tracks, frame.rois, (w, h), self.config)
         self._score(frame)

@@ -164,9 +164,14 @@ class Reidentification(State):
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         self.streaks = {k: v for k, v in self.streaks.items() if k in frame.by_id}
-        context.look(frame)
+        # The re-id network runs only on a frame where some track passes every test that
+        # needs no embedding: on any other frame no track can pass, whatever re-id says.
+        context.look(frame, embed=False)
+        classifier = context.classifier_confidences(frame)
+        if any(self._may_pass(context, frame, i, classifier) for i in frame.confidences):
+            context.look(frame)
         confidences = frame.confidences
-        evidence = Evidence(context.similarities(frame), context.classifier_confidences(frame))
+        evidence = Evidence(context.similarities(frame), classifier)
         for track_id in confidences:
             passed = self._passes(context, frame, track_id, evidence)
             self.streaks[track_id] = self.streaks.get(track_id, 0) + 1 if passed else 0
@@ -200,23 +205,36 @@ class Reidentification(State):
         confidences = frame.confidences
         confidence = confidences[track_id]
         runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
-        track = frame.by_id[track_id]
-        required = context.required_confidence(frame.stamp_s)
         similarities, classifier = evidence
         return (
-            confidence >= required
-            and (classifier is None or classifier[track_id] >= required)
+            confidence >= context.required_confidence(frame.stamp_s)
             and confidence - runner_up >= context.config.reid_margin
             and (
                 similarities is None
                 or similarities[track_id] >= context.required_similarity(frame.stamp_s)
             )
+            and Reidentification._may_pass(context, frame, track_id, classifier)
+        )
+
+    @staticmethod
+    def _may_pass(
+        context: IdentityContext,
+        frame: FrameTracks,
+        track_id: int,
+        classifier: dict[int, float] | None,
+    ) -> bool:
+        """The tests of `_passes` that need no re-id embedding: with two cues the boosted
+        classifier's own confidence, and who the track is and where it stands."""
+        track = frame.by_id[track_id]
+        return (
+            (classifier is None
+             or classifier[track_id] >= context.required_confidence(frame.stamp_s))
             and context.established(track)
             and track_id not in context.rejected
             and not context.seen_beside_target(track_id)
             and context.reachable(track, frame.stamp_s)
             and context.same_height(track)
-        )
+        )  # fmt: skip
 
 
 class Probation(Tracking):
