@@ -102,6 +102,10 @@ def test_bench_times_every_stage_and_the_runner_against_bare_inference(pets, cap
         r["runner_frame_ms"] / r["bare_inference_ms"], rel=0.01
     )
     assert 0 < r["capture_to_command_median_ms"] <= r["capture_to_command_p95_ms"]
+    # and the same runner with the stages in turn beside it, its latency too
+    assert r["runner_fps_stages_in_turn"] > 0.0
+    assert 0 < r["capture_to_command_median_ms_stages_in_turn"] <= (
+        r["capture_to_command_p95_ms_stages_in_turn"])  # fmt: skip
     assert 50.0 < r["peak_rss_mb"] < 4000.0
     # The robot default runs the whole network (no stage cut); without the INT8 model it
     # says FP32 ran.

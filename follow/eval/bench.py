@@ -99,9 +99,9 @@ def main(args) -> dict:
     other = config.replace("control", overlap_stages=not config.control.overlap_stages)
     other_run = runner_times(other, detector, setup, total, args.warmup, args.camera_fps,
                              args.json)  # fmt: skip
-    result[
-        "runner_fps_stages_" + ("in_turn" if config.control.overlap_stages else "overlapped")
-    ] = other_run["runner_fps"]
+    other_name = "in_turn" if config.control.overlap_stages else "overlapped"
+    for key in ("runner_fps", "capture_to_command_median_ms", "capture_to_command_p95_ms"):
+        result[f"{key}_stages_{other_name}"] = other_run[key]
     e2e_ms = result["runner_frame_ms"]
     result["end_to_end_over_inference"] = (
         round(e2e_ms / result["bare_inference_ms"], 3) if e2e_ms else None
@@ -269,10 +269,12 @@ def print_report(result: dict, camera_fps: float) -> None:
           f"frame = {result['end_to_end_over_inference']} x bare inference; capture to command "
           f"median {result['capture_to_command_median_ms']} ms, p95 "
           f"{result['capture_to_command_p95_ms']} ms")  # fmt: skip
-    for key in ("runner_fps_stages_in_turn", "runner_fps_stages_overlapped"):
-        if key in result:
-            print(f"  the same runner with the stages {key.split('stages_')[1].replace('_', ' ')}:"
-                  f" {result[key]} fps")  # fmt: skip
+    for other in ("in_turn", "overlapped"):
+        if f"runner_fps_stages_{other}" in result:
+            print(f"  the same runner with the stages {other.replace('_', ' ')}: "
+                  f"{result[f'runner_fps_stages_{other}']} fps; capture to command median "
+                  f"{result[f'capture_to_command_median_ms_stages_{other}']} ms, p95 "
+                  f"{result[f'capture_to_command_p95_ms_stages_{other}']} ms")  # fmt: skip
     print(f"  peak RSS {result['peak_rss_mb']} MB")
     for note in result["notes"]:
         print(f"  note: {note}")
