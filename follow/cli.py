@@ -91,6 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     if module is None:
         parser.parse_args([args.command, "--help"])
         return 2  # pragma: no cover  (--help exits)
+    from follow.memory import fix_mmap_threshold
+
+    fix_mmap_threshold()  # a robot runs for hours: its memory must not creep
     try:
         result = module.main(args)
     except KeyboardInterrupt:

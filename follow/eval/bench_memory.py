@@ -41,6 +41,9 @@ def measure(frames: int, warmup_frames: int, seed: int = 0, progress: bool = Fal
 
     if not 0 < warmup_frames < frames:
         raise ValueError(f"warm-up ({warmup_frames}) must be between 0 and frames ({frames})")
+    from follow.memory import fix_mmap_threshold
+
+    fix_mmap_threshold()  # as `follow` does at start (follow/cli.py), in this process too
     config = Config().replace("identify", identifier="channels", seed=seed)
     camera = DEMO_CAMERA.detection_camera()
     perception = sim_perception(camera, config, seed)
