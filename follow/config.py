@@ -299,8 +299,11 @@ class ControlConfig:
     search_yaw_rate_radps: float = 0.4
     control_rate_hz: float = 15.0
     # Run the next frame's pose inference while this frame is tracked, identified and
-    # written (two frames in flight at most): more frames per second on the same cores.
-    overlap_stages: bool = True
+    # written (two frames in flight at most). "auto": where the pose network runs on a
+    # GPU (CUDA, TensorRT), which then infers while the CPU does the rest; in turn on a
+    # CPU, where the network already keeps every core busy and overlapping gains a few
+    # percent of frame rate for a sixth more latency (docs/system.md). true | false.
+    overlap_stages: bool | str = "auto"
 
 
 @dataclass(frozen=True)
@@ -406,6 +409,19 @@ class Config:
         )
 
 
+_TYPE_NAMES = {"bool": bool, "int": int, "float": float, "str": str}
+
+
+def field_types(section_cls, key: str, default_type: type) -> tuple[type, ...]:
+    """The types a key takes: those of its annotation where it names several
+    (`bool | str`: a switch with an "auto" choice), else its default's."""
+    annotation = next(f.type for f in dataclasses.fields(section_cls) if f.name == key)
+    names = [n.strip() for n in str(annotation).split("|")]
+    if len(names) > 1 and all(n in _TYPE_NAMES for n in names):
+        return tuple(_TYPE_NAMES[n] for n in names)
+    return (default_type,)
+
+
 def _build_section(defaults, values: dict, where: str):
     """`defaults` (a section instance) with the keys in `values`, type-checked."""
     section_cls = type(defaults)
@@ -414,12 +430,11 @@ def _build_section(defaults, values: dict, where: str):
     for key, value in values.items():
         if key not in known:
             raise ConfigError(f"{where}: unknown key '{key}'; known: {sorted(known)}")
-        expected = type(getattr(defaults, key))
-        if expected is float and isinstance(value, int) and not isinstance(value, bool):
+        expected = field_types(section_cls, key, type(getattr(defaults, key)))
+        if float in expected and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
-        if not isinstance(value, expected) or (expected is not bool and isinstance(value, bool)):
-            raise ConfigError(
-                f"{where}: '{key}' must be {expected.__name__}, got {type(value).__name__}"
-            )
+        if not isinstance(value, expected) or (bool not in expected and isinstance(value, bool)):
+            names = " or ".join(t.__name__ for t in expected)
+            raise ConfigError(f"{where}: '{key}' must be {names}, got {type(value).__name__}")
         out[key] = value
     return dataclasses.replace(defaults, **out)

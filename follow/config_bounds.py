@@ -220,6 +220,7 @@ CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
     "pose": {"provider": POSE_PROVIDERS, "precision": POSE_PRECISIONS},
     "identify": {"identifier": IDENTIFIERS, "mirrored_positives": MIRRORED_POSITIVES},
     "mavlink": {"autopilot": AUTOPILOTS},
+    "control": {"overlap_stages": ("auto",)},  # or true / false
 }
 
 # (section, smaller key, larger key): pairs whose order matters.
@@ -273,7 +274,7 @@ def markdown_tables() -> str:
     (`python -m follow.config_bounds` prints them)."""
     import dataclasses
 
-    from follow.config import Config
+    from follow.config import Config, field_types
 
     out = []
     for f in dataclasses.fields(Config):
@@ -284,7 +285,9 @@ def markdown_tables() -> str:
             if isinstance(value, bool):
                 allowed = "`true` \\| `false`"
             elif isinstance(value, str):
-                choices = CHOICES.get(f.name, {}).get(key.name)
+                choices = list(CHOICES.get(f.name, {}).get(key.name, ()))
+                if bool in field_types(type(section), key.name, str):
+                    choices += ["true", "false"]
                 allowed = " \\| ".join(f"`{c}`" for c in choices) if choices else "any text"
             else:
                 allowed = f"`{BOUNDS[f.name][key.name].describe()}`"

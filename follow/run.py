@@ -59,8 +59,11 @@ def add_arguments(p) -> None:
     )
 
 
-def build_perception(config: Config, camera: CameraModel, detect=None) -> Perception:
-    """The standard stack: pose network (unless `detect` is given), UKF, identifier."""
+def build_perception(
+    config: Config, camera: CameraModel, detect=None, pose_backend: str | None = None
+) -> Perception:
+    """The standard stack: pose network (unless `detect` is given, running on
+    `pose_backend`), UKF, identifier."""
     from follow.identify.factory import build_identifier
     from follow.pose.observations import skeletons_to_observations
     from follow.ukf.tracker import PeopleTracker
@@ -73,6 +76,7 @@ def build_perception(config: Config, camera: CameraModel, detect=None) -> Percep
         # it before the first real frame, not on it
         pose = pose_config_for_camera(config.pose, camera)
         detector = PoseDetector(pose, frame_size=camera.image_size)
+        pose_backend = detector.backend_name
 
         def detect(frame: Frame):
             return detector.detect(frame.image)
@@ -85,6 +89,7 @@ def build_perception(config: Config, camera: CameraModel, detect=None) -> Percep
         to_observations,
         PeopleTracker(camera, config.tracker),
         build_identifier(config.identify),
+        pose_backend,
     )
 
 

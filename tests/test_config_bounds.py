@@ -35,6 +35,7 @@ def test_the_defaults_pass_validation():
         ("[pose]\nprecision = 'fp16'\n", r"\[pose\] precision"),
         ("[identify]\nidentifier = 'ccf11'\n", r"\[identify\] identifier"),
         ("[mavlink]\nautopilot = 'dji'\n", r"\[mavlink\] autopilot"),
+        ("[control]\noverlap_stages = 'yes'\n", r"\[control\] overlap_stages = 'yes': .* auto"),
         ("[mavlink]\nstream_rate_hz = 2\n", r"\[mavlink\] stream_rate_hz"),
         (
             "[tracker]\nmin_neck_height_m = 2.0\nmax_neck_height_m = 1.0\n",
@@ -87,3 +88,19 @@ def test_identifier_choices_match_the_factory():
     from follow.identify.factory import IDENTIFIERS
 
     assert set(CHOICES["identify"]["identifier"]) == set(IDENTIFIERS)
+
+
+@pytest.mark.parametrize("value", ["true", "false", "'auto'"])
+def test_a_switch_with_an_auto_choice_takes_either(tmp_path, value):
+    path = tmp_path / "c.toml"
+    path.write_text(f"[control]\noverlap_stages = {value}\n")
+    assert Config.load(path).control.overlap_stages == {"true": True, "false": False}.get(
+        value, "auto"
+    )
+
+
+def test_a_switch_with_an_auto_choice_refuses_other_types_naming_both(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[control]\noverlap_stages = 1\n")
+    with pytest.raises(ConfigError, match="'overlap_stages' must be bool or str, got int"):
+        Config.load(path)

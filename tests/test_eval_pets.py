@@ -96,16 +96,17 @@ def test_bench_times_every_stage_and_the_runner_against_bare_inference(pets, cap
     # fps is printed to two decimals
     assert r["in_turn_fps"] == pytest.approx(1000.0 / r["in_turn_ms"], rel=0.01, abs=0.006)
     # the runner drove the frames through the threads and commanded from them
-    assert r["runner_frames"] >= 2 and r["overlap_stages"] is True
+    # the pose network runs on the CPU here: "auto" runs the stages in turn
+    assert r["runner_frames"] >= 2 and r["overlap_stages"] is False
     assert r["runner_frame_ms"] == pytest.approx(1000.0 / r["runner_fps"], rel=0.01)
     assert r["end_to_end_over_inference"] == pytest.approx(
         r["runner_frame_ms"] / r["bare_inference_ms"], rel=0.01
     )
     assert 0 < r["capture_to_command_median_ms"] <= r["capture_to_command_p95_ms"]
-    # and the same runner with the stages in turn beside it, its latency too
-    assert r["runner_fps_stages_in_turn"] > 0.0
-    assert 0 < r["capture_to_command_median_ms_stages_in_turn"] <= (
-        r["capture_to_command_p95_ms_stages_in_turn"])  # fmt: skip
+    # and the same runner with the stages overlapped beside it, its latency too
+    assert r["runner_fps_stages_overlapped"] > 0.0
+    assert 0 < r["capture_to_command_median_ms_stages_overlapped"] <= (
+        r["capture_to_command_p95_ms_stages_overlapped"])  # fmt: skip
     assert 50.0 < r["peak_rss_mb"] < 4000.0
     # The robot default runs the whole network (no stage cut); without the INT8 model it
     # says FP32 ran.

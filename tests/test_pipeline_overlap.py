@@ -11,7 +11,13 @@ from follow.config import ControlConfig
 from follow.control.base import NullBase
 from follow.control.controller import FollowingController
 from follow.handoff import Handoff, OrderedWorker
-from follow.pipeline import ControlLoop, Detections, FrameResult, ThreadedRunner
+from follow.pipeline import (
+    ControlLoop,
+    Detections,
+    FrameResult,
+    ThreadedRunner,
+    overlaps_stages,
+)
 from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
 
 
@@ -201,3 +207,31 @@ def test_a_mailbox_reader_ends_when_it_is_closed_or_told_to_stop():
     open_slot = LatestSlot()
     open_slot.put("b")
     assert list(open_slot.items(stop, poll_s=0.01)) == []  # stopped before reading
+
+
+@pytest.mark.parametrize(
+    ("setting", "backend", "overlapped"),
+    [
+        ("auto", "onnxruntime:CPUExecutionProvider", False),
+        ("auto", "openvino:CPU", False),
+        ("auto", None, False),  # no network (a synthetic detector)
+        ("auto", "onnxruntime:CUDAExecutionProvider", True),
+        ("auto", "onnxruntime:TensorrtExecutionProvider", True),
+        (True, "onnxruntime:CPUExecutionProvider", True),
+        (False, "onnxruntime:CUDAExecutionProvider", False),
+    ],
+)
+def test_auto_overlaps_the_stages_only_where_a_gpu_runs_the_network(setting, backend, overlapped):
+    assert overlaps_stages(setting, backend) is overlapped
+
+
+def test_build_runner_overlaps_by_the_perception_s_pose_runtime():
+    from follow.config import ControlConfig
+    from follow.pipeline import build_runner
+
+    perception = _TimedPerception()
+    for backend, overlapped in (("onnxruntime:CPUExecutionProvider", False),
+                                ("onnxruntime:CUDAExecutionProvider", True)):  # fmt: skip
+        perception.pose_backend = backend
+        runner = build_runner(perception, NullBase(), ControlConfig())
+        assert runner.overlap_stages is overlapped

@@ -95,11 +95,12 @@ def main(args) -> dict:
     result.update(stage_times(config, detector, setup, total, args.warmup, args.json))
     result.update(runner_times(config, detector, setup, total, args.warmup, args.camera_fps,
                                args.json))  # fmt: skip
-    # the same runner with the stages in turn: what overlapping them gains, same run
-    other = config.replace("control", overlap_stages=not config.control.overlap_stages)
+    # the same runner with the other stage setting: what overlapping them gains or
+    # costs, same run
+    other = config.replace("control", overlap_stages=not result["overlap_stages"])
     other_run = runner_times(other, detector, setup, total, args.warmup, args.camera_fps,
                              args.json)  # fmt: skip
-    other_name = "in_turn" if config.control.overlap_stages else "overlapped"
+    other_name = "overlapped" if other_run["overlap_stages"] else "in_turn"
     for key in ("runner_fps", "capture_to_command_median_ms", "capture_to_command_p95_ms"):
         result[f"{key}_stages_{other_name}"] = other_run[key]
     e2e_ms = result["runner_frame_ms"]
@@ -245,7 +246,8 @@ def _learning_perception(config, setup, detector):
     """The stack on `detector`, with an identifier that learns someone."""
     from follow.run import build_perception
 
-    perception = build_perception(config, setup.camera, lambda frame: detector.detect(frame.image))
+    perception = build_perception(config, setup.camera, lambda frame: detector.detect(frame.image),
+                                  detector.backend_name)  # fmt: skip
     perception.identifier = _SelectsSomeone(perception.identifier)
     return perception
 

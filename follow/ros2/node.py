@@ -39,7 +39,7 @@ from follow.capture import LatestSlot
 from follow.config import Config, ConfigError
 from follow.handoff import Handoff
 from follow.odometry_buffer import OdometryBuffer
-from follow.pipeline import ControlLoop, FrameResult
+from follow.pipeline import ControlLoop, FrameResult, overlaps_stages
 from follow.ros2 import messages
 from follow.ros2.gate import CmdVelGate, check_ros_config
 from follow.rosmsg import camera_from_info, image_fields, image_from_msg, odometry_from_msg, stamp_s
@@ -80,12 +80,14 @@ class FollowNode(Node):
         check_ros_config(ros)
         self.mounted = mounted
         self.model_name = "given detector"
+        self._pose_backend: str | None = None
         if detect is None:
             from follow.pose.detector import PoseDetector
             from follow.pose.input_size import pose_config_for_camera
 
             detector = PoseDetector(pose_config_for_camera(self.config.pose, mounted))
             self.model_name = f"{detector.model_path.name} on {detector.backend_name}"
+            self._pose_backend = detector.backend_name
 
             def detect(frame: Frame):
                 return detector.detect(frame.image)
@@ -120,9 +122,11 @@ class FollowNode(Node):
             )  # fmt: skip
         self.create_timer(ros.diagnostics_period_s, self._publish_diagnostics)
         self._stopping = threading.Event()
-        # With `overlap_stages` the pose network infers the next image on this thread
-        # while the previous one is tracked, identified and published on another.
-        self._handoff = Handoff() if self.config.control.overlap_stages else None
+        # With the stages overlapped (`overlap_stages`; "auto": a GPU runs the network)
+        # the pose network infers the next image on this thread while the previous one is
+        # tracked, identified and published on another.
+        overlap = overlaps_stages(self.config.control.overlap_stages, self._pose_backend)
+        self._handoff = Handoff() if overlap else None
         self._workers = [threading.Thread(target=self._perceive, name="pose", daemon=True)]
         if self._handoff is not None:
             self._workers.append(
@@ -246,7 +250,8 @@ class FollowNode(Node):
                 return None
             camera = camera_from_info(self.camera_info, self.mounted)
         camera = camera_for_frames(camera, width, height)
-        self.perception = build_perception(self.config, camera, detect=self._detect)
+        self.perception = build_perception(self.config, camera, detect=self._detect,
+                                           pose_backend=self._pose_backend)  # fmt: skip
         if self._pending_target is not None and self._pending_target >= 0:
             self.perception.identifier.select_target(self._pending_target)
         return self.perception
