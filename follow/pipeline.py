@@ -441,7 +441,11 @@ def build_runner(
         odometry=OdometryPolicy(base),
     )  # fmt: skip
     # a scripted or synthetic perception has no pose network, hence no pose_backend
-    overlap = overlaps_stages(config.overlap_stages, getattr(perception, "pose_backend", None))
+    backend = getattr(perception, "pose_backend", None)
+    overlap = overlaps_stages(config.overlap_stages, backend)
+    if backend is not None:
+        log.info("stages %s (overlap_stages = %r, pose network on %s)",
+                 "overlapped" if overlap else "in turn", config.overlap_stages, backend)  # fmt: skip
     return ThreadedRunner(perception, control, base, clock=clock, overlap_stages=overlap)
 
 
