@@ -182,12 +182,6 @@ class IdentifyConfig:
     identity_trust_s: float = 1.5
     identity_risk_distance_m: float = 1.0
     identity_risk_unseen_s: float = 0.5
-    # While tracking, the target's appearance (CCF, boosting, re-id: most of the
-    # identifier's time) is checked and learnt at most this often; the frames between
-    # keep the tracker's identity, as a frame whose crop another person covers does.
-    # 0.1 s checks every frame up to 10 fps (PETS 2009's 7 fps: every frame, as
-    # measured), every other frame at 15 fps, every third at 30 fps. 0 = every frame.
-    target_check_interval_s: float = 0.1
     # A track becomes the target (first choice or re-identification) only while it is
     # seen in the frame and after it has been seen in this many frames: a ghost track
     # made of a few split skeletons is never followed.

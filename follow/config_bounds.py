@@ -148,7 +148,6 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "identity_trust_s": closed(0.0, 60.0),
         "identity_risk_distance_m": closed(0.0, 20.0),
         "identity_risk_unseen_s": closed(0.0, 60.0),
-        "target_check_interval_s": closed(0.0, 1.0),
         "seed": closed(0, 2**32 - 1),
         "crop_height_px": closed(16, 1024),
         "crop_width_px": closed(8, 1024),

@@ -1,8 +1,6 @@
 """The re-id network runs only where it decides something: on the target while it is
 tracked, on everyone during re-identification."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -201,61 +199,3 @@ def test_skipping_the_embeddings_changes_no_decision(monkeypatch):
     full = _stranger_then_target(identifier, reid)
     assert [p[:2] for p in lazy.values()] == [p[:2] for p in full.values()]
     assert full["stranger"][2] == 8  # forced: the stranger embedded in each of 8 frames
-
-
-def _frames_at(identifier, people, rng, start_s, fps, count):
-    from test_identify_state_machine import frame
-
-    out = []
-    for k in range(count):
-        stamp = start_s + k / fps
-        image, tracks = frame(people, rng, stamp)
-        out.append(identifier.update(image, tracks, stamp))
-    return out
-
-
-def _tracking_identifier(interval_s):
-    from test_identify_state_machine import CFG, RED, Person
-
-    from follow.ccf.channels import ChannelFeatureExtractor
-    from follow.identify.identifier import TargetIdentifier
-
-    config = dataclasses.replace(CFG, target_check_interval_s=interval_s)
-    reid = ColourReid()
-    extractor = ChannelFeatureExtractor((CFG.crop_width_px, CFG.crop_height_px))
-    identifier = TargetIdentifier(config, extractor, reid)
-    rng = np.random.default_rng(5)
-    target = Person(1, 2.0, 180, RED)
-    _frames_at(identifier, [target], rng, 0.0, 10.0, 8)
-    assert identifier.status == TargetStatus.TRACKING
-    return identifier, reid, target, rng
-
-
-@pytest.mark.parametrize(("interval_s", "checked"), [(0.1, 10), (0.0, 30)])
-def test_the_tracked_target_is_checked_at_most_every_interval(interval_s, checked):
-    """At 30 fps with the 0.1 s default, one frame in three embeds and scores the
-    target; the others keep it, publish no confidence and learn nothing."""
-    identifier, reid, target, rng = _tracking_identifier(interval_s)
-    before = reid.embedded
-    ests = _frames_at(identifier, [target], rng, 1.0, 30.0, 30)
-    assert all(e.status == TargetStatus.TRACKING and e.target_id == 1 for e in ests)
-    assert reid.embedded - before == checked
-    assert sum(1 in e.confidences for e in ests) == checked
-    assert len(identifier.model.gallery) <= 8 + checked  # learnt on checked frames only
-
-
-def test_a_swap_between_checks_is_caught_at_the_next_check_and_not_learnt():
-    """The tracker hands the target's track to the person beside it between two checks:
-    at most 0.1 s later the target is doubted, and the real one (now on the other
-    track) is named again."""
-    from test_identify_state_machine import BLUE, RED, Person
-
-    identifier, reid, target, rng = _tracking_identifier(0.1)
-    other = Person(2, 2.5, 260, BLUE)  # within identity_risk_distance_m: a swap is possible
-    _frames_at(identifier, [target, other], rng, 1.0, 30.0, 4)
-    swapped = [Person(1, 2.0, 180, BLUE), Person(2, 2.5, 420, RED)]
-    ests = _frames_at(identifier, swapped, rng, 1.2, 30.0, 12)
-    doubted = next(k for k, e in enumerate(ests) if e.target_id != 1)
-    assert doubted <= 3  # the next check, 0.1 s at most at 30 fps
-    assert ests[doubted].status == TargetStatus.REIDENTIFICATION
-    assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 2

@@ -29,7 +29,6 @@ class FrameTracks:
     stamp_s: float
     robot: Odometry | None
     by_id: dict[int, TrackState]
-    placed: bool = False
     looked: bool = False
     rois: dict[int, Roi] = field(default_factory=dict)  # tracks observed this frame
     boxes: dict[int, Roi] = field(default_factory=dict)  # and those hidden behind others
@@ -88,23 +87,14 @@ class IdentityContext:
                 self._score(frame)
             return
         frame.looked = True
-        self.place(frame)
+        h, w = frame.image_bgr.shape[:2]
+        frame.rois = track_rois(frame.tracks, (w, h), self.config)
         ids = list(frame.rois)
         wanted = [embed and (only is None or i == only) for i in ids]
         described = self.model.describe(frame.image_bgr, [frame.rois[i] for i in ids], wanted)
         frame.appearances = dict(zip(ids, described, strict=True))
-        self._score(frame)
-
-    def place(self, frame: FrameTracks) -> None:
-        """Each observed track's crop box and every person's box, seen or hidden behind
-        another (geometry only, once a frame): what who-touches-whom needs on a frame
-        whose appearances are not looked at."""
-        if frame.placed:
-            return
-        frame.placed = True
-        h, w = frame.image_bgr.shape[:2]
-        frame.rois = track_rois(frame.tracks, (w, h), self.config)
         frame.boxes = person_boxes(frame.tracks, frame.rois, (w, h), self.config)
+        self._score(frame)
 
     def _score(self, frame: FrameTracks) -> None:
         scores = self._by_track(frame, self.model.confidence) if self.model.ready else None

@@ -98,16 +98,13 @@ class Tracking(State):
     """Following the target's track, learning while its confidence stays at or above
     `id_switch_confidence`. Below it the identity is no longer trusted, unless nobody
     came near the target for `identity_trust_s` (it turned round) or another person
-    covers its crop (judged once the crop is clear); losing the track also ends it. The
-    appearance is checked at most every `target_check_interval_s`; the frames between
-    keep the tracker's identity and learn nothing."""
+    covers its crop (judged once the crop is clear); losing the track also ends it."""
 
     status = TargetStatus.TRACKING
     notes_stature = True  # the track's height is the target's
 
     def __init__(self, target_id: int):
         self.target_id = target_id
-        self.checked_s = -math.inf  # when the target's appearance was last checked
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self._keeps(context, frame):
@@ -119,14 +116,8 @@ class Tracking(State):
         if self.target_id not in frame.by_id:
             log.info("target track %d lost: re-identification", self.target_id)
             return False
-        if not self._check_due(context, frame.stamp_s):
-            context.place(frame)
-            context.note_target(self.target_id, frame, stature=self.notes_stature)
-            return True
         context.look(frame, only=self.target_id)
         confidence = frame.confidences.get(self.target_id)
-        if confidence is not None:
-            self.checked_s = frame.stamp_s
         threshold = context.config.id_switch_confidence
         confirmed = confidence is not None and confidence >= threshold
         context.note_target(self.target_id, frame, confirmed, stature=self.notes_stature)
@@ -152,14 +143,6 @@ class Tracking(State):
             self.target_id, confidence, threshold,
         )  # fmt: skip
         return False
-
-    def _check_due(self, context: IdentityContext, stamp_s: float) -> bool:
-        """Whether this frame's appearance is to be checked: `target_check_interval_s`
-        since the last check (within a millisecond: frame stamps at 30 fps add up to
-        0.1 s only nearly), or time stood still or went back (a frame repeated, a replay
-        started over)."""
-        since_s = stamp_s - self.checked_s
-        return since_s <= 0.0 or since_s >= context.config.target_check_interval_s - 1e-3
 
 
 class Evidence(NamedTuple):
