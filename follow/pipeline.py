@@ -457,8 +457,8 @@ def overlaps_stages(setting: bool | str, pose_backend: str | None) -> bool:
     """`[control] overlap_stages` for a pose runtime: "auto" overlaps the stages where
     the network runs on a GPU, which infers the next frame while the CPU tracks and
     identifies this one; on a CPU the network already keeps every core busy, and
-    overlapping there gained 4-5 % of frame rate for 15-20 % more capture-to-command
-    latency (measured on 2 cores, docs/system.md)."""
+    overlapping there gained 1-5 % of frame rate for 18-30 % more 95th-percentile
+    capture-to-command latency (measured on 2 cores, docs/system.md)."""
     if setting == "auto":
         return pose_backend is not None and any(
             name in pose_backend for name in ACCELERATED_POSE_BACKENDS

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import NamedTuple
 
 from follow.frames import odom_to_base
 from follow.identify.context import FrameTracks, IdentityContext
@@ -145,17 +144,10 @@ class Tracking(State):
         return False
 
 
-class Evidence(NamedTuple):
-    """Per-track cues beside the fused confidence (None where the identifier lacks them)."""
-
-    similarities: dict[int, float] | None  # re-id similarity to the target's gallery
-    classifier: dict[int, float] | None  # boosted classifier alone, with two cues
-
-
 class Reidentification(State):
     """The target is unknown and nothing is learnt. A track becomes the target again
     after `reid_frames` consecutive frames in which it passes every test of
-    `_passes`; the evidence needed rises the longer the target is gone."""
+    `_may_pass` and `_passes`; the evidence needed rises the longer the target is gone."""
 
     status = TargetStatus.REIDENTIFICATION
 
@@ -168,12 +160,13 @@ class Reidentification(State):
         # needs no embedding: on any other frame no track can pass, whatever re-id says.
         context.look(frame, embed=False)
         classifier = context.classifier_confidences(frame)
-        if any(self._may_pass(context, frame, i, classifier) for i in frame.confidences):
+        eligible = {i for i in frame.confidences if self._may_pass(context, frame, i, classifier)}
+        if eligible:
             context.look(frame)
         confidences = frame.confidences
-        evidence = Evidence(context.similarities(frame), classifier)
+        similarities = context.similarities(frame)
         for track_id in confidences:
-            passed = self._passes(context, frame, track_id, evidence)
+            passed = track_id in eligible and self._passes(context, frame, track_id, similarities)
             self.streaks[track_id] = self.streaks.get(track_id, 0) + 1 if passed else 0
         ready = [
             i for i, n in self.streaks.items()
@@ -186,45 +179,19 @@ class Reidentification(State):
         return Probation(target_id, frame.stamp_s)
 
     @staticmethod
-    def _passes(
-        context: IdentityContext,
-        frame: FrameTracks,
-        track_id: int,
-        evidence: Evidence,
-    ) -> bool:
-        """Whether a track is the target by this frame's evidence: its confidence
-        reaches the required one (`reid_confidence` rising to `reid_strict_confidence`),
-        by the fused cues and, with two cues, by the boosted classifier alone too, and
-        leads every other seen track's by `reid_margin` (a lead over nobody is no
-        evidence); with a re-id cue its similarity to the gallery reaches the required
-        one (`reid_accept_similarity` rising to `reid_strict_similarity` at
-        `reid_strict_after_s`); it was seen in `min_target_observations` frames and never
-        beside the confirmed target (`reid_excludes_seen_beside`); it stands where the
-        target could have walked (`reid_reach_m` + `reid_reach_speed_mps`); and its neck
-        height agrees with the target's (`reid_height_tolerance_m`)."""
-        confidences = frame.confidences
-        confidence = confidences[track_id]
-        runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
-        similarities, classifier = evidence
-        return (
-            confidence >= context.required_confidence(frame.stamp_s)
-            and confidence - runner_up >= context.config.reid_margin
-            and (
-                similarities is None
-                or similarities[track_id] >= context.required_similarity(frame.stamp_s)
-            )
-            and Reidentification._may_pass(context, frame, track_id, classifier)
-        )
-
-    @staticmethod
     def _may_pass(
         context: IdentityContext,
         frame: FrameTracks,
         track_id: int,
         classifier: dict[int, float] | None,
     ) -> bool:
-        """The tests of `_passes` that need no re-id embedding: with two cues the boosted
-        classifier's own confidence, and who the track is and where it stands."""
+        """The tests that need no re-id embedding: with two cues, the boosted classifier's
+        own confidence reaches the required one (`reid_confidence` rising to
+        `reid_strict_confidence`); the track was seen in `min_target_observations`
+        frames, did not fail probation and was never beside the confirmed target
+        (`reid_excludes_seen_beside`); it stands where the target could have walked
+        (`reid_reach_m` + `reid_reach_speed_mps`); and its neck height agrees with the
+        target's (`reid_height_tolerance_m`)."""
         track = frame.by_id[track_id]
         return (
             (classifier is None
@@ -235,6 +202,30 @@ class Reidentification(State):
             and context.reachable(track, frame.stamp_s)
             and context.same_height(track)
         )  # fmt: skip
+
+    @staticmethod
+    def _passes(
+        context: IdentityContext,
+        frame: FrameTracks,
+        track_id: int,
+        similarities: dict[int, float] | None,
+    ) -> bool:
+        """The rest, for a track that passed `_may_pass`: its fused confidence reaches the
+        required one and leads every other seen track's by `reid_margin` (a lead over
+        nobody is no evidence); with a re-id cue its similarity to the gallery reaches
+        the required one (`reid_accept_similarity` rising to `reid_strict_similarity` at
+        `reid_strict_after_s`)."""
+        confidences = frame.confidences
+        confidence = confidences[track_id]
+        runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
+        return (
+            confidence >= context.required_confidence(frame.stamp_s)
+            and confidence - runner_up >= context.config.reid_margin
+            and (
+                similarities is None
+                or similarities[track_id] >= context.required_similarity(frame.stamp_s)
+            )
+        )
 
 
 class Probation(Tracking):
