@@ -221,6 +221,14 @@ class IdentifyConfig:
     # independent errors, so they add in quadrature: added up, they let the twin 5 cm
     # taller through at 3 m (docs/identification.md, *Stature in quadrature*).
     reid_height_tolerance_stds: float = 2.0
+    # Every part must match: a candidate's torso and legs must each be within this
+    # colour distance (Hellinger, 0-1; 1 turns the rule off) of the colours the target
+    # was seen in, so that a stranger in the target's shirt and other trousers is not
+    # taken for it. The distance within which 99 % of one person's crops stay, in their
+    # least alike part, of their other crops from the same camera, also under the
+    # perturbation suite's changes of light, focus and compression (`follow eval
+    # verification`, CUHK03's even identities: 0.423).
+    reid_part_colour_distance: float = 0.42
     # A re-identified target is on probation this long: the stature test runs again every
     # frame on its settling estimate (a new track's starts wide), and a failure sends it
     # back to re-identification for good, undoing what it taught the model.

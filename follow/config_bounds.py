@@ -166,6 +166,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "reid_strict_confidence": closed(-1.0, 1.0),
         "reid_strict_after_s": positive(600.0),
         "reid_height_tolerance_m": closed(0.0, 1.0),
+        "reid_part_colour_distance": closed(0.0, 1.0),
         "reid_height_tolerance_stds": closed(0.0, 10.0),
         "min_negatives_per_update": closed(0, 64),
         "reid_same_similarity": closed(-1.0, 1.0),

@@ -107,3 +107,20 @@ def test_mirrored_positives_accept_more_of_the_target_and_no_hard_negative(data_
         figures[mirrored] = verify_robot_crops(build_appearance_model(config), folder, config)
     assert figures["with_reid"]["shipped_far"] == 0.0
     assert figures["with_reid"]["shipped_tar"] > figures["never"]["shipped_tar"]
+
+
+def test_the_shipped_part_colour_bar_is_the_one_its_calibration_gives(data_path):
+    """`reid_part_colour_distance` is the distance within which 99 % of a person's crops
+    stay of their other crops from the same camera (also under the suite's pixel
+    changes), on CUHK03's even identities; and at it the rule alone turns away many
+    other people but keeps all but a few of one person's crops."""
+    from follow.config import IdentifyConfig
+    from follow.eval.verification import calibrate_part_colours
+
+    config = IdentifyConfig()
+    people = load_cuhk03(data_path("cuhk03_val"))
+    cal = calibrate_part_colours([p for p in people if p.identity % 2 == 0], config)
+    assert cal["part_colour_distance_at_tar_0.99"] == pytest.approx(
+        config.reid_part_colour_distance, abs=0.005
+    )
+    assert cal["part_colour_others_turned_away"] > 0.3

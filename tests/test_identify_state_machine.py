@@ -309,8 +309,9 @@ def test_a_stranger_alone_in_view_is_not_taken_for_the_target():
 
 def test_without_recoloured_negatives_a_lone_stranger_is_taken():
     """The failure the recoloured negatives prevent: learnt from positives alone, the
-    classifier names a stranger alone in view as the target."""
-    cfg = dataclasses.replace(CFG, min_negatives_per_update=0)
+    classifier names a stranger alone in view as the target (with the part-colour rule
+    off, which would turn this stranger away too)."""
+    cfg = dataclasses.replace(CFG, min_negatives_per_update=0, reid_part_colour_distance=1.0)
     identifier = TargetIdentifier(
         cfg, ChannelFeatureExtractor((cfg.crop_width_px, cfg.crop_height_px))
     )
@@ -369,3 +370,25 @@ def test_a_look_alike_of_another_height_is_not_taken_for_the_target():
     assert {e.target_id for e in taller} == {None}  # same clothes, 17 cm taller
     back = height_frames(identifier, Person(6, 2.0, 320, RED), 1.46, 15, rng, 4.0)
     assert back[-1].target_id == 6
+
+
+@pytest.mark.parametrize("part_rule", [True, False])
+def test_a_stranger_in_the_targets_shirt_and_other_trousers_is_not_taken(part_rule):
+    """The target leaves; a stranger in its shirt and light trousers walks in alone,
+    then the target comes back. The whole-crop classifier, seeing mostly the shirt, takes
+    the stranger unless every part must match (`reid_part_colour_distance`)."""
+    cfg = CFG if part_rule else dataclasses.replace(CFG, reid_part_colour_distance=1.0)
+    identifier = TargetIdentifier(
+        cfg, ChannelFeatureExtractor((cfg.crop_width_px, cfg.crop_height_px))
+    )
+    rng = np.random.default_rng(5)
+    run(identifier, [Person(1, 2.0, 320, RED, trousers=(30, 30, 30))], 20, rng)
+    run(identifier, [], 5, rng, t0=2.0)
+    stranger = Person(10, 2.0, 320, RED, trousers=(210, 200, 190))
+    named = {e.target_id for e in run(identifier, [stranger], 15, rng, t0=3.0)}
+    if not part_rule:
+        assert 10 in named  # what the rule is for
+        return
+    assert named == {None}
+    back = run(identifier, [Person(20, 2.0, 320, RED, trousers=(30, 30, 30))], 15, rng, t0=5.0)
+    assert back[-1].status == TargetStatus.TRACKING and back[-1].target_id == 20

@@ -31,8 +31,9 @@ IMAGE = np.zeros((480, 640, 3), np.uint8)
 
 
 class RecordingModel:
-    """Stands in for the AppearanceModel: re-id similarities are each appearance's
-    scripted value (None without a re-id cue); learning and forgetting are counted."""
+    """Stands in for the AppearanceModel: re-id similarities and part-colour distances
+    are each appearance's scripted values (None without a re-id cue, or where a frame
+    scripts no part colours); learning and forgetting are counted."""
 
     def __init__(self, reid: bool = True, config: IdentifyConfig = CFG):
         self.reid = reid
@@ -47,6 +48,11 @@ class RecordingModel:
         if not self.reid or not appearances:
             return None
         return np.array([float(a.embedding[0]) for a in appearances])
+
+    def part_distances(self, appearances):
+        if not appearances or any(a.parts is None for a in appearances):
+            return None
+        return np.array([float(a.parts[0]) for a in appearances])
 
     def classifier_confidence(self, appearances):
         """The classifier's own score where a frame scripts one (in `maps`) and the
@@ -87,9 +93,10 @@ def person(track_id, x_m, y_m=0.0, neck_height_m=1.45, observed=True, last_seen_
 
 
 def frame(tracks, stamp_s, confidences, similarities=None, boxes=None, robot=None,
-          classifier=None):  # fmt: skip
-    """A frame whose observed tracks have the given confidences (and similarities, and
-    the classifier's own confidences); boxes default to ones that do not overlap."""
+          classifier=None, parts=None):  # fmt: skip
+    """A frame whose observed tracks have the given confidences (and similarities, the
+    classifier's own confidences, part-colour distances); boxes default to ones that do
+    not overlap."""
     seen = [t.track_id for t in tracks if t.observation is not None]
     boxes = boxes or {i: (100 * k, 0, 100 * k + 50, 200) for k, i in enumerate(seen)}
     similarities = similarities or {}
@@ -100,6 +107,7 @@ def frame(tracks, stamp_s, confidences, similarities=None, boxes=None, robot=Non
             i: Appearance(
                 maps=None if classifier is None else np.array([classifier[i]]),
                 embedding=np.array([similarities.get(i, 0.0)]),
+                parts=None if parts is None else np.array([parts[i]]),
             )
             for i in seen
         },
@@ -314,6 +322,27 @@ def test_reidentification_rejects_a_look_alike_too_far_too_new_or_of_another_hei
     )
     same = [person(5, 2.5, neck_height_m=1.45 + 0.5 * CFG.reid_height_tolerance_m)]
     assert isinstance(reid_frames(Reidentification(), ctx, same, 10.1, *good)[-1], Probation)
+
+
+def test_reidentification_needs_every_part_of_the_targets_colours():
+    """A candidate passing every other test is taken only while its torso and legs are
+    each within `reid_part_colour_distance` of the target's colours; before any part
+    colours were learnt the rule lets everyone through."""
+    bar = CFG.reid_part_colour_distance
+    back = [person(7, 2.5)]
+    good = {7: 0.9}, {7: 0.9}
+
+    def run(parts):
+        ctx = tracked_context(stamp_s=10.0, observed={7: 5})
+        state = Reidentification()
+        return [
+            state.update(ctx, frame(back, 10.1 + 0.1 * k, *good, parts=parts))
+            for k in range(CFG.reid_frames)
+        ][-1]
+
+    assert isinstance(run({7: bar + 0.05}), Reidentification)  # other trousers
+    assert isinstance(run({7: bar}), Probation)
+    assert isinstance(run(None), Probation)  # nothing learnt: no part colours to compare
 
 
 def test_the_stature_allowance_adds_the_estimates_std_to_the_tolerance_in_quadrature():

@@ -149,6 +149,9 @@ def resize_crops(crops_bgr: Sequence[np.ndarray], crop_size: tuple[int, int]) ->
 
 
 def _resize(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Area averaging when shrinking (no aliasing), bilinear when enlarging."""
+    """Area averaging when shrinking (no aliasing), bilinear when enlarging; a crop
+    already of that size as it is."""
+    if image.shape[1] == size[0] and image.shape[0] == size[1]:
+        return image
     shrinking = image.shape[0] >= size[1] and image.shape[1] >= size[0]
     return cv2.resize(image, size, interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)

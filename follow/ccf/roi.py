@@ -25,6 +25,11 @@ from follow.types import Observation, TrackState
 Roi = tuple[int, int, int, int]  # x0, y0, x1, y1 in pixels, half-open
 R_HIP, L_HIP = 8, 11
 HIP_MIN_CONFIDENCE = 0.0
+# A body part's band in a crop leaves out this fraction of the part's length at each
+# end (the joints, where two parts meet) and keeps the middle of the crop's width
+# (the body, not the background beside it).
+PART_TRIM_FRACTION = 0.1
+PART_COLUMNS = (0.25, 0.75)
 
 
 def _point(value, name: str) -> np.ndarray | None:
@@ -80,6 +85,27 @@ def roi_from_keypoints(
     if visible < config.min_roi_visible_fraction or (y1 - y0) < config.min_roi_height_px:
         return None
     return x0, y0, x1, y1
+
+
+def body_rows(config: IdentifyConfig) -> tuple[float, float, float]:
+    """Where the neck, the hips and the ankles fall in a crop cut by
+    `roi_from_keypoints`, as fractions of its height from the top."""
+    height = config.roi_height_per_neck_ankle
+    neck = 0.5 - (0.5 + config.roi_center_offset_per_neck_ankle) / height
+    hip = neck + 1.0 / (config.neck_ankle_per_neck_hip * height)
+    return neck, hip, neck + 1.0 / height
+
+
+def part_bands(config: IdentifyConfig) -> dict[str, tuple[float, float, float, float]]:
+    """The torso (neck to hips) and the legs (hips to ankles) in a crop: (top, bottom,
+    left, right) as fractions of its height and width."""
+    neck, hip, ankle = body_rows(config)
+    left, right = PART_COLUMNS
+    out = {}
+    for name, (top, bottom) in (("torso", (neck, hip)), ("legs", (hip, ankle))):
+        trim = PART_TRIM_FRACTION * (bottom - top)
+        out[name] = (top + trim, bottom - trim, left, right)
+    return out
 
 
 def track_rois(

@@ -127,6 +127,9 @@ def decision_scores(model, enrol: list, probes: list, config: IdentifyConfig) ->
         if model.classifier is None:  # re-id alone: its confidence is its similarity
             scores.append(model.confidence(probes) - config.reid_confidence)
         scores.append(similarity - config.reid_accept_similarity)
+    parts = model.part_distances(probes)  # every part must match
+    if parts is not None:
+        scores.append(config.reid_part_colour_distance - parts)
     return np.min(scores, axis=0)
 
 
@@ -196,6 +199,52 @@ def calibrate_similarity(model, people: list[Person], config: IdentifyConfig) ->
     return {f"similarity_at_far_{far:g}": float(np.quantile(negatives, 1 - far)) for far in FARS}
 
 
+PART_COLOUR_TAR = 0.99  # the part-colour bar keeps this share of one person's crops
+
+
+def calibrate_part_colours(people: list[Person], config: IdentifyConfig) -> dict:
+    """The part-colour distance (`reid_part_colour_distance`) within which
+    `PART_COLOUR_TAR` of one person's crops stay, in their least alike part, of the
+    colours of their other crops from the same camera (each crop against the others,
+    as a robot sees its target again), the crops seen as they are and through each
+    pixel change of the perturbation suite, pooled; on `people`. And the share of other
+    people's crops (the other camera's) that the rule alone would then turn away."""
+    from follow.ccf.features import resize_crops
+    from follow.eval.perturb import SUITE
+    from follow.identify.parts import colour_distances, part_colours
+
+    size = (config.crop_width_px, config.crop_height_px)
+
+    def colours(crops) -> np.ndarray:
+        return part_colours(resize_crops(crops, size), config)
+
+    learnt = {p.identity: [colours(v) for v in p.views] for p in people}
+    same = []
+    for variant in [None] + [v for v in SUITE if v.changes_pixels]:
+        index = itertools.count()
+        for person in people:
+            for cam, crops in enumerate(person.views):
+                if len(crops) < 2:
+                    continue
+                gallery = learnt[person.identity][cam]
+                seen = gallery if variant is None else colours(
+                    [variant.apply(c, next(index)) for c in crops])  # fmt: skip
+                for i in range(len(crops)):
+                    others = np.delete(gallery, i, axis=0)
+                    same.append(colour_distances(seen[i : i + 1], others).min(axis=1).max())
+    bar = float(np.quantile(same, PART_COLOUR_TAR))
+    other = [
+        colour_distances(np.concatenate([learnt[q.identity][1 - cam] for q in people
+                                         if q.identity != p.identity]),
+                         learnt[p.identity][cam]).min(axis=1).max(axis=1)
+        for p in people for cam in (0, 1)
+    ]  # fmt: skip
+    return {
+        f"part_colour_distance_at_tar_{PART_COLOUR_TAR:g}": bar,
+        "part_colour_others_turned_away": float((np.concatenate(other) > bar).mean()),
+    }
+
+
 def verify_robot_crops(model, folder: Path, config: IdentifyConfig, variant: Variant | None = None,
                        only_after_learning: bool = False) -> dict:  # fmt: skip
     """Enrol p01-p05 of the robot-camera crops; p06-p14 must pass, n*.jpg must not. With
@@ -239,7 +288,10 @@ def main(args) -> dict:
         models[name] = build_appearance_model(dataclasses.replace(config, identifier=name))
     reid = next((m for m in models.values() if m.reid is not None), None)
     results: dict = {
-        "calibration": None if reid is None else calibrate_similarity(reid, calibration, config)
+        "calibration": {
+            **({} if reid is None else calibrate_similarity(reid, calibration, config)),
+            **calibrate_part_colours(calibration, config),
+        }
     }
     after = getattr(args, "only_after_learning", False)
 
@@ -276,11 +328,16 @@ def main(args) -> dict:
 
 
 def _print(results: dict, n_calibration: int, n_test: int) -> None:
-    if results["calibration"]:
-        c = results["calibration"]
+    c = results["calibration"]
+    if "similarity_at_far_0.01" in c:
         print(f"re-id similarity reached by other people, {n_calibration} calibration "
               f"identities: {c['similarity_at_far_0.01']:.3f} at FAR 1 %, "
               f"{c['similarity_at_far_0.001']:.3f} at FAR 0.1 %")  # fmt: skip
+    bar = c[f"part_colour_distance_at_tar_{PART_COLOUR_TAR:g}"]
+    print(f"part-colour distance within which {PART_COLOUR_TAR:.0%} of one person's crops "
+          f"stay of their other crops from the same camera, under the suite's pixel changes "
+          f"too: {bar:.3f} (other people turned away by it alone: "
+          f"{c['part_colour_others_turned_away']:.1%})")  # fmt: skip
     print(f"{'identifier':<12} {'set':<12} {'AUC':>6} {'TAR@1%':>7} {'TAR@0.1%':>9} "
           f"{'shipped TAR':>12} {'FAR':>7}")  # fmt: skip
     for name, sets in results["identifiers"].items():

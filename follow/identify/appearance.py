@@ -1,14 +1,17 @@
 """What a person looks like to the identifier, and the learnt model of the target.
 
 An `Appearance` holds one person's cues in one frame: the feature maps for the boosted
-classifier and/or the re-id embedding. The `AppearanceModel` learns the target from them
-(positives) against everyone else (negatives) and scores any appearance with a
-confidence in [-1, 1]; with both cues the confidences are fused as a weighted mean.
+classifier and/or the re-id embedding, and the colours of the torso and the legs. The
+`AppearanceModel` learns the target from them (positives) against everyone else
+(negatives) and scores any appearance with a confidence in [-1, 1]; with both cues the
+confidences are fused as a weighted mean. The part colours are no cue of their own: they
+say how far a person's torso or legs are from the colours the target was seen in.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -16,17 +19,22 @@ import cv2
 import numpy as np
 
 from follow.boost.online_boosting import OnlineBoostingClassifier
-from follow.ccf.features import FeatureExtractor, FeatureMaps, Roi, cut_crops
+from follow.ccf.features import FeatureExtractor, FeatureMaps, Roi, cut_crops, resize_crops
 from follow.config import IdentifyConfig
+from follow.identify.parts import PartGallery, part_colours
 from follow.identify.reid import ReidEmbedder, ReidGallery
+
+PART_GALLERY_SIZE = 32  # the target's part colours kept (the most alike one goes)
 
 
 @dataclass(frozen=True)
 class Appearance:
-    """One person's cues in one frame (None where that cue is not used)."""
+    """One person's cues in one frame (None where that cue is not used), and the colours
+    of their torso and legs (`follow.identify.parts`)."""
 
     maps: FeatureMaps | None = None
     embedding: np.ndarray | None = None
+    parts: np.ndarray | None = None
 
 
 class AppearanceModel:
@@ -57,14 +65,15 @@ class AppearanceModel:
             else None
         )
         self.gallery = ReidGallery(self.config) if self.reid is not None else None
+        self.part_gallery = PartGallery(PART_GALLERY_SIZE)
 
     def snapshot(self) -> tuple:
         """A copy of what has been learnt, to be put back with `restore` (the networks
         are not copied)."""
-        return copy.deepcopy((self.classifier, self.gallery))
+        return copy.deepcopy((self.classifier, self.gallery, self.part_gallery))
 
     def restore(self, snapshot: tuple) -> None:
-        self.classifier, self.gallery = copy.deepcopy(snapshot)
+        self.classifier, self.gallery, self.part_gallery = copy.deepcopy(snapshot)
 
     @property
     def name(self) -> str:
@@ -77,15 +86,29 @@ class AppearanceModel:
         boost_ready = self.classifier is not None and self.classifier.is_trained
         return boost_ready or (self.gallery is not None and len(self.gallery) > 0)
 
-    def _combine(self, maps, embeddings) -> list[Appearance]:
-        n = len(maps) if maps is not None else len(embeddings)
+    def _combine(self, maps, embeddings, crops: np.ndarray) -> list[Appearance]:
+        """One Appearance per crop (N, H, W, 3 at the crop size)."""
+        parts = part_colours(crops, self.config)
         return [
             Appearance(
                 maps[i] if maps is not None else None,
                 embeddings[i] if embeddings is not None else None,
+                parts[i],
             )
-            for i in range(n)
+            for i in range(len(crops))
         ]
+
+    def _crop_size(self) -> tuple[int, int]:
+        return self.config.crop_width_px, self.config.crop_height_px
+
+    def _maps(self, image_bgr: np.ndarray, rois: Sequence[Roi], crops: np.ndarray):
+        """The feature maps of the ROIs, from `crops` (cut at the crop size) where the
+        extractor works at that size."""
+        if self.extractor is None:
+            return None
+        if tuple(getattr(self.extractor, "crop_size", ())) == self._crop_size():
+            return self.extractor.extract_crops(crops)
+        return self.extractor.extract(image_bgr, rois)
 
     def describe(
         self, image_bgr: np.ndarray, rois: Sequence[Roi], embed: Sequence[bool] | None = None
@@ -95,10 +118,11 @@ class AppearanceModel:
         all); the others get no embedding until `complete` gives them one."""
         if not rois:
             return []
-        maps = self.extractor.extract(image_bgr, rois) if self.extractor is not None else None
+        crops = cut_crops(image_bgr, rois, self._crop_size())  # cut once for both uses
+        maps = self._maps(image_bgr, rois, crops)
         if self.reid is None:
-            return self._combine(maps, None)
-        described = self._combine(maps, [None] * len(rois))
+            return self._combine(maps, None, crops)
+        described = self._combine(maps, [None] * len(rois), crops)
         wanted = [i for i in range(len(rois)) if embed is None or embed[i]]
         return self._embedded(image_bgr, rois, described, wanted)
 
@@ -115,7 +139,7 @@ class AppearanceModel:
         if indices:
             found = self.reid.embed(image_bgr, [rois[i] for i in indices])
             for i, embedding in zip(indices, found, strict=True):
-                out[i] = Appearance(out[i].maps, embedding)
+                out[i] = dataclasses.replace(out[i], embedding=embedding)
         return out
 
     def lacks_embedding(self, appearance: Appearance) -> bool:
@@ -127,7 +151,7 @@ class AppearanceModel:
             return []
         maps = self.extractor.extract_crops(crops_bgr) if self.extractor is not None else None
         emb = self.reid.embed_crops(crops_bgr) if self.reid is not None else None
-        return self._combine(maps, emb)
+        return self._combine(maps, emb, resize_crops(crops_bgr, self._crop_size()))
 
     def synthetic_negatives(self, crop_bgr: np.ndarray, count: int) -> list:
         """Feature maps of `count` colour-changed copies of the target's crop: what the
@@ -150,8 +174,7 @@ class AppearanceModel:
 
     def crop(self, image_bgr: np.ndarray, roi: Roi) -> np.ndarray:
         """The ROI of an image at the classifier's crop size."""
-        size = (self.config.crop_width_px, self.config.crop_height_px)
-        return cut_crops(image_bgr, [roi], size)[0]
+        return cut_crops(image_bgr, [roi], self._crop_size())[0]
 
     def learn(
         self,
@@ -162,7 +185,7 @@ class AppearanceModel:
     ) -> None:
         """One frame's samples: the target (positives) and others (negatives); the
         synthetic ones (recoloured negatives, mirrored positives) train only the boosted
-        classifier."""
+        classifier. The positives' part colours join the target's."""
         if self.classifier is not None:
             self.classifier.train(
                 [a.maps for a in positives] + list(synthetic_positive_maps),
@@ -171,6 +194,9 @@ class AppearanceModel:
         if self.gallery is not None:
             for a in positives:
                 self.gallery.add(a.embedding)
+        for a in positives:
+            if a.parts is not None:
+                self.part_gallery.add(a.parts)
 
     def _gallery_scores(self, appearances: Sequence[Appearance], score) -> np.ndarray:
         """`score` (a gallery method) of each appearance's embedding; NaN without one."""
@@ -187,6 +213,18 @@ class AppearanceModel:
         if self.gallery is None or len(self.gallery) == 0 or not appearances:
             return None
         return self._gallery_scores(appearances, self.gallery.similarity)
+
+    def part_distances(self, appearances: Sequence[Appearance]) -> np.ndarray | None:
+        """Each appearance's distance from the target's colours in its least alike part
+        (`follow.identify.parts`; NaN for one without part colours, which passes no
+        bar); None before any was learnt."""
+        if len(self.part_gallery) == 0 or not appearances:
+            return None
+        out = np.full(len(appearances), np.nan)
+        has = [i for i, a in enumerate(appearances) if a.parts is not None]
+        if has:
+            out[has] = self.part_gallery.distances(np.stack([appearances[i].parts for i in has]))
+        return out
 
     def classifier_confidence(self, appearances: Sequence[Appearance]) -> np.ndarray | None:
         """The boosted classifier's own confidence in each appearance, where it is one

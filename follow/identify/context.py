@@ -115,6 +115,19 @@ class IdentityContext:
         is one of two cues that must agree (None otherwise)."""
         return self._by_track(frame, self.model.classifier_confidence)
 
+    def part_distances(self, frame: FrameTracks) -> dict[int, float] | None:
+        """Each described track's distance from the target's colours in its least alike
+        part, torso or legs (None before any was learnt)."""
+        return self._by_track(frame, self.model.part_distances)
+
+    def parts_match(self, distances: dict[int, float] | None, track_id: int) -> bool:
+        """Whether the track's torso and legs are each within `reid_part_colour_distance`
+        of the target's colours (`part_distances` of this frame; True before any were
+        learnt)."""
+        if distances is None:
+            return True
+        return bool(distances[track_id] <= self.config.reid_part_colour_distance)
+
     def similarities(self, frame: FrameTracks) -> dict[int, float] | None:
         """Each described track's re-id similarity to the target's gallery (None
         without a re-id cue or an empty gallery)."""

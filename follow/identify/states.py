@@ -160,7 +160,10 @@ class Reidentification(State):
         # needs no embedding: on any other frame no track can pass, whatever re-id says.
         context.look(frame, embed=False)
         classifier = context.classifier_confidences(frame)
-        eligible = {i for i in frame.confidences if self._may_pass(context, frame, i, classifier)}
+        parts = context.part_distances(frame)
+        eligible = {
+            i for i in frame.confidences if self._may_pass(context, frame, i, classifier, parts)
+        }
         if eligible:
             context.look(frame)
         confidences = frame.confidences
@@ -184,14 +187,16 @@ class Reidentification(State):
         frame: FrameTracks,
         track_id: int,
         classifier: dict[int, float] | None,
+        parts: dict[int, float] | None,
     ) -> bool:
         """The tests that need no re-id embedding: with two cues, the boosted classifier's
         own confidence reaches the required one (`reid_confidence` rising to
         `reid_strict_confidence`); the track was seen in `min_target_observations`
         frames, did not fail probation and was never beside the confirmed target
         (`reid_excludes_seen_beside`); it stands where the target could have walked
-        (`reid_reach_m` + `reid_reach_speed_mps`); and its neck height agrees with the
-        target's (`reid_height_tolerance_m`)."""
+        (`reid_reach_m` + `reid_reach_speed_mps`); its neck height agrees with the
+        target's (`reid_height_tolerance_m`); and its torso and legs are each of the
+        target's colours (`reid_part_colour_distance`)."""
         track = frame.by_id[track_id]
         return (
             (classifier is None
@@ -201,6 +206,7 @@ class Reidentification(State):
             and not context.seen_beside_target(track_id)
             and context.reachable(track, frame.stamp_s)
             and context.same_height(track)
+            and context.parts_match(parts, track_id)
         )  # fmt: skip
 
     @staticmethod
