@@ -17,6 +17,7 @@ import numpy as np
 
 from follow.ccf.roi import part_bands
 from follow.config import IdentifyConfig
+from follow.identify.gallery import add_keeping_diverse
 
 PARTS = ("torso", "legs")
 HUE_BINS, GREY_BINS = 8, 3
@@ -96,9 +97,8 @@ def colour_distances(colours: np.ndarray, gallery: np.ndarray) -> np.ndarray:
 
 
 class PartGallery:
-    """The target's part colours from the frames it was learnt in, kept diverse: a full
-    gallery drops one of its two most alike entries (the older), so that the colours of
-    other views and other light stay."""
+    """The target's part colours from the frames it was learnt in, kept diverse
+    (`add_keeping_diverse`), so that the colours of other views and other light stay."""
 
     def __init__(self, size: int):
         if size < 2:
@@ -111,18 +111,10 @@ class PartGallery:
 
     def add(self, colours: np.ndarray) -> None:
         colours = np.asarray(colours, np.float32).reshape(len(PARTS), PART_BINS)
-        if self._size < len(self._colours):
-            self._colours[self._size] = colours
-            self._size += 1
-            return
-        candidates = np.concatenate([self._colours, colours[None]])
-        apart = colour_distances(candidates, candidates).mean(axis=2)
-        np.fill_diagonal(apart, np.inf)
-        i, j = np.unravel_index(int(np.argmin(apart)), apart.shape)
-        drop = min(i, j)  # of the most alike pair, the one in the gallery longer
-        if drop < len(self._colours):
-            self._colours[drop:-1] = self._colours[drop + 1 :]
-            self._colours[-1] = colours
+        self._size = add_keeping_diverse(
+            self._colours, self._size, colours,
+            lambda a, b: -colour_distances(a, b).mean(axis=2),
+        )  # fmt: skip
 
     def distances(self, colours: np.ndarray) -> np.ndarray:
         """(N,) the distance of each of N (N, 2, bins) histograms from the target's

@@ -16,6 +16,7 @@ import numpy as np
 
 from follow.ccf.features import Roi, cut_crops, resize_crops
 from follow.config import IdentifyConfig
+from follow.identify.gallery import add_keeping_diverse
 
 REID_INPUT_SIZE = (128, 256)  # (width, height) of the network input
 EMBEDDING_SIZE = 256
@@ -79,18 +80,9 @@ class ReidGallery:
         return self._size
 
     def add(self, embedding: np.ndarray) -> None:
-        if self._size < len(self._embeddings):
-            self._embeddings[self._size] = embedding
-            self._size += 1
-            return
-        candidates = np.vstack([self._embeddings, embedding[None]])
-        sim = candidates @ candidates.T
-        np.fill_diagonal(sim, -np.inf)
-        i, j = np.unravel_index(int(np.argmax(sim)), sim.shape)
-        drop = min(i, j)  # of the most similar pair, the one in the gallery longer
-        if drop < len(self._embeddings):
-            self._embeddings[drop:-1] = self._embeddings[drop + 1 :]
-            self._embeddings[-1] = embedding
+        self._size = add_keeping_diverse(
+            self._embeddings, self._size, embedding, lambda a, b: a @ b.T
+        )
 
     def similarity(self, embeddings: np.ndarray) -> np.ndarray:
         """Highest cosine similarity of each embedding (N, 256) to the gallery."""
