@@ -39,11 +39,16 @@ def part_colours(crops_bgr: np.ndarray, config: IdentifyConfig) -> np.ndarray:
     bands = part_bands(config)
     for p, name in enumerate(PARTS):
         top, bottom, left, right = bands[name]
-        y0, y1 = int(round(top * height)), max(int(round(top * height)) + 1, int(round(bottom * height)))
-        x0, x1 = int(round(left * width)), max(int(round(left * width)) + 1, int(round(right * width)))
+        (y0, y1), (x0, x1) = _span(top, bottom, height), _span(left, right, width)
         band = np.ascontiguousarray(crops[:, y0:y1, x0:x1]).reshape(-1, x1 - x0, 3)
         out[:, p] = _histograms(cv2.cvtColor(band, cv2.COLOR_BGR2HSV).reshape(n, -1, 3))
     return out
+
+
+def _span(start: float, end: float, size: int) -> tuple[int, int]:
+    """Pixel indices [first, last) of the fractions `start`-`end` of `size`, at least one."""
+    first = int(round(start * size))
+    return first, max(first + 1, int(round(end * size)))
 
 
 def _histograms(hsv: np.ndarray) -> np.ndarray:
