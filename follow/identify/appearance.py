@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -101,14 +101,14 @@ class AppearanceModel:
     def _crop_size(self) -> tuple[int, int]:
         return self.config.crop_width_px, self.config.crop_height_px
 
-    def _maps(self, image_bgr: np.ndarray, rois: Sequence[Roi], crops: np.ndarray):
-        """The feature maps of the ROIs, from `crops` (cut at the crop size) where the
-        extractor works at that size."""
+    def _maps(self, crops: np.ndarray, at_own_size: Callable[[], list]):
+        """The feature maps of `crops` (already at the crop size) where the extractor
+        works at that size, else `at_own_size()` (from the originals)."""
         if self.extractor is None:
             return None
-        if tuple(getattr(self.extractor, "crop_size", ())) == self._crop_size():
+        if tuple(self.extractor.crop_size) == self._crop_size():
             return self.extractor.extract_crops(crops)
-        return self.extractor.extract(image_bgr, rois)
+        return at_own_size()
 
     def describe(
         self, image_bgr: np.ndarray, rois: Sequence[Roi], embed: Sequence[bool] | None = None
@@ -119,7 +119,7 @@ class AppearanceModel:
         if not rois:
             return []
         crops = cut_crops(image_bgr, rois, self._crop_size())  # cut once for both uses
-        maps = self._maps(image_bgr, rois, crops)
+        maps = self._maps(crops, lambda: self.extractor.extract(image_bgr, rois))
         if self.reid is None:
             return self._combine(maps, None, crops)
         described = self._combine(maps, [None] * len(rois), crops)
@@ -149,9 +149,10 @@ class AppearanceModel:
         """The cues of whole person crops."""
         if not crops_bgr:
             return []
-        maps = self.extractor.extract_crops(crops_bgr) if self.extractor is not None else None
+        crops = resize_crops(crops_bgr, self._crop_size())  # resized once for both uses
+        maps = self._maps(crops, lambda: self.extractor.extract_crops(crops_bgr))
         emb = self.reid.embed_crops(crops_bgr) if self.reid is not None else None
-        return self._combine(maps, emb, resize_crops(crops_bgr, self._crop_size()))
+        return self._combine(maps, emb, crops)
 
     def synthetic_negatives(self, crop_bgr: np.ndarray, count: int) -> list:
         """Feature maps of `count` colour-changed copies of the target's crop: what the
