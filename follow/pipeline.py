@@ -35,6 +35,7 @@ from follow.config import ControlConfig
 from follow.control.odometry import OdometryPolicy
 from follow.control.target import TargetMotion, ViewCone
 from follow.frames import odom_to_base, vector_odom_to_base
+from follow.freshness import is_ahead, is_fresh
 from follow.handoff import Handoff, OrderedWorker
 from follow.latency import LatencyRecorder
 from follow.types import (
@@ -49,6 +50,8 @@ from follow.types import (
 )
 
 log = logging.getLogger(__name__)
+
+STOP_JOIN_TIMEOUT_S = 5.0  # how long `ControlLoop.stop` waits for a tick under way
 
 
 @dataclass(frozen=True)
@@ -167,8 +170,11 @@ class ControlLoop:
 
     Each tick takes the newest FrameResult; if perception has produced nothing for
     `perception_timeout_s` (the watchdog), or the base has no fresh odometry, the command
-    is zero until both are back. On stop, and on any exception inside the loop, the base
-    gets a zero command.
+    is zero until both are back; a result stamped ahead of `clock` counts as stale too
+    (`follow.freshness`). On stop, and on any exception inside the loop, the base gets a
+    zero command, and from the moment `stop` is called nothing else leaves the loop.
+    Ticks are timed on `time.monotonic`, whatever `clock` is, so a clock that steps back
+    (a ROS clock after an NTP step) cannot put the loop to sleep on a moving command.
     """
 
     def __init__(
@@ -197,6 +203,7 @@ class ControlLoop:
         self._last_result: FrameResult | None = None
         self._stop = threading.Event()
         self._wake = threading.Event()
+        self._send_lock = threading.Lock()  # a command and the check before it, as one
         self._thread = threading.Thread(target=self._run, name="control", daemon=True)
 
     def start(self) -> ControlLoop:
@@ -208,29 +215,37 @@ class ControlLoop:
         self._wake.set()
 
     def stop(self) -> None:
+        """Zero from now on: a tick still under way can only send zero after this."""
         self._stop.set()
         self._wake.set()
-        self._thread.join(timeout=5.0)
+        self._thread.join(timeout=STOP_JOIN_TIMEOUT_S)
+        if self._thread.is_alive():
+            log.error("control thread still busy %.0f s after stop: it can only send zero "
+                      "commands from now on", STOP_JOIN_TIMEOUT_S)  # fmt: skip
         self._send(VelocityCommand.stop(self.clock()))
 
     def tick(self) -> VelocityCommand:
         """One control step (public so tests and the offline runner can drive it)."""
-        now = self.clock()
         robot = self.odometry.sample()
+        now = self.clock()  # after the sample: a slow read does not age the result early
         if robot is None:  # the robot's pose is unknown: no target motion, stop
             self.controller.update(None, now)
             command = VelocityCommand.stop(now)
             self._send(command)
             return command
         result: FrameResult | None = self.results.peek()
-        stalled = result is None or now - result.stamp_s > self.perception_timeout_s
+        stalled = result is None or not is_fresh(now, result.stamp_s, self.perception_timeout_s)
         if stalled and result is not None:
             if self.last_command is None or not self.last_command.is_stop:
                 self.watchdog_trips += 1
-                log.warning(
-                    "perception stalled (%.2f s since the last frame): stopping the base",
-                    now - result.stamp_s,
-                )
+                if is_ahead(now, result.stamp_s):
+                    log.warning("the last frame is stamped %.2f s ahead of the control clock "
+                                "(clocks disagree): stopping the base", result.stamp_s - now)  # fmt: skip
+                else:
+                    log.warning(
+                        "perception stalled (%.2f s since the last frame): stopping the base",
+                        now - result.stamp_s,
+                    )
         target = None if stalled else target_motion(result, robot, now)
         command = self.controller.update(target, now)
         if stalled:
@@ -242,20 +257,23 @@ class ControlLoop:
         return command
 
     def _send(self, command: VelocityCommand) -> None:
-        self.last_command = command
-        self.base.send(command)
+        with self._send_lock:
+            if self._stop.is_set() and not command.is_stop:
+                command = VelocityCommand.stop(command.stamp_s)
+            self.last_command = command
+            self.base.send(command)
         if self.on_command is not None:
             self.on_command(command)
 
     def _run(self) -> None:
-        next_tick = self.clock()
+        next_tick = time.monotonic()
         try:
             while not self._stop.is_set():
                 self.tick()
                 next_tick += self.period_s
-                if self._wake.wait(max(0.0, next_tick - self.clock())):
+                if self._wake.wait(max(0.0, next_tick - time.monotonic())):
                     self._wake.clear()
-                    next_tick = self.clock()  # a new result: its command now, then the period
+                    next_tick = time.monotonic()  # a new result: its command now, then the period
         except BaseException as exc:  # the base must stop whatever went wrong
             self.error = exc
             log.exception("control loop failed: stopping the base")

@@ -1,6 +1,7 @@
 """MavlinkBase against the simulated rover over real UDP sockets on 127.0.0.1."""
 
 import math
+import threading
 import time
 
 import pytest
@@ -148,6 +149,30 @@ def test_close_sends_zero_velocity(rover):
     with pytest.raises(MavlinkError, match="closed"):
         base.send(VelocityCommand.stop(0.0))
     base.close()  # idempotent
+
+
+def test_a_moving_setpoint_taken_before_close_never_follows_its_zeros(rover):
+    """The sender read a moving command just before close(), and lost the CPU (widened
+    here to 0.1 s) before sending it: it must not go out after close()'s zeros."""
+    base = MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST))
+    read_command = base._command_to_stream
+    armed, in_hand = threading.Event(), threading.Event()
+
+    def preempted_after_reading(now):
+        command = read_command(now)
+        if armed.is_set() and command is not None and not command.is_stop:
+            in_hand.set()
+            time.sleep(0.1)
+        return command
+
+    base._command_to_stream = preempted_after_reading
+    drive(base, 1.0, 0.0, 0.6)
+    armed.set()
+    assert in_hand.wait(1.0)
+    base.close()
+    time.sleep(0.3)
+    assert rover.last_setpoint[1] == 0.0  # the last forward speed it heard
+    assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.0)
 
 
 def test_exception_in_the_with_block_still_stops(rover):

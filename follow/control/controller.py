@@ -20,6 +20,7 @@ import numpy as np
 
 from follow.config import ConfigError, ControlConfig
 from follow.control.target import TargetMotion, ViewCone
+from follow.freshness import is_fresh
 from follow.types import InvalidInput, VelocityCommand
 
 log = logging.getLogger(__name__)
@@ -111,7 +112,8 @@ class FollowingController:
         if not math.isfinite(stamp_s):
             raise InvalidInput(f"controller stamp_s is not finite: {stamp_s}")
         dt_s = self._step_s(stamp_s)
-        fresh = target is not None and stamp_s - target.stamp_s <= self.config.target_timeout_s
+        fresh = target is not None and is_fresh(stamp_s, target.stamp_s,
+                                                self.config.target_timeout_s)  # fmt: skip
         if not fresh:
             if target is not None:
                 log.debug("target estimate %.3f s old: stopping", stamp_s - target.stamp_s)

@@ -142,9 +142,13 @@ class MavlinkBase:
             self._state = LinkState.CLOSED
         atexit.unregister(self.close)
         if was_connected:
-            for _ in range(3):
-                self._send_setpoint(VelocityCommand.stop(self._clock()))
-                time.sleep(0.01)
+            try:
+                for _ in range(3):
+                    self._send_setpoint(VelocityCommand.stop(self._clock()))
+                    time.sleep(0.01)
+            except Exception as exc:  # a port gone: the threads must stop all the same
+                self.last_error = f"send failed while closing: {exc}"
+                log.error("MAVLink %s", self.last_error)
         self._stop.set()
         self._wake.set()
         for thread in (self._sender, self._receiver):
@@ -400,6 +404,10 @@ class MavlinkBase:
             mask, frame = mf.TYPE_MASK_VELOCITY_YAW_RATE, mavlink.MAV_FRAME_BODY_OFFSET_NED
         boot_ms = int(self._clock() * 1000) & 0xFFFFFFFF
         with self._send_lock:
+            # A moving setpoint the sender took just before close() must not follow
+            # close()'s zeros: closed is set before they are sent, under this lock.
+            if self._state is LinkState.CLOSED and not cmd.is_stop:
+                return
             self._conn.mav.set_position_target_local_ned_send(
                 boot_ms, *self._target, frame, mask,
                 0, 0, 0, vx, vy, 0, 0, 0, 0, 0, yaw_rate,

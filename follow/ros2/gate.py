@@ -4,8 +4,8 @@ to move on stale odometry or while following is stopped.
 
 The ControlLoop already stops on stale images (its perception time-out) and the
 controller on a lost target; this gate adds the rules that only the node knows: no
-fresh odometry (by its stamp, on the node's clock) means stop, and so does an operator's
-stop request.
+fresh odometry (by its stamp, on the node's clock; a stamp ahead of that clock is not
+fresh either, `follow.freshness`) means stop, and so does an operator's stop request.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import threading
 from collections.abc import Callable
 
 from follow.config import ConfigError, RosConfig
+from follow.freshness import is_fresh
 from follow.types import Odometry, VelocityCommand
 
 
@@ -44,7 +45,7 @@ class CmdVelGate:
         """The newest pose if it is fresh, else None (never an assumed one)."""
         with self._lock:
             pose = self._odometry
-        if pose is None or self.clock() - pose.stamp_s > self.max_odometry_age_s:
+        if pose is None or not is_fresh(self.clock(), pose.stamp_s, self.max_odometry_age_s):
             return None
         return pose
 

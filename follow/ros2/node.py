@@ -43,12 +43,14 @@ from follow.pipeline import ControlLoop, FrameResult, overlaps_stages
 from follow.ros2 import messages
 from follow.ros2.gate import CmdVelGate, check_ros_config
 from follow.rosmsg import camera_from_info, image_fields, image_from_msg, odometry_from_msg, stamp_s
+from follow.shutdown import SIGNALS
 from follow.types import Frame, InvalidInput, Odometry, VelocityCommand
 
 log = logging.getLogger(__name__)
 
 NODE_NAME = "follow"
 ODOMETRY_QUEUE = 50  # odometry messages held while the executor is busy
+CLOCK_STEP_S = 1.0  # an image this much older than the last one: a clock went back
 
 
 def parameters_over(node: Node, config: Config) -> Config:
@@ -264,6 +266,12 @@ class FollowNode(Node):
         stamp = stamp_s(msg.header)
         if self._last_stamp is not None and stamp <= self._last_stamp:
             self.stale_frames += 1
+            if self._last_stamp - stamp > CLOCK_STEP_S:
+                self.get_logger().warning(
+                    f"image stamped {self._last_stamp - stamp:.1f} s before the last one "
+                    "processed (a clock stepped back?): images are dropped, and the base "
+                    "stopped, until they are newer", throttle_duration_sec=5.0,
+                )  # fmt: skip
             return None
         try:
             image = image_from_msg(msg)
@@ -368,12 +376,12 @@ class FollowNode(Node):
 
 
 def run(config: Config, camera: CameraModel, ros_args: list[str]) -> dict:
-    """Spin the node until SIGINT or SIGTERM, then stop the base and shut down."""
+    """Spin the node until SIGINT, SIGTERM or SIGHUP, then stop the base and shut down."""
     rclpy.init(args=["follow", "--ros-args", *ros_args] if ros_args else ["follow"],
                signal_handler_options=SignalHandlerOptions.NO)  # fmt: skip
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set())
-                for sig in (signal.SIGINT, signal.SIGTERM)}  # fmt: skip
+    # SIGHUP too: a closed terminal or ssh session must stop the base, not kill the node
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in SIGNALS}
     node = None
     summary: dict = {}
     try:

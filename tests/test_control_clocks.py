@@ -1,0 +1,123 @@
+"""Stale data cannot pass for fresh data: a stamp ahead of the reading clock (a camera
+or base driver on a host whose clock runs ahead, a clock stepped back) stops the base,
+a clock that steps back cannot put the control loop to sleep on a moving command, and
+nothing but zero leaves the control loop once it is told to stop."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from follow import pipeline
+from follow.capture import LatestSlot
+from follow.config import ControlConfig
+from follow.control.base import NullBase
+from follow.control.controller import FollowingController
+from follow.control.target import TargetMotion
+from follow.freshness import MAX_STAMP_AHEAD_S, is_fresh
+from follow.pipeline import ControlLoop, FrameResult
+from follow.ros2.gate import CmdVelGate
+from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
+
+SEEN = Observation(np.array([320.0, 200.0]), np.array([320.0, 400.0]))
+
+
+def _result(stamp_s: float) -> FrameResult:
+    track = TrackState(7, np.array([5.0, 0.0, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, stamp_s,
+                       observation=SEEN)  # fmt: skip
+    return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], [track],
+                       TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, stamp_s))  # fmt: skip
+
+
+def test_a_stamp_ahead_of_the_clock_is_not_fresh():
+    assert is_fresh(10.0, 9.8, 0.5) and is_fresh(10.0, 10.0 + 0.5 * MAX_STAMP_AHEAD_S, 0.5)
+    assert not is_fresh(10.0, 9.4, 0.5)  # too old
+    assert not is_fresh(10.0, 10.0 + 2 * MAX_STAMP_AHEAD_S, 0.5)  # from the future
+
+
+def test_frames_stamped_ahead_of_the_control_clock_stop_the_base(caplog):
+    now = [100.0]
+    slot = LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), NullBase(clock=lambda: now[0]),
+                       slot, rate_hz=15.0, perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
+    slot.put(_result(now[0]))
+    assert not loop.tick().is_stop  # in step: following
+    for _ in range(10):  # the camera's clock jumps 3 s ahead
+        now[0] += 1 / 15
+        slot.put(_result(now[0] + 3.0))
+        assert loop.tick().is_stop
+    assert loop.watchdog_trips == 1
+    assert "ahead of the control clock" in caplog.text
+
+
+def test_the_controller_does_not_follow_an_estimate_from_the_future():
+    controller = FollowingController(ControlConfig())
+    target = TargetMotion(np.array([3.0, 0.0]), np.zeros(2), 10.0)
+    assert not controller.update(target, 10.0).is_stop
+    assert controller.update(TargetMotion(np.array([3.0, 0.0]), np.zeros(2), 13.0), 10.1).is_stop
+
+
+def test_the_ros_gate_takes_odometry_from_the_future_for_stale():
+    now = [100.0]
+    gate = CmdVelGate(lambda command: None, lambda: now[0], max_odometry_age_s=0.2)
+    gate.update_odometry(Odometry.origin(now[0] + 3.0))  # the base driver's clock runs ahead
+    assert gate.odometry() is None and not gate.healthy()
+
+
+def test_a_clock_stepping_back_does_not_silence_the_control_loop():
+    """The loop's clock steps back 5 s as the camera stops: ticks go on (timed on the
+    monotonic clock) and the base is stopped within the watchdog."""
+    offset = [0.0]
+
+    def clock() -> float:
+        return time.monotonic() + offset[0]
+
+    slot = LatestSlot()
+    base = NullBase(clock=clock)
+    loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=20.0,
+                       perception_timeout_s=0.3, clock=clock).start()  # fmt: skip
+    try:
+        for _ in range(6):
+            slot.put(_result(clock()))
+            loop.notify()
+            time.sleep(0.05)
+        assert not base.commands[-1].is_stop
+        offset[0] -= 5.0
+        sent_before = len(base.commands)
+        time.sleep(0.6)
+        after = list(base.commands)[sent_before:]
+        assert len(after) >= 5 and after[-1].is_stop
+    finally:
+        loop.stop()
+
+
+def test_nothing_but_zero_leaves_the_loop_after_stop(monkeypatch):
+    """A tick stalled past stop()'s wait (a blocked odometry read) ends with zero, not
+    with the moving command it was computing."""
+    monkeypatch.setattr(pipeline, "STOP_JOIN_TIMEOUT_S", 0.2)
+    stall, stalled = threading.Event(), threading.Event()
+
+    class SlowOdometry(NullBase):
+        def odometry(self):
+            if stall.is_set() and not stalled.is_set():
+                stalled.set()
+                time.sleep(0.6)
+            return super().odometry()
+
+    slot = LatestSlot()
+    base = SlowOdometry()
+    loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=20.0,
+                       perception_timeout_s=0.5).start()  # fmt: skip
+    for _ in range(4):
+        slot.put(_result(time.monotonic()))
+        loop.notify()
+        time.sleep(0.05)
+    assert not base.commands[-1].is_stop
+    stall.set()
+    assert stalled.wait(1.0)
+    slot.put(_result(time.monotonic() + 0.3))  # fresh when the stalled read returns
+    loop.stop()
+    time.sleep(0.7)  # the stalled tick finishes
+    assert not loop._thread.is_alive() and base.commands[-1].is_stop
