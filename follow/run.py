@@ -19,6 +19,7 @@ import numpy as np
 
 from follow.camera import CameraModel
 from follow.capture import FrameSource, open_source
+from follow.cli_args import non_negative_int
 from follow.config import Config
 from follow.pipeline import FrameResult, Perception, build_runner, run_offline
 from follow.render import annotate, top_down
@@ -43,7 +44,7 @@ def add_arguments(p) -> None:
     p.add_argument("--camera", required=True, help="camera file (YAML/JSON, from follow-calib)")
     p.add_argument("--config", help="TOML configuration (defaults: the paper's values)")
     p.add_argument("--mavlink", help="MAVLink connection string, e.g. udpin:0.0.0.0:14550")
-    p.add_argument("--target-id", type=int, help="follow this track id instead of the nearest")
+    p.add_argument("--target-id", type=non_negative_int, help="follow this track id instead of the nearest")
     p.add_argument("--output-video", help="write the annotated video here (.mp4 or .avi)")
     p.add_argument("--frames-dir", help="write annotated frames (with a top-down view) here")
     p.add_argument("--log", help="write a JSON-lines log of every frame here")

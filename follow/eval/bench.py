@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 
+from follow.cli_args import non_negative_int, positive_float, positive_int
 from follow.config import Config
 
 PROVIDER_CHOICES = ("auto", "cpu", "openvino", "cuda", "tensorrt")
@@ -32,19 +33,19 @@ MATRIX = (("robot", "cpu"), ("robot", "openvino"), ("pets", "cpu"), ("pets", "op
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--frames", type=int, default=60, help="PETS frames to time (default 60)")
-    p.add_argument("--warmup", type=int, default=5, help="frames run before timing")
+    p.add_argument("--frames", type=positive_int, default=60, help="PETS frames to time (default 60)")
+    p.add_argument("--warmup", type=non_negative_int, default=5, help="frames run before timing")
     p.add_argument("--settings", choices=SETTINGS_CHOICES, default="robot",
                    help="robot defaults, or the PETS settings (follow/eval/pets2009.toml)")  # fmt: skip
     p.add_argument("--provider", choices=PROVIDER_CHOICES,
                    help="pose runtime: cpu = onnxruntime (the plain install), openvino, "
                         "cuda, tensorrt (default: the config's)")  # fmt: skip
-    p.add_argument("--camera-fps", type=float, default=30.0,
+    p.add_argument("--camera-fps", type=positive_float, default=30.0,
                    help="rate the runner's simulated camera delivers frames at (default 30)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration over the chosen settings")
     p.add_argument("--matrix", action="store_true",
                    help="robot and PETS settings x onnxruntime and OpenVINO, one process each")  # fmt: skip
-    p.add_argument("--repeats", type=int, default=1,
+    p.add_argument("--repeats", type=positive_int, default=1,
                    help="with --matrix: runs per cell; the table shows medians (default 1)")  # fmt: skip
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from follow.cli_args import positive_int
 from follow.config import Config, IdentifyConfig
 
 GOAL_CCF10_MS_PER_PERSON = 1.0
@@ -35,7 +36,7 @@ CROP_HEIGHT_PX = 128
 
 def add_arguments(p) -> None:
     p.add_argument("--people", type=int, default=4, help="people per frame (default 4)")
-    p.add_argument("--repeats", type=int, default=200, help="timed repetitions (default 200)")
+    p.add_argument("--repeats", type=positive_int, default=200, help="timed repetitions (default 200)")
     p.add_argument("--reid", action="store_true", help="also time the re-id embedding")
     p.add_argument("--numpy-boosting", action="store_true",
                    help="time the numpy boosting update even when numba is installed")  # fmt: skip

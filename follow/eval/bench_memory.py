@@ -18,6 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 from tqdm import tqdm
 
+from follow.cli_args import positive_int
 from follow.config import Config
 
 GOAL_GROWTH_MIB = 5.0
@@ -91,7 +92,7 @@ def measure(frames: int, warmup_frames: int, seed: int = 0, progress: bool = Fal
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--frames", type=int, default=20_000, help="synthetic frames to run")
+    parser.add_argument("--frames", type=positive_int, default=20_000, help="synthetic frames to run")
     parser.add_argument("--warmup-frames", type=int, default=2_000,
                         help="frames before the first reading")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0)

@@ -22,6 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from follow import models
+from follow.cli_args import non_negative_int, positive_int
 from follow.config import PoseConfig
 from follow.eval.pets import PetsSequence, evenly_spaced_frames
 from follow.eval.pose import data_dir
@@ -40,7 +41,7 @@ CALIBRATION_OFFSET = 5  # calibration frames sit between the evenly spaced eval 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="PETS frames to time")
+    parser.add_argument("--frames", type=positive_int, default=DEFAULT_FRAMES, help="PETS frames to time")
     parser.add_argument(
         "--height",
         type=int,
@@ -49,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--int8-model", type=Path, default=None, help="INT8 ONNX to time")
     parser.add_argument("--data-dir", type=Path, default=None, help="PETS 2009 folder")
-    parser.add_argument("--threads", type=int, default=0, help="CPU threads (0 = default)")
+    parser.add_argument("--threads", type=non_negative_int, default=0, help="CPU threads (0 = default)")
 
 
 def calibration_indices(frame_count: int, count: int = CALIBRATION_FRAMES) -> list[int]:

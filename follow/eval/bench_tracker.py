@@ -18,12 +18,13 @@ import time
 
 import numpy as np
 
+from follow.cli_args import positive_int
 from follow.eval.pets_setup import PETS_FPS, load_evaluation
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--frames", type=int, default=200, help="the first N frames (default 200)")
-    p.add_argument("--repeats", type=int, default=3, help="passes over the frames (default 3)")
+    p.add_argument("--frames", type=positive_int, default=200, help="the first N frames (default 200)")
+    p.add_argument("--repeats", type=positive_int, default=3, help="passes over the frames (default 3)")
     p.add_argument("--config", help="TOML configuration, over the PETS settings (pets2009.toml)")
     p.add_argument("--no-cache", action="store_true", help="run the pose network again")
 

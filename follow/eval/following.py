@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from follow.cli_args import non_negative_float, positive_float
 from follow.config import Config, ControlConfig, MavlinkConfig
 from follow.control.mavlink_base import MavlinkBase
 from follow.pipeline import Detections, FrameResult, build_runner
@@ -189,10 +190,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--scenario", choices=(*SCENARIOS, "all"), default="all", help="walker script"
     )
-    parser.add_argument("--speed-mps", type=float, default=1.0, help="walking speed")
+    parser.add_argument("--speed-mps", type=positive_float, default=1.0, help="walking speed")
     parser.add_argument("--config", help="TOML file ([control] and [mavlink] are used)")
-    parser.add_argument("--latency-s", type=float, default=RunSettings.perception_latency_s)
-    parser.add_argument("--noise-m", type=float, default=RunSettings.position_noise_m)
+    parser.add_argument("--latency-s", type=non_negative_float, default=RunSettings.perception_latency_s)
+    parser.add_argument("--noise-m", type=non_negative_float, default=RunSettings.position_noise_m)
     parser.add_argument("--packet-loss", type=float, default=0.0, help="fraction, both ways")
     parser.add_argument("--link-latency-s", type=float, default=0.0, help="one way")
     parser.add_argument("--seed", type=int, default=0)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from follow.camera import CameraModel
+from follow.cli_args import positive_int
 from follow.config import Config, PoseConfig
 from follow.types import Skeleton
 
@@ -79,7 +80,7 @@ class PetsSetup:
 
 def add_evaluation_arguments(p) -> None:
     """The options `load_evaluation` reads, for every PETS evaluation command."""
-    p.add_argument("--frames", type=int, help="only the first N frames (default: all)")
+    p.add_argument("--frames", type=positive_int, help="only the first N frames (default: all)")
     p.add_argument("--config", help="TOML configuration, over the PETS settings (pets2009.toml)")
     p.add_argument("--no-cache", action="store_true", help="run the pose network again")
 

@@ -22,6 +22,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from tqdm import tqdm
 
+from follow.cli_args import non_negative_int, positive_int
 from follow.config import PoseConfig
 from follow.eval.perturb import PerturbedSequence, add_perturb_arguments, plot_spread, print_suite
 from follow.eval.perturb import selected_variants as perturb_variants
@@ -143,12 +144,12 @@ def evaluate_size(
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--frames", type=int, default=DEFAULT_FRAMES, help="evenly spaced frames to use"
+        "--frames", type=positive_int, default=DEFAULT_FRAMES, help="evenly spaced frames to use"
     )
-    parser.add_argument("--from-frame", type=int, default=0,
+    parser.add_argument("--from-frame", type=non_negative_int, default=0,
                         help="take the frames from this one on (e.g. 400: the half that "
                              "checks settings chosen on the first)")  # fmt: skip
-    parser.add_argument("--until-frame", type=int, default=None,
+    parser.add_argument("--until-frame", type=positive_int, default=None,
                         help="take the frames before this one (e.g. 400: the half settings "
                              "are chosen on)")  # fmt: skip
     parser.add_argument(

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from follow.cli_args import positive_float
 from follow.config import Config
 from follow.eval.mot import GroundPlaneMot
 from follow.eval.perturb import add_perturb_arguments, plot_spread, print_suite, run_suite
@@ -27,7 +28,7 @@ SUITE_METRICS = {"mota": True, "idf1": True, "motp_m": False, "id_switches": Fal
 
 def add_arguments(p) -> None:
     add_evaluation_arguments(p)
-    p.add_argument("--match-threshold-m", type=float, default=1.0)
+    p.add_argument("--match-threshold-m", type=positive_float, default=1.0)
     p.add_argument("--score-from-frame", type=int, default=0,
                    help="run from the start but score only frames from this one on "
                         "(e.g. 400: the half not used to fit pets2009.toml)")  # fmt: skip

@@ -17,12 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
+from follow.cli_args import non_negative_int, positive_int
 from follow.config import Config
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--frames", type=int, default=40, help="PETS frames to time (default 40)")
-    p.add_argument("--warmup", type=int, default=5, help="frames sent before timing")
+    p.add_argument("--frames", type=positive_int, default=40, help="PETS frames to time (default 40)")
+    p.add_argument("--warmup", type=non_negative_int, default=5, help="frames sent before timing")
     p.add_argument("--config", help="TOML configuration (pose input size, provider, ...)")
 
 
