@@ -15,6 +15,8 @@ from typing import Protocol
 
 import numpy as np
 
+from follow.models import ModelError
+
 log = logging.getLogger(__name__)
 
 PROVIDERS = ("auto", "cpu", "cuda", "tensorrt", "openvino")
@@ -220,6 +222,28 @@ def create_backend(provider: str, model_path: Path, cpu_threads: int = 0) -> Pos
     if provider not in PROVIDERS:
         raise ValueError(f"pose provider '{provider}' unknown; choose one of {PROVIDERS}")
     model_path = Path(model_path)
+    if not model_path.is_file():
+        raise ModelError(f"pose model {model_path} is not a file ([pose] model_file?)")
+    try:
+        return _create_backend(provider, model_path, cpu_threads)
+    except (ModelError, ValueError):
+        raise
+    except Exception as exc:  # the runtimes' parse errors name neither the file nor the key
+        raise ModelError(
+            f"pose model {model_path} cannot be loaded ({type(exc).__name__}: "
+            f"{_last_line(exc)}); "
+            "a truncated or wrong file? `[pose] model_file` names an explicit one, "
+            "`follow models verify` checks the others"
+        ) from exc
+
+
+def _last_line(exc: Exception) -> str:
+    """The last non-empty line of an error: where the runtimes put what went wrong."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    return lines[-1] if lines else "no detail"
+
+
+def _create_backend(provider: str, model_path: Path, cpu_threads: int) -> PoseBackend:
     is_ir = model_path.suffix == ".xml"
     available = ort_available_providers()
     wanted = {

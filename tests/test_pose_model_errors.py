@@ -1,0 +1,25 @@
+"""A pose model file that cannot be loaded is refused naming the file and where it was
+given, on every runtime (the runtimes' own parse errors name neither)."""
+
+from __future__ import annotations
+
+import pytest
+
+from follow.models import ModelError
+from follow.pose.runtime import PROVIDERS, create_backend, openvino_installed
+
+
+def test_a_directory_is_not_a_model(tmp_path):
+    with pytest.raises(ModelError, match=r"is not a file \(\[pose\] model_file"):
+        create_backend("cpu", tmp_path)
+
+
+@pytest.mark.parametrize("provider", ["cpu", "openvino"])
+def test_a_file_that_is_no_model_is_refused_by_name(tmp_path, provider):
+    assert provider in PROVIDERS
+    if provider == "openvino" and not openvino_installed():
+        pytest.skip("openvino is not installed")
+    broken = tmp_path / "pose.onnx"
+    broken.write_bytes(b"\x08\x07" + bytes(range(256)) * 8)  # not a protobuf model
+    with pytest.raises(ModelError, match=r"pose model .*pose\.onnx cannot be loaded .*model_file"):
+        create_backend(provider, broken)
