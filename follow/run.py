@@ -44,7 +44,8 @@ def add_arguments(p) -> None:
     p.add_argument("--camera", required=True, help="camera file (YAML/JSON, from follow-calib)")
     p.add_argument("--config", help="TOML configuration (defaults: the paper's values)")
     p.add_argument("--mavlink", help="MAVLink connection string, e.g. udpin:0.0.0.0:14550")
-    p.add_argument("--target-id", type=non_negative_int, help="follow this track id instead of the nearest")
+    p.add_argument("--target-id", type=non_negative_int,
+                   help="follow this track id instead of the nearest")  # fmt: skip
     p.add_argument("--output-video", help="write the annotated video here (.mp4 or .avi)")
     p.add_argument("--frames-dir", help="write annotated frames (with a top-down view) here")
     p.add_argument("--log", help="write a JSON-lines log of every frame here")
@@ -225,9 +226,39 @@ def checked_frames(first: Frame, rest, source_name: str):
         yield frame
 
 
+def check_output_paths(args) -> None:
+    """Refuse, before anything is opened or written, outputs that would overwrite an
+    input (the video, camera, configuration or replayed log) or each other, and files
+    in folders that do not exist: found at the end of a run, such a mistake has already
+    cost an input or a truncated log."""
+    inputs = {"source": args.source, "--camera": args.camera, "--config": args.config,
+              "--replay": args.replay}  # fmt: skip
+    outputs = {"--output-video": args.output_video, "--log": args.log,
+               "--frames-dir": args.frames_dir}  # fmt: skip
+    seen: dict[Path, str] = {}
+    for name, value in inputs.items():
+        if value and Path(value).exists():
+            seen[Path(value).resolve()] = name
+    for name, value in outputs.items():
+        if not value:
+            continue
+        path = Path(value).resolve()
+        if path in seen:
+            raise ValueError(f"{name} {value} is also the {seen[path]}: it would be overwritten")
+        seen[path] = name
+        if name == "--frames-dir":
+            if path.exists() and not path.is_dir():
+                raise ValueError(f"--frames-dir {value} is a file, not a folder")
+        elif path.is_dir():
+            raise ValueError(f"{name} {value} is a folder; give a file name")
+        elif not path.parent.is_dir():
+            raise ValueError(f"{name} {value}: the folder {path.parent} does not exist")
+
+
 def main(args) -> dict:
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
+    check_output_paths(args)
     config = Config.load(args.config) if args.config else Config()
     if args.mavlink:
         config = config.replace("mavlink", connection=args.mavlink)
