@@ -8,7 +8,13 @@ import argparse
 import pytest
 
 from follow.cli import main
-from follow.cli_args import non_negative_float, non_negative_int, positive_float, positive_int
+from follow.cli_args import (
+    non_negative_float,
+    non_negative_int,
+    plot_path,
+    positive_float,
+    positive_int,
+)
 
 
 @pytest.mark.parametrize(
@@ -39,3 +45,21 @@ def test_the_types_take_what_is_in_range_and_refuse_the_rest():
                         (non_negative_float, "nan"), (non_negative_float, "-0.1")):  # fmt: skip
         with pytest.raises(argparse.ArgumentTypeError):
             parse(text)
+
+
+@pytest.mark.parametrize(
+    "name, message",
+    [("plot.xyz", "a picture file is needed"), ("missing/plot.png", "does not exist"),
+     ("folder.png", "is a folder")],  # fmt: skip
+)
+def test_a_plot_path_that_cannot_be_written_is_refused_before_the_evaluation(
+    tmp_path, monkeypatch, capsys, name, message
+):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "folder.png").mkdir()
+    with pytest.raises(SystemExit) as exit_:
+        main(["eval", "localization", "--duration-s", "5", "--plot", name])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --plot" in err and message in err
+    assert plot_path(str(tmp_path / "plot.png")).endswith("plot.png")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from follow.cli_args import plot_path
 from follow.eval.pets import GT_IMAGE_SIZE
 from follow.eval.pets_setup import PetsSetup, add_evaluation_arguments, load_evaluation
 from follow.ukf.models import population_ankle_height_m
@@ -24,7 +25,7 @@ RANGE_BINS_M = (0.0, 20.0, 25.0, 30.0, 40.0)
 
 def add_arguments(p) -> None:
     add_evaluation_arguments(p)
-    p.add_argument("--plot", help="write a PNG histogram of the samples here")
+    p.add_argument("--plot", type=plot_path, help="write a PNG histogram of the samples here")
 
 
 def ankle_samples(setup: PetsSetup, frames, skeletons, config) -> tuple[np.ndarray, np.ndarray]:

@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from follow.cli_args import plot_path
 from follow.config import Config, IdentifyConfig
 
 log = logging.getLogger(__name__)
@@ -39,7 +40,7 @@ def add_arguments(p) -> None:
     p.add_argument("--seeds", type=int, default=DEFAULT_SEEDS,
                    help="classifier seeds averaged over (default 5)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration ([identify] section used)")
-    p.add_argument("--plot", help="write a PNG of the ROC curves here")
+    p.add_argument("--plot", type=plot_path, help="write a PNG of the ROC curves here")
 
 
 @dataclasses.dataclass(frozen=True)

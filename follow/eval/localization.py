@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from follow.cli_args import plot_path
 from follow.config import TrackerConfig
 from follow.sim.people import random_walker
 from follow.sim.skeletons import DetectorNoiseConfig, SyntheticDetector, observations_with_ids
@@ -151,7 +152,7 @@ def plot(samples: LocalizationSamples, path: str) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--plot", metavar="FILE.png", help="write error vs distance to a PNG")
+    parser.add_argument("--plot", type=plot_path, metavar="FILE.png", help="write error vs distance to a PNG")
     parser.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
     parser.add_argument(
         "--duration-s", type=float, default=60.0, help="simulated seconds (default 60)"

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from tqdm import tqdm
 
-from follow.cli_args import non_negative_int, positive_int
+from follow.cli_args import non_negative_int, plot_path, positive_int
 from follow.config import PoseConfig
 from follow.eval.perturb import PerturbedSequence, add_perturb_arguments, plot_spread, print_suite
 from follow.eval.perturb import selected_variants as perturb_variants
@@ -173,7 +173,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--config", type=Path, default=None,
                         help="TOML configuration, over the PETS settings (pets2009.toml)")  # fmt: skip
-    parser.add_argument("--plot", type=Path, default=None, help="write a PNG of the results")
+    parser.add_argument("--plot", type=plot_path, default=None, help="write a PNG of the results")
     add_perturb_arguments(parser)
 
 
@@ -274,7 +274,7 @@ def main_perturbed(args: argparse.Namespace, base: PoseConfig, sequence, variant
             **asked_range(args, sequence.frame_count)}  # fmt: skip
 
 
-def write_plot(results: list[dict], path: Path) -> None:
+def write_plot(results: list[dict], path: str | Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")

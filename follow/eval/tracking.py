@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from follow.cli_args import positive_float
+from follow.cli_args import plot_path, positive_float
 from follow.config import Config
 from follow.eval.mot import GroundPlaneMot
 from follow.eval.perturb import add_perturb_arguments, plot_spread, print_suite, run_suite
@@ -35,7 +35,7 @@ def add_arguments(p) -> None:
     p.add_argument("--score-until-frame", type=int, default=None,
                    help="score only frames before this one (e.g. 400: the half settings "
                         "are chosen on; the run and its cached detections stay whole)")  # fmt: skip
-    p.add_argument("--plot", help="write a PNG of MOTA and IDF1 per method here "
+    p.add_argument("--plot", type=plot_path, help="write a PNG of MOTA and IDF1 per method here "
                                   "(with --perturb: their spread over the variants)")  # fmt: skip
     add_perturb_arguments(p)
 
