@@ -66,12 +66,28 @@ def _frames(args: argparse.Namespace, unreadable: list[tuple[str, str]]):
             unreadable.append((path.name, str(exc)))
 
 
+def _pose_to_keep(output: Path) -> CameraPose | None:
+    """The pose of an existing camera file at `output` (only the intrinsics change), or
+    None for a new file. A file that exists but cannot be read is refused before the
+    calibration runs: writing over it would lose a measured pose."""
+    if not output.exists():
+        return None
+    try:
+        return CameraModel.load(output).pose
+    except CameraFileError as exc:
+        raise ValueError(
+            f"{exc}; -o {output} exists but cannot be read, and writing the intrinsics over "
+            "it would lose its pose: mend it, move it away, or give another -o"
+        ) from exc
+
+
 def main(args: argparse.Namespace) -> dict:
     if args.every < 1 or args.max_views < intr.MIN_VIEWS:
         raise ValueError(
             f"--every must be >= 1 and --max-views >= {intr.MIN_VIEWS}, "
             f"got {args.every} and {args.max_views}"
         )
+    kept_pose = _pose_to_keep(args.output)
     unreadable: list[tuple[str, str]] = []
     result = intr.calibrate_intrinsics(
         _frames(args, unreadable),
@@ -89,14 +105,8 @@ def main(args: argparse.Namespace) -> dict:
         "intrinsics_views": result.views_used,
         "intrinsics_coverage": round(result.coverage_fraction, 3),
     }
-    pose = CameraPose(PLACEHOLDER_HEIGHT_M)
-    pose_kept = False
-    if args.output.exists():
-        try:
-            pose = CameraModel.load(args.output).pose
-            pose_kept = True
-        except CameraFileError as exc:
-            log.warning("%s; writing a new camera file", exc)
+    pose_kept = kept_pose is not None
+    pose = kept_pose if pose_kept else CameraPose(PLACEHOLDER_HEIGHT_M)
     if not pose_kept:
         notes["pose"] = "placeholder: measure it with `follow-calib ground`"
     model = CameraModel(result.K, result.dist, result.image_size, pose)

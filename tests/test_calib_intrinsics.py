@@ -95,6 +95,12 @@ def test_intrinsics_command_on_a_folder(views, tmp_path, capsys):
     model.with_pose(CameraPose(0.7, 0.2)).save(out)
     assert cli.main(argv + ["-o", str(out), "--json"]) == 0
     assert CameraModel.load(out).pose.height_m == pytest.approx(0.7)
+    # A camera file that cannot be read is refused, not replaced: its pose would be lost.
+    broken = out.read_text().replace("height_m: 0.7", "height_m: -0.7")
+    out.write_text(broken)
+    assert cli.main(argv + ["-o", str(out), "--json"]) != 0
+    assert "would lose its pose" in capsys.readouterr().err
+    assert out.read_text() == broken
 
 
 def test_intrinsics_command_names_a_missing_folder(tmp_path, capsys):
