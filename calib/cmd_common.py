@@ -34,6 +34,21 @@ def positive_float(text: str) -> float:
     return value
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")  # what OpenCV writes
+
+
+def image_path(text: str) -> Path:
+    """A picture to write once the work is done: its suffix and folder checked now."""
+    path = Path(text)
+    if path.suffix.lower() not in IMAGE_SUFFIXES:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: an image file is needed, ending in one of {', '.join(IMAGE_SUFFIXES)}"
+        )
+    if path.is_dir() or not path.resolve().parent.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r}: not a file in an existing folder")
+    return path
+
+
 def add_board_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--pattern", type=pattern_size, required=True, metavar="COLSxROWS",

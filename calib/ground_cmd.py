@@ -12,7 +12,7 @@ import numpy as np
 
 from calib.camera_file import write_camera_file
 from calib.chessboard import ImageInputError
-from calib.cmd_common import add_board_arguments, read_grey_frames
+from calib.cmd_common import add_board_arguments, image_path, read_grey_frames
 from calib.ground import average_frames, estimate_ground_pose
 from calib.overlay import calibration_overlay
 from follow.camera import CameraModel
@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="camera file to write (default: update --camera in place)",
     )  # fmt: skip
     parser.add_argument(
-        "--overlay", type=Path,
+        "--overlay", type=image_path,
         help="overlay PNG to write (default: <output stem>_ground.png next to the output)",
     )  # fmt: skip
     parser.add_argument(
@@ -80,7 +80,6 @@ def main(args: argparse.Namespace) -> dict:
         "pose_board_rms_px": round(result.reprojection_rms_px, 4),
         "pose_frames_averaged": len(frames),
     }
-    write_camera_file(output, calibrated, notes)
 
     # The board's centre in `base`, through the final pose.
     c, s = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
@@ -97,8 +96,9 @@ def main(args: argparse.Namespace) -> dict:
     overlay = calibration_overlay(
         image, calibrated.scaled(w, h), result.corners_px, args.pattern, lines=lines
     )
-    if not cv2.imwrite(str(overlay_path), overlay):
+    if not cv2.imwrite(str(overlay_path), overlay):  # before the camera file: all or nothing
         raise OSError(f"cannot write the overlay image {overlay_path}")
+    write_camera_file(output, calibrated, notes)
     warnings = []
     if result.reprojection_rms_px > RMS_WARNING_PX:
         warnings.append(

@@ -159,6 +159,20 @@ def test_ground_command_without_board_fails_cleanly(board_scene, capsys):
     assert "no 7x5 chessboard" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("overlay", ["overlay.xyz", "missing/overlay.png"])
+def test_an_overlay_that_cannot_be_written_leaves_the_camera_file_alone(
+    board_scene, capsys, overlay
+):
+    _, folder = board_scene
+    before = (folder / "cam.yaml").read_text()
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["ground", str(folder / "board0.png"), "--camera", str(folder / "cam.yaml"),
+                  "--pattern", "7x5", "--square-size-m", "0.1",
+                  "--overlay", str(folder / overlay)])  # fmt: skip
+    assert exit_.value.code == 2 and "argument --overlay" in capsys.readouterr().err
+    assert (folder / "cam.yaml").read_text() == before
+
+
 def ground_command(image, folder):
     """`follow-calib ground` on one image with the scene's camera and board."""
     return cli.main(["ground", str(image), "--camera", str(folder / "cam.yaml"),
