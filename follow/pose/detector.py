@@ -12,6 +12,7 @@ import numpy as np
 from follow import model_manifest, models
 from follow.config import PoseConfig
 from follow.pose.decode import DecodedPerson, DecodeParams, decode
+from follow.pose.prepare import SOURCE_MODEL
 from follow.pose.preprocess import (
     NETWORK_STRIDE_PX,
     FrameFilter,
@@ -71,6 +72,14 @@ def model_file_for(config: PoseConfig, model_path: Path | None = None) -> Path:
 def _source_model_file(config: PoseConfig) -> Path:
     if config.model_file:
         return Path(config.model_file)
+    models.get_spec(config.model)  # an unknown [pose] model is refused by name
+    if config.precision in ("auto", "int8") and config.model != SOURCE_MODEL:
+        if config.precision == "int8":
+            raise models.ModelError(
+                f"pose precision 'int8': the INT8 model is made from {SOURCE_MODEL}, not "
+                f"[pose] model '{config.model}'; use precision 'fp32' or 'auto' with it"
+            )
+        config = dataclasses.replace(config, precision="fp32")  # auto: the named model
     if config.precision == "auto":
         from follow.pose.quantize import default_int8_path
 
