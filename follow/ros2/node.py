@@ -59,17 +59,34 @@ def parameters_over(node: Node, config: Config) -> Config:
     from rclpy.exceptions import ParameterException
 
     changed: dict[str, dict] = {}
+    declared: list[str] = []
     for section in dataclasses.fields(config):
         values = getattr(config, section.name)
         for field in dataclasses.fields(values):
             default, name = getattr(values, field.name), f"{section.name}.{field.name}"
+            declared.append(name)
             try:
                 value = node.declare_parameter(name, default).value
             except ParameterException as exc:
                 raise ConfigError(f"ROS parameter {name}: {exc}") from None
             if value != default:
                 changed.setdefault(section.name, {})[field.name] = value
+    _refuse_unknown_parameters(node, declared)
     return Config.from_dict(changed, source="ROS parameters", base=config)
+
+
+def _refuse_unknown_parameters(node: Node, declared: list[str]) -> None:
+    """A `-p` override that names no parameter (a typo: `control.max_forwrd_speed_mps`)
+    would otherwise be dropped in silence and the default used."""
+    import difflib
+
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps them here
+    unknown = [name for name in overrides
+               if not node.has_parameter(name) and not name.startswith("qos_overrides.")]  # fmt: skip
+    if unknown:
+        hints = [f"{name} (did you mean {close[0]}?)" if close else name for name in unknown
+                 for close in [difflib.get_close_matches(name, declared, n=1)]]  # fmt: skip
+        raise ConfigError(f"unknown ROS parameter(s): {', '.join(hints)}")
 
 
 class FollowNode(Node):

@@ -1,0 +1,43 @@
+"""ROS parameters override the configuration by name; a name that is no parameter (a
+typo) is refused with the nearest real one, never dropped in silence. Runs where rclpy
+imports."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from follow.config import Config, ConfigError
+
+try:
+    import rclpy
+    from rclpy.node import Node
+
+    from follow.ros2.node import parameters_over
+except ImportError as exc:  # pragma: no cover - depends on the installation
+    if os.environ.get("FOLLOW_REQUIRE_ROS2") == "1":
+        raise
+    pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
+
+
+def _parameters(*overrides: str) -> Config:
+    context = rclpy.Context()
+    args = ["follow", "--ros-args", *[a for o in overrides for a in ("-p", o)]]
+    rclpy.init(args=args, context=context)
+    node = Node("follow_parameters_test", context=context)
+    try:
+        return parameters_over(node, Config())
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def test_a_parameter_overrides_its_key():
+    assert _parameters("control.target_timeout_s:=0.4").control.target_timeout_s == 0.4
+
+
+def test_a_misspelt_parameter_is_refused_with_the_nearest_name():
+    with pytest.raises(ConfigError, match=r"control\.max_forwrd_speed_mps \(did you mean "
+                       r"control\.max_forward_speed_mps\?\)"):  # fmt: skip
+        _parameters("control.max_forwrd_speed_mps:=1.0")
