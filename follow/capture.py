@@ -40,6 +40,8 @@ class FrameSource:
         self._folder: list[Path] | None = None
         self.frame_count: int | None = None
         self._cap: cv2.VideoCapture | None = None
+        if not str(spec).strip():
+            raise SourceError("source is empty: give a video file, camera index, folder or bag")
         path = Path(spec)
         if path.is_dir():
             self._folder = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)

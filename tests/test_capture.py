@@ -59,3 +59,8 @@ def test_bad_sources_are_named(tmp_path):
     bad.write_bytes(b"garbage" * 100)
     with pytest.raises(SourceError, match="cannot be opened"):
         FrameSource(str(bad))
+
+
+def test_an_empty_source_is_refused_not_read_as_the_current_folder():
+    with pytest.raises(SourceError, match="source is empty"):
+        FrameSource("")

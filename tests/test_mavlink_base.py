@@ -192,6 +192,11 @@ def test_survives_packet_loss_and_latency():
             assert base.state is LinkState.ACTIVE
 
 
+def test_a_connection_that_cannot_be_opened_is_named():
+    with pytest.raises(MavlinkError, match=r"MAVLink connection 'udpin:999\.0\.0\.1:14550'"):
+        MavlinkBase(MavlinkConfig(connection="udpin:999.0.0.1:14550", **FAST))
+
+
 def test_no_vehicle_and_bad_config_are_clear_errors():
     with SimRover(heartbeat_rate_hz=5) as rover:
         port = rover.port

@@ -86,11 +86,14 @@ class MavlinkBase:
         self._prestream = False  # PX4: stream setpoints before asking for OFFBOARD
         self.last_error: str | None = None
         self.setpoints_sent = 0
-        self._conn = mavutil.mavlink_connection(
-            config.connection,
-            source_system=config.source_system,
-            source_component=config.source_component,
-        )
+        try:
+            self._conn = mavutil.mavlink_connection(
+                config.connection,
+                source_system=config.source_system,
+                source_component=config.source_component,
+            )
+        except OSError as exc:  # an unknown host, a port in use, a missing serial device
+            raise MavlinkError(f"MAVLink connection {config.connection!r}: {exc}") from exc
         self._receiver = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
         self._sender = threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)
         self._receiver.start()
