@@ -73,6 +73,11 @@ POSE_BOUNDS: dict[str, tuple[float, float]] = {
 }
 
 
+# The keys of a camera file (docs/calibration.md); `calibration` is follow-calib's record
+# of how the file was measured (calib/camera_file.py), for people: follow ignores it.
+FILE_KEYS = ("image_width", "image_height", "camera_matrix", "distortion", "pose", "calibration")
+
+
 @dataclass(frozen=True)
 class CameraPose:
     """Where the camera sits on the robot (in `base`); a pose outside POSE_BOUNDS, or a
@@ -120,6 +125,8 @@ class CameraModel:
         K = np.asarray(self.K, dtype=np.float64)
         if K.shape != (3, 3) or not np.isfinite(K).all():
             raise ValueError(f"camera K must be a finite 3x3 matrix, got {K.tolist()}")
+        if K[2].tolist() != [0.0, 0.0, 1.0]:  # projecting assumes it, never reads it
+            raise ValueError(f"camera_matrix last row must be [0, 0, 1], got {K[2].tolist()}")
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise ValueError(f"camera focal lengths must be positive, got {K[0, 0]}, {K[1, 1]}")
         dist = np.asarray(self.dist, dtype=np.float64).ravel()
@@ -311,8 +318,19 @@ class CameraModel:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "camera file") -> CameraModel:
+        """The camera a file's mapping describes. An unknown key, at the top or in `pose`,
+        is refused: a misspelt `pose.rol_rad` would silently leave the roll at 0."""
         if not isinstance(data, dict):
             raise CameraFileError(f"{source}: expected a mapping at the top level")
+
+        def only_known(mapping: dict, known, where: str) -> None:
+            unknown = sorted(str(k) for k in mapping if k not in known)
+            if unknown:
+                names = ", ".join(f"'{where}{k}'" for k in unknown)
+                raise CameraFileError(
+                    f"{source}: unknown key{'s' if len(unknown) > 1 else ''} {names}; "
+                    f"known: {sorted(known)}"
+                )
 
         def need(mapping: dict, key: str, where: str):
             if key not in mapping:
@@ -335,10 +353,21 @@ class CameraModel:
                 raise CameraFileError(f"{source}: field '{where}{key}' is not finite")
             return out
 
-        width = number(data, "image_width")
-        height = number(data, "image_height")
+        def pixels(key: str) -> int:
+            value = need(data, key, "")
+            whole = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+            if isinstance(value, bool) or not whole:
+                raise CameraFileError(
+                    f"{source}: field '{key}' must be a whole number of pixels, got {value!r}"
+                )
+            return int(value)
+
+        only_known(data, FILE_KEYS, "")
+        width = pixels("image_width")
+        height = pixels("image_height")
+        matrix = need(data, "camera_matrix", "")
         try:
-            K = np.asarray(need(data, "camera_matrix", ""), dtype=np.float64)
+            K = np.asarray(matrix, dtype=np.float64)
         except (TypeError, ValueError):
             raise CameraFileError(f"{source}: field 'camera_matrix' is not numeric") from None
         if K.shape != (3, 3):
@@ -350,11 +379,12 @@ class CameraModel:
         pose_data = need(data, "pose", "")
         if not isinstance(pose_data, dict):
             raise CameraFileError(f"{source}: field 'pose' must be a mapping")
+        only_known(pose_data, POSE_BOUNDS, "pose.")
         fields = {"height_m": None, "pitch_rad": None, "roll_rad": 0.0, "yaw_rad": 0.0,
                   "x_m": 0.0, "y_m": 0.0}  # fmt: skip
         values = {k: number(pose_data, k, "pose.", default) for k, default in fields.items()}
         try:
-            return cls(K, dist, (int(width), int(height)), CameraPose(**values))
+            return cls(K, dist, (width, height), CameraPose(**values))
         except ValueError as exc:
             raise CameraFileError(f"{source}: {exc}") from None
 
@@ -373,9 +403,14 @@ class CameraModel:
     def load(cls, path: str | Path) -> CameraModel:
         path = Path(path)
         try:
-            text = path.read_text()
+            text = path.read_text(encoding="utf-8")
         except OSError as exc:
             raise CameraFileError(f"camera file {path}: cannot read ({exc.strerror})") from None
+        except UnicodeDecodeError as exc:
+            raise CameraFileError(
+                f"camera file {path}: not a text camera file (YAML/JSON; not UTF-8 at byte "
+                f"{exc.start})"
+            ) from None
         try:
             if path.suffix.lower() in (".yaml", ".yml"):
                 import yaml

@@ -1,0 +1,83 @@
+"""A camera file with an unknown key, a fractional image size or a matrix whose last
+row is not [0, 0, 1] is refused, naming the file and the key; follow-calib's own files
+(with their `calibration` record) still load."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+import yaml
+
+from calib.camera_file import write_camera_file
+from follow.camera import CameraFileError, CameraModel, CameraPose
+
+
+def _data() -> dict:
+    pose = CameraPose(height_m=0.9, pitch_rad=0.2)
+    return CameraModel.from_fov((640, 480), 70.0, pose).to_dict()
+
+
+def _write(tmp_path, data: dict, name: str = "cam.yaml"):
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data) if name.endswith(".yaml") else json.dumps(data))
+    return path
+
+
+@pytest.mark.parametrize("name", ["cam.yaml", "cam.json"])
+def test_a_misspelt_pose_key_is_refused_not_left_at_its_default(tmp_path, name):
+    data = _data()
+    data["pose"]["rol_rad"] = data["pose"].pop("roll_rad")
+    path = _write(tmp_path, data, name)
+    with pytest.raises(CameraFileError) as err:
+        CameraModel.load(path)
+    message = str(err.value)
+    assert str(path) in message and "unknown key 'pose.rol_rad'" in message
+    assert "'roll_rad'" in message  # the known keys are listed
+
+
+def test_unknown_top_level_keys_are_all_named(tmp_path):
+    data = {**_data(), "bogus": 1, "image_widht": 640}
+    path = _write(tmp_path, data)
+    with pytest.raises(CameraFileError, match="unknown keys 'bogus', 'image_widht'; known: "):
+        CameraModel.load(path)
+
+
+def test_the_calibration_record_of_follow_calib_is_accepted(tmp_path):
+    path = tmp_path / "cam.yaml"
+    model = CameraModel.from_dict(_data())
+    write_camera_file(path, model, {"intrinsics": "follow-calib intrinsics", "rms_px": 0.2})
+    assert "calibration" in yaml.safe_load(path.read_text())
+    assert CameraModel.load(path).pose == model.pose
+
+
+@pytest.mark.parametrize("value", [768.5, "768", True, None])
+@pytest.mark.parametrize("key", ["image_width", "image_height"])
+def test_an_image_size_that_is_not_whole_pixels_is_refused(tmp_path, key, value):
+    data = {**_data(), key: value}
+    path = _write(tmp_path, data)
+    expected = re.escape(f"{path}: field '{key}' must be a whole number of pixels, got {value!r}")
+    with pytest.raises(CameraFileError, match=expected):
+        CameraModel.load(path)
+
+
+def test_a_whole_float_image_size_is_read_as_pixels(tmp_path):
+    data = {**_data(), "image_width": 640.0}
+    assert CameraModel.load(_write(tmp_path, data)).image_size == (640, 480)
+
+
+def test_a_camera_matrix_whose_last_row_is_not_0_0_1_is_refused(tmp_path):
+    data = _data()
+    data["camera_matrix"][2] = [0.1, 0.0, 5.0]
+    path = _write(tmp_path, data)
+    with pytest.raises(CameraFileError, match=r"camera_matrix last row must be \[0, 0, 1\]") as err:
+        CameraModel.load(path)
+    assert str(path) in str(err.value)
+
+
+def test_a_missing_camera_matrix_is_named_missing(tmp_path):
+    data = _data()
+    del data["camera_matrix"]
+    with pytest.raises(CameraFileError, match="missing field 'camera_matrix'"):
+        CameraModel.load(_write(tmp_path, data))
