@@ -397,9 +397,13 @@ class Config:
         """A TOML file over `base` (or the defaults)."""
         path = Path(path)
         try:
-            data = tomllib.loads(path.read_text())
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
         except OSError as exc:
             raise ConfigError(f"config {path}: cannot read ({exc.strerror})") from None
+        except UnicodeDecodeError as exc:
+            raise ConfigError(
+                f"config {path}: not a text config file (TOML; not UTF-8 at byte {exc.start})"
+            ) from None
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"config {path}: not valid TOML ({exc})") from None
         return cls.from_dict(data, source=f"config {path}", base=base)

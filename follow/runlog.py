@@ -133,7 +133,12 @@ def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
     """The header and an iterator over the frame records. A truncated last line (a run
     that was killed mid-write) is ignored; any other malformed line is an error naming it."""
     path = Path(path)
-    lines = path.read_text().splitlines()
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except UnicodeDecodeError as exc:
+        raise ValueError(
+            f"run log {path}: not a text run log (JSON lines; not UTF-8 at byte {exc.start})"
+        ) from None
     if not lines:
         raise ValueError(f"run log {path}: empty")
     try:
