@@ -43,11 +43,14 @@ def _frame(source: str, index: int):
     if index < 0:
         raise ValueError(f"--frame must be >= 0, got {index}")
     if source.isdigit() or is_video(Path(source)):
+        count = 0
         for _, frame in iter_video_frames(source, every=1, limit=None):
-            if index == 0:
+            if count == index:
                 return frame
-            index -= 1
-        raise ImageInputError(f"video {source}: has no frame {index}")
+            count += 1
+        raise ImageInputError(
+            f"video {source}: has no frame {index} (--frame); it has {count} frames, 0..{count - 1}"
+        )
     return read_image(source)
 
 

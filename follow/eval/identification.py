@@ -64,7 +64,8 @@ def add_arguments(p) -> None:
                    help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
     p.add_argument("--min-visible-s", type=float, default=20.0,
                    help="people visible at least this long become targets")  # fmt: skip
-    p.add_argument("--max-targets", type=int, help="evaluate at most this many targets")
+    p.add_argument("--max-targets", type=int, default=0,
+                   help="evaluate at most this many targets (0 = all)")  # fmt: skip
     p.add_argument("--match-distance-m", type=float, default=1.0)
     p.add_argument("--max-hidden-fraction", type=float, default=0.5)
     p.add_argument("--whole-sequence", action="store_true",
@@ -330,6 +331,8 @@ def plot(per_identifier: dict, path: str) -> None:
 
 
 def main(args) -> dict:
+    if args.max_targets < 0:
+        raise ValueError(f"--max-targets must be >= 0 (0 = all), got {args.max_targets}")
     config, setup = load_pets(args)
     variants = perturb_variants(args)
     if variants is not None:

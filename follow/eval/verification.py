@@ -52,6 +52,7 @@ log = logging.getLogger(__name__)
 IDENTIFIERS = ("ccf10", "reid", "ccf10+reid")
 FARS = (0.01, 0.001)
 ENROL_CCF_CROPS = 5
+MIN_IDENTITIES = 4  # `--identities`: 2 even (calibration) and 2 odd (scored) at least
 # Figures summarised over the perturbation suite: metric -> higher is better.
 SUITE_METRICS = {"auc": True, "tar_at_far_0.01": True, "shipped_tar": True,
                  "shipped_far": False}  # fmt: skip
@@ -63,7 +64,8 @@ def add_arguments(p) -> None:
     p.add_argument("--identifiers", default=",".join(IDENTIFIERS),
                    help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
     p.add_argument("--identities", type=int,
-                   help="use only the first N CUHK03 identities (a quick run)")  # fmt: skip
+                   help=f"use only the first N CUHK03 identities, N >= {MIN_IDENTITIES} "
+                        "(a quick run)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration ([identify] section used)")
     add_learnt_target_perturb_arguments(p)
 
@@ -268,13 +270,30 @@ def verify_robot_crops(model, folder: Path, config: IdentifyConfig, variant: Var
     return operating_figures(scores[: len(probes)], scores[len(probes) :])
 
 
+def data_root(data_dir: str | None) -> Path:
+    """The data folder: `--data-dir`, else $FOLLOW_DATA_DIR; an error names which one
+    is missing or is no folder."""
+    if data_dir:
+        source, root = "--data-dir", data_dir
+    else:
+        source, root = "$FOLLOW_DATA_DIR", os.environ.get("FOLLOW_DATA_DIR") or ""
+    if not root:
+        raise ValueError("no --data-dir given and $FOLLOW_DATA_DIR is not set")
+    if not Path(root).is_dir():
+        raise ValueError(f"{source} {root}: no such folder")
+    return Path(root)
+
+
 def main(args) -> dict:
     from follow.identify.factory import build_appearance_model, parse_identifier
 
+    if args.identities is not None and args.identities < MIN_IDENTITIES:
+        raise ValueError(
+            f"--identities must be >= {MIN_IDENTITIES} (2 even ones calibrate, 2 odd ones "
+            f"are scored), got {args.identities}"
+        )
     config = Config.load(args.config).identify if args.config else IdentifyConfig()
-    root = Path(args.data_dir or os.environ.get("FOLLOW_DATA_DIR") or "")
-    if not str(root) or not root.is_dir():
-        raise ValueError("no --data-dir given and $FOLLOW_DATA_DIR is not set to a folder")
+    root = data_root(args.data_dir)
     variants = selected_pixel_variants(args, "verification")
     people = load_cuhk03(root / "cuhk03_val", args.identities)
     calibration = [p for p in people if p.identity % 2 == 0]

@@ -1,0 +1,31 @@
+"""`follow-calib check --frame N` past a video's end names the frame asked for and how
+many frames the video has."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from calib import cli
+from follow.camera import CameraModel, CameraPose
+
+
+def _video(path, frames: int, size=(64, 48)):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, size)
+    rng = np.random.default_rng(1)
+    for _ in range(frames):
+        writer.write(rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
+    writer.release()
+    return path
+
+
+def test_a_frame_past_the_end_names_the_frame_and_the_count(tmp_path, capsys):
+    video = _video(tmp_path / "clip.avi", frames=7)
+    camera = tmp_path / "cam.yaml"
+    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0, pitch_rad=0.2)).save(camera)
+    argv = ["check", str(video), "--camera", str(camera), "-o", str(tmp_path / "c.png")]
+    assert cli.main([*argv, "--frame", "999999"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert f"video {video}: has no frame 999999 (--frame); it has 7 frames, 0..6" in err
+    assert cli.main([*argv, "--frame", "6"]) == 0  # the last one is there

@@ -1,0 +1,48 @@
+"""`follow eval verification` and `follow eval identification` name a bad option: a data
+folder that does not exist, a count of identities or targets that cannot be used (a
+negative count used to slice the list from its end)."""
+
+from __future__ import annotations
+
+import pytest
+
+from follow import cli
+
+
+def _error(capsys, argv) -> str:
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    return err
+
+
+def test_a_data_dir_that_does_not_exist_is_named(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("FOLLOW_DATA_DIR", str(tmp_path))
+    missing = tmp_path / "nonexist"
+    err = _error(capsys, ["eval", "verification", "--data-dir", str(missing)])
+    assert f"--data-dir {missing}: no such folder" in err
+
+
+def test_a_data_dir_env_that_does_not_exist_is_named(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("FOLLOW_DATA_DIR", str(tmp_path / "nonexist"))
+    err = _error(capsys, ["eval", "verification"])
+    assert f"$FOLLOW_DATA_DIR {tmp_path / 'nonexist'}: no such folder" in err
+
+
+def test_no_data_dir_at_all_says_so(capsys, monkeypatch):
+    monkeypatch.delenv("FOLLOW_DATA_DIR", raising=False)
+    err = _error(capsys, ["eval", "verification"])
+    assert "no --data-dir given and $FOLLOW_DATA_DIR is not set" in err
+
+
+@pytest.mark.parametrize("count", ["-1", "0", "3"])
+def test_too_few_identities_are_refused(tmp_path, capsys, count):
+    err = _error(capsys, ["eval", "verification", "--data-dir", str(tmp_path),
+                          "--identities", count])  # fmt: skip
+    assert "--identities must be >= 4" in err and f"got {count}" in err
+
+
+def test_a_negative_max_targets_is_refused(capsys, monkeypatch):
+    monkeypatch.delenv("FOLLOW_DATA_DIR", raising=False)  # refused before any data is read
+    err = _error(capsys, ["eval", "identification", "--max-targets", "-1"])
+    assert "--max-targets must be >= 0 (0 = all), got -1" in err
