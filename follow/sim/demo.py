@@ -101,16 +101,35 @@ def horizon_row(camera) -> float:
 
 
 def choose_identifier(name: str | None) -> str:
+    """`name`, else ccf10 with its weights, else the weight-free channels. Only missing
+    weights fall back: weights present but failing their hash check are refused
+    (ModelError naming the file), as `follow run` refuses them."""
     if name:
         return name
-    from follow.models import ModelError, resolve
+    from follow.models import ModelError, get_spec, resolve, search_dirs
 
     try:
         resolve("ccf10")
         return "ccf10"
     except ModelError:
+        files = get_spec("ccf10").files
+        if any(all((d / f.relpath).exists() for f in files) for d in search_dirs()):
+            raise  # found, but not the pinned weights
         log.info("CCF weights not found: identifying with colour/gradient channels")
         return "channels"
+
+
+def demo_frames(seconds: float) -> int:
+    """The number of frames in a scenario of `seconds`, at least one; a ValueError naming
+    --seconds otherwise (checked before any output is opened: a bad value must not
+    overwrite an earlier run's log)."""
+    frames = seconds * DEMO_CAMERA.fps
+    if not (math.isfinite(frames) and frames >= 1):
+        raise ValueError(
+            f"--seconds must be finite and at least one frame ({1 / DEMO_CAMERA.fps:.3g} s), "
+            f"got {seconds}"
+        )
+    return int(round(frames))
 
 
 class DemoScore:
@@ -229,6 +248,7 @@ def run_demo(
     from follow.run import Outputs
     from follow.sim.rover import SimRover
 
+    n_frames = demo_frames(seconds)
     config = config or Config()
     ident_name = choose_identifier(identifier)
     config = config.replace("identify", identifier=ident_name, seed=seed)
@@ -255,7 +275,6 @@ def run_demo(
         from follow.sim.demo_bag import DemoBag
 
         bag = DemoBag(bag_path, camera, ident_name, seed)
-    n_frames = int(round(seconds * DEMO_CAMERA.fps))
     timing = []
     with SimRover(seed=seed) as rover:
         mav = dataclasses.replace(config.mavlink or MavlinkConfig(), connection=rover.connection)
