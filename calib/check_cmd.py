@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 
 from calib.chessboard import ImageInputError, is_video, iter_video_frames, read_image
+from calib.cmd_common import image_path, positive_float
 from calib.overlay import calibration_overlay, visible_ground_extent
 from follow.camera import CameraModel
 
@@ -27,14 +28,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--frame", type=int, default=0, help="video/camera: index of the frame to use (default 0)"
     )
     parser.add_argument(
-        "-o", "--output", type=Path, default=Path("check.png"),
+        "-o", "--output", type=image_path, default=Path("check.png"),
         help="overlay PNG to write (default check.png)",
     )  # fmt: skip
     parser.add_argument(
-        "--grid-step-m", type=float, default=1.0, help="grid spacing, metres (default 1)"
+        "--grid-step-m", type=positive_float, default=1.0, help="grid spacing, metres (default 1)"
     )
     parser.add_argument(
-        "--max-range-m", type=float, default=20.0,
+        "--max-range-m", type=positive_float, default=20.0,
         help="draw the grid up to this distance from the camera (default 20 m)",
     )  # fmt: skip
 

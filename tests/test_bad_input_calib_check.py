@@ -29,3 +29,23 @@ def test_a_frame_past_the_end_names_the_frame_and_the_count(tmp_path, capsys):
     assert "Traceback" not in err and len(err.splitlines()) == 1, err
     assert f"video {video}: has no frame 999999 (--frame); it has 7 frames, 0..6" in err
     assert cli.main([*argv, "--frame", "6"]) == 0  # the last one is there
+
+
+def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, capsys):
+    video = _video(tmp_path / "clip.avi", frames=2)
+    camera = tmp_path / "cam.yaml"
+    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0, pitch_rad=0.2)).save(camera)
+    for output, option in (("c.xyz", "--output"), ("missing/c.png", "--output")):
+        try:
+            cli.main(["check", str(video), "--camera", str(camera), "-o", str(tmp_path / output)])
+        except SystemExit as exit_:
+            assert exit_.code == 2
+        else:
+            raise AssertionError(f"{output} was accepted")
+        assert f"argument -o/{option}" in capsys.readouterr().err
+    try:
+        cli.main(["check", str(video), "--camera", str(camera), "--max-range-m", "-1"])
+    except SystemExit as exit_:
+        assert exit_.code == 2 and "argument --max-range-m" in capsys.readouterr().err
+    else:
+        raise AssertionError("--max-range-m -1 was accepted")
