@@ -52,7 +52,11 @@ def frame(people, rng, stamp_s=0.0):
     return image, tracks
 
 
-def run(identifier, people, n, rng, t0=0.0):
+def run(identifier, people, n, rng, t0=None):
+    """n frames 0.1 s apart from t0, by default just after the identifier's last frame
+    (it ignores a frame stamped before the last)."""
+    if t0 is None:
+        t0 = 0.0 if identifier.last_stamp_s is None else identifier.last_stamp_s + 0.1
     out = []
     for k in range(n):
         image, tracks = frame(people, rng, t0 + k / 10.0)

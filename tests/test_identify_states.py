@@ -30,6 +30,9 @@ CFG = IdentifyConfig(
 IMAGE = np.zeros((480, 640, 3), np.uint8)
 
 
+SCRIPTED_CONFIDENCES: dict[int, float] = {}  # id(appearance) -> the confidence `frame` gave
+
+
 class RecordingModel:
     """Stands in for the AppearanceModel: re-id similarities and part-colour distances
     are each appearance's scripted values (None without a re-id cue, or where a frame
@@ -41,8 +44,15 @@ class RecordingModel:
         self.learnt: list[tuple[int, int]] = []  # (positives, negatives) per frame
         self.resets = 0
 
+    ready = True
+
     def reset(self) -> None:
         self.resets += 1
+
+    def confidence(self, appearances):
+        """The confidences the frame scripted for these appearances (`frame`): what they
+        are scored again with after a candidate's teaching is undone."""
+        return np.array([SCRIPTED_CONFIDENCES[id(a)] for a in appearances])
 
     def similarity(self, appearances):
         if not self.reid or not appearances:
@@ -100,17 +110,18 @@ def frame(tracks, stamp_s, confidences, similarities=None, boxes=None, robot=Non
     seen = [t.track_id for t in tracks if t.observation is not None]
     boxes = boxes or {i: (100 * k, 0, 100 * k + 50, 200) for k, i in enumerate(seen)}
     similarities = similarities or {}
+    appearances = {
+        i: Appearance(
+            maps=None if classifier is None else np.array([classifier[i]]),
+            embedding=np.array([similarities.get(i, 0.0)]),
+            parts=None if parts is None else np.array([parts[i]]),
+        )
+        for i in seen
+    }
+    SCRIPTED_CONFIDENCES.update({id(a): confidences[i] for i, a in appearances.items()})
     return FrameTracks(
         IMAGE, list(tracks), stamp_s, robot, {t.track_id: t for t in tracks}, looked=True,
-        rois=dict(boxes), boxes=dict(boxes),
-        appearances={
-            i: Appearance(
-                maps=None if classifier is None else np.array([classifier[i]]),
-                embedding=np.array([similarities.get(i, 0.0)]),
-                parts=None if parts is None else np.array([parts[i]]),
-            )
-            for i in seen
-        },
+        rois=dict(boxes), boxes=dict(boxes), appearances=appearances,
         confidences={i: confidences[i] for i in seen},
     )  # fmt: skip
 

@@ -53,6 +53,27 @@ def roi_from_keypoints(
     None when the box would be degenerate (ankle not below the neck), too small
     (`min_roi_height_px`) or mostly outside the image (`min_roi_visible_fraction`).
     """
+    box = _box(neck_px, ankle_px, image_size, config, hip_px)
+    if box is None:
+        return None
+    (x0, y0, x1, y1), visible = box
+    if visible < config.min_roi_visible_fraction or (y1 - y0) < config.min_roi_height_px:
+        return None
+    return x0, y0, x1, y1
+
+
+def body_box(neck_px, ankle_px, image_size: tuple[int, int], config: IdentifyConfig,
+             hip_px=None) -> Roi | None:  # fmt: skip
+    """The part of the image a person covers, as `roi_from_keypoints` cuts it but with
+    none of its filters for a usable crop: a person close to the camera, feet out of
+    view, still hides whoever stands behind them."""
+    box = _box(neck_px, ankle_px, image_size, config, hip_px)
+    return None if box is None else box[0]
+
+
+def _box(neck_px, ankle_px, image_size, config: IdentifyConfig, hip_px=None):
+    """((x0, y0, x1, y1) clipped to the image, the share of the whole box inside it), or
+    None for no neck, an ankle not below it, or a box under 2 px either way."""
     width, height = int(image_size[0]), int(image_size[1])
     if width <= 0 or height <= 0:
         raise ValueError(f"roi_from_keypoints: image_size must be positive, got {image_size}")
@@ -72,8 +93,6 @@ def roi_from_keypoints(
         return None
     box_h = config.roi_height_per_neck_ankle * length_px
     box_w = config.roi_width_per_neck_ankle * length_px
-    if box_h < config.min_roi_height_px:
-        return None
     centre = neck + (0.5 + config.roi_center_offset_per_neck_ankle) * axis
     fx0, fy0 = centre[0] - 0.5 * box_w, centre[1] - 0.5 * box_h
     fx1, fy1 = fx0 + box_w, fy0 + box_h
@@ -81,10 +100,7 @@ def roi_from_keypoints(
     x1, y1 = min(width, int(round(fx1))), min(height, int(round(fy1)))
     if x1 - x0 < 2 or y1 - y0 < 2:
         return None
-    visible = (x1 - x0) * (y1 - y0) / (box_w * box_h)
-    if visible < config.min_roi_visible_fraction or (y1 - y0) < config.min_roi_height_px:
-        return None
-    return x0, y0, x1, y1
+    return (x0, y0, x1, y1), (x1 - x0) * (y1 - y0) / (box_w * box_h)
 
 
 def body_rows(config: IdentifyConfig) -> tuple[float, float, float]:
@@ -130,19 +146,23 @@ def person_boxes(
     image_size: tuple[int, int],
     config: IdentifyConfig,
 ) -> dict[int, Roi]:
-    """track id -> the box a person occupies: its ROI when seen, else the box of the
-    tracker's expected neck and ankle pixels (a person hidden behind another)."""
+    """track id -> the box a person occupies: its ROI when seen, else (`body_box`, no
+    crop filters) the box of its observed keypoints, or of the tracker's expected neck
+    and ankle pixels (a person hidden behind another)."""
     out = dict(rois)
     for track in tracks:
-        if track.track_id in out or track.expected_neck_px is None:
+        if track.track_id in out:
             continue
-        if track.expected_ankle_px is None:
-            continue
-        roi = roi_from_keypoints(
-            track.expected_neck_px, track.expected_ankle_px, image_size, config
-        )
-        if roi is not None:
-            out[track.track_id] = roi
+        obs = track.observation
+        if obs is not None:
+            ankle = obs.ankle_px if obs.ankle_px is not None else track.expected_ankle_px
+            box = body_box(obs.neck_px, ankle, image_size, config, hip_px=hip_of(obs))
+        elif track.expected_neck_px is not None and track.expected_ankle_px is not None:
+            box = body_box(track.expected_neck_px, track.expected_ankle_px, image_size, config)
+        else:
+            box = None
+        if box is not None:
+            out[track.track_id] = box
     return out
 
 

@@ -96,6 +96,12 @@ class IdentityContext:
         frame.boxes = person_boxes(frame.tracks, frame.rois, (w, h), self.config)
         self._score(frame)
 
+    def rescore(self, frame: FrameTracks) -> None:
+        """Score the frame's appearances again: the model changed since it was looked at
+        (a candidate's teaching undone)."""
+        if frame.looked:
+            self._score(frame)
+
     def _score(self, frame: FrameTracks) -> None:
         scores = self._by_track(frame, self.model.confidence) if self.model.ready else None
         frame.confidences = scores or dict.fromkeys(frame.appearances, 0.0)
@@ -218,7 +224,10 @@ class IdentityContext:
         if self.crop_shows_another(target_id, frame):
             return False
         positives = [frame.appearances[target_id]]
-        negatives = [a for i, a in frame.appearances.items() if i != target_id]
+        # Nor is a person whose crop the target covers learnt as another person.
+        target_box, limit = frame.boxes[target_id], self.config.max_learning_overlap
+        negatives = [a for i, a in frame.appearances.items() if i != target_id
+                     and covered_fraction(frame.boxes.get(i, frame.rois[i]), target_box) <= limit]  # fmt: skip
         missing = self.config.min_negatives_per_update - len(negatives)
         crop = self.model.crop(frame.image_bgr, frame.rois[target_id])
         synthetic = self.model.synthetic_negatives(crop, missing) if missing > 0 else []

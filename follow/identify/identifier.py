@@ -20,6 +20,7 @@ people is topped up with recoloured copies of the target's crop.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Sequence
 
@@ -32,6 +33,8 @@ from follow.identify.context import FrameTracks, IdentityContext
 from follow.identify.reid import ReidEmbedder
 from follow.identify.states import Initial, State
 from follow.types import InvalidInput, Odometry, TargetEstimate, TargetStatus, TrackState
+
+log = logging.getLogger(__name__)
 
 
 class TargetIdentifier:
@@ -46,6 +49,7 @@ class TargetIdentifier:
         check_identify_config(config)
         self.config = config
         self.context = IdentityContext(config, AppearanceModel(config, extractor, reid))
+        self._last: TargetEstimate | None = None  # the newest frame's estimate
         self.reset()
 
     @property
@@ -64,6 +68,11 @@ class TargetIdentifier:
     def target_id(self) -> int | None:
         return self.state.target_id
 
+    @property
+    def last_stamp_s(self) -> float | None:
+        """The stamp of the newest frame taken (an older one is ignored)."""
+        return None if self._last is None else self._last.stamp_s
+
     def reset(self) -> None:
         """Forget the target and everything learnt; a selected id stays requested."""
         self.context.forget()
@@ -73,6 +82,11 @@ class TargetIdentifier:
     def select_target(self, track_id: int) -> None:
         """Follow this track id: learning starts afresh on the next frame it is present."""
         self.context.requested_id = int(track_id)
+        self.reset()
+
+    def select_nearest(self) -> None:
+        """Forget any selected id and the target: the nearest person is chosen afresh."""
+        self.context.requested_id = None
         self.reset()
 
     def required_similarity(self, stamp_s: float) -> float:
@@ -97,12 +111,19 @@ class TargetIdentifier:
         by_id = {t.track_id: t for t in tracks}
         if len(by_id) != len(tracks):
             raise InvalidInput("identifier: duplicate track ids in one frame")
+        if self._last is not None and stamp_s < self._last.stamp_s:
+            # The tracker ignores such a frame and hands on its previous tracks, with their
+            # observations: counting or learning them again, cut from this image, is wrong.
+            log.warning("identifier: ignoring a frame stamped %.3f s, before the last "
+                        "(%.3f s)", stamp_s, self._last.stamp_s)  # fmt: skip
+            return self._last
         self.context.count_observations(by_id)
         frame = FrameTracks(image_bgr, list(tracks), stamp_s, robot, by_id)
         self.state = self.state.update(self.context, frame)
         target_id = self.state.target_id
         seen = target_id in by_id and by_id[target_id].observation is not None
-        return TargetEstimate(self.state.status, target_id, frame.confidences, stamp_s, seen)
+        self._last = TargetEstimate(self.state.status, target_id, frame.confidences, stamp_s, seen)
+        return self._last
 
 
 def check_identify_config(config: IdentifyConfig) -> None:

@@ -50,10 +50,8 @@ class Initial(State):
     def _choose(context: IdentityContext, frame: FrameTracks) -> int | None:
         requested = context.requested_id
         if requested is not None:
-            present = any(
-                t.track_id == requested and t.observation is not None for t in frame.tracks
-            )
-            return requested if present else None
+            track = frame.by_id.get(requested)
+            return requested if track is not None and context.established(track) else None
         robot = frame.robot if frame.robot is not None else Odometry.origin()
         best, best_distance = None, context.config.max_initial_distance_m
         for track in frame.tracks:
@@ -84,7 +82,7 @@ class InitialTraining(State):
             return Initial()
         context.look(frame, only=self.target_id)
         learnt = self.target_id in frame.appearances and context.learn(self.target_id, frame)
-        context.note_target(self.target_id, frame, confirmed=learnt)
+        context.note_target(self.target_id, frame, confirmed=learnt, stature=learnt)
         if learnt:
             self.frames_learnt += 1
             if self.frames_learnt >= context.config.initial_training_frames:
@@ -119,7 +117,10 @@ class Tracking(State):
         confidence = frame.confidences.get(self.target_id)
         threshold = context.config.id_switch_confidence
         confirmed = confidence is not None and confidence >= threshold
-        context.note_target(self.target_id, frame, confirmed, stature=self.notes_stature)
+        # The height is the target's only where this frame vouched for the identity: a
+        # crossing stranger the tracker swapped in must not become the bar.
+        context.note_target(self.target_id, frame, confirmed,
+                            stature=self.notes_stature and confirmed)  # fmt: skip
         if confidence is None:  # not observed this frame: nothing to judge or learn
             return True
         if confirmed:
@@ -168,7 +169,7 @@ class Reidentification(State):
             context.look(frame)
         confidences = frame.confidences
         similarities = context.similarities(frame)
-        for track_id in confidences:
+        for track_id in frame.by_id:  # unseen this frame: no evidence, the streak ends
             passed = track_id in eligible and self._passes(context, frame, track_id, similarities)
             self.streaks[track_id] = self.streaks.get(track_id, 0) + 1 if passed else 0
         ready = [
@@ -224,9 +225,11 @@ class Reidentification(State):
         confidences = frame.confidences
         confidence = confidences[track_id]
         runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
+        lead = confidence - runner_up
         return (
             confidence >= context.required_confidence(frame.stamp_s)
-            and confidence - runner_up >= context.config.reid_margin
+            and lead > 0.0  # a tie is no lead, whatever the margin
+            and lead >= context.config.reid_margin
             and (
                 similarities is None
                 or similarities[track_id] >= context.required_similarity(frame.stamp_s)
@@ -238,10 +241,11 @@ class Probation(Tracking):
     """A re-identified target, tracked as any target but not yet trusted: a new track's
     stature estimate starts wide and settles over its first second, so a stranger in the
     target's clothes can pass the stature test for the few frames re-identification
-    needs. For `reid_probation_s` the stature test runs again every frame on the
-    settling estimate (against the target's height from before, which the candidate does
-    not replace), and a failure sends the track back to re-identification, never to be
-    named again. Whatever ends the probation early (that, a lost track, a doubted
+    needs. For `reid_probation_s`, and at least `min_target_observations` frames in which
+    the candidate is seen, the stature test runs again every frame on the settling
+    estimate (against the target's height from before, which the candidate does not
+    replace), and a failure sends the track back to re-identification, never to be
+    named again; a low confidence ends it too (a handover counts as an identity risk). Whatever ends the probation early (that, a lost track, a doubted
     identity) also undoes what the candidate taught the model and where it walked, so a
     wrong pick leaves nothing behind. Then it is the target: tracking."""
 
@@ -250,11 +254,15 @@ class Probation(Tracking):
     def __init__(self, target_id: int, since_s: float):
         super().__init__(target_id)
         self.since_s = since_s
+        self.observed = 0  # frames of probation in which the candidate was seen
         self.before: tuple | None = None  # the model and the target's whereabouts when named
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self.before is None:
             self.before = (context.model.snapshot(), context.whereabouts())
+            # A handover is itself a moment the identity may be wrong: a low confidence
+            # during probation is never excused as the target turning round.
+            context.identity_risk_s = self.since_s
         track = frame.by_id.get(self.target_id)
         if track is not None and not context.same_height(track):
             log.info("re-identified track %d is not the target's stature: re-identification",
@@ -263,7 +271,10 @@ class Probation(Tracking):
             return self._undo(context, frame)
         if not self._keeps(context, frame):
             return self._undo(context, frame)
-        if frame.stamp_s - self.since_s >= context.config.reid_probation_s:
+        if track is not None and track.observation is not None:
+            self.observed += 1
+        long_enough = frame.stamp_s - self.since_s >= context.config.reid_probation_s
+        if long_enough and self.observed >= context.config.min_target_observations:
             log.info("re-identified track %d kept its stature: tracking", self.target_id)
             return Tracking(self.target_id)
         return self
@@ -272,4 +283,5 @@ class Probation(Tracking):
         model, whereabouts = self.before
         context.model.restore(model)
         context.restore(whereabouts)
+        context.rescore(frame)  # this frame was scored by the model the candidate taught
         return Reidentification().update(context, frame)

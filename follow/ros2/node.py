@@ -215,7 +215,7 @@ class FollowNode(Node):
             elif msg.data >= 0:
                 self.perception.identifier.select_target(msg.data)
             else:
-                self.perception.identifier.reset()
+                self.perception.identifier.select_nearest()
         self.get_logger().info(f"target selected: {msg.data if msg.data >= 0 else 'nearest'}")
 
     def _on_stop_following(self, request, response):

@@ -1,0 +1,271 @@
+"""The identifier's guards against following the wrong person, each driven through the
+real states with scripted frames (tests/test_identify_states.py) or the real identifier:
+a failed probation leaves no trace in the frame it ends in; evidence counts only in
+consecutive frames in which the candidate is seen; probation needs the candidate seen,
+and doubts it from the start; the target's stature comes only from frames that vouched
+for it; nothing is learnt while someone, seen or half out of view, covers the target's
+crop or the target covers theirs; a selected track must be established; "the nearest
+person" forgets an earlier selection; a frame stamped before the last is ignored; a tie
+is no lead."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_identify_state_machine import BLUE, RED, Person, run
+from test_identify_state_machine import CFG as CHANNELS_CFG
+from test_identify_state_machine import frame as scene
+from test_identify_states import CFG, IMAGE, context, frame, person, tracked_context
+
+import follow.identify.context as context_module
+from follow.ccf.channels import ChannelFeatureExtractor
+from follow.identify.appearance import Appearance
+from follow.identify.context import FrameTracks, IdentityContext
+from follow.identify.identifier import TargetIdentifier
+from follow.identify.states import Initial, Probation, Reidentification, Tracking
+from follow.types import Observation, TargetStatus, TrackState
+
+
+class TaughtModel:
+    """A model whose confidences change once it is taught: `clean` before, `taught`
+    after; with `reid`, embeddings only where asked (`describe`'s `embed`)."""
+
+    ready = True
+
+    def __init__(self, clean, taught, reid=False):
+        self.clean, self.taught, self.reid = clean, taught, reid
+        self.learnt = []
+
+    def reset(self):
+        self.learnt = []
+
+    def describe(self, image, rois, embed=None):
+        return [Appearance(maps=np.array([roi[0] // 100]),
+                           embedding=np.ones(1) if self.reid and (embed is None or embed[k])
+                           else None) for k, roi in enumerate(rois)]  # fmt: skip
+
+    def lacks_embedding(self, appearance):
+        return self.reid and appearance.embedding is None
+
+    def complete(self, image, rois, appearances):
+        return [dataclasses.replace(a, embedding=np.ones(1)) for a in appearances]
+
+    def confidence(self, appearances):
+        table = self.taught if self.learnt else self.clean
+        return np.array([table[int(a.maps[0])] for a in appearances])
+
+    def classifier_confidence(self, appearances):
+        return None
+
+    def part_distances(self, appearances):
+        return None
+
+    def similarity(self, appearances):
+        if not self.reid or not appearances:
+            return None
+        return np.array([0.95 if a.embedding is not None else np.nan for a in appearances])
+
+    def learn(self, positives, negatives, synthetic=(), mirrored=()):
+        self.learnt.append((len(positives), len(negatives)))
+
+    def crop(self, image, roi):
+        return None
+
+    def synthetic_negatives(self, crop, n):
+        return []
+
+    def mirrored_positives(self, crop):
+        return []
+
+    def snapshot(self):
+        return list(self.learnt)
+
+    def restore(self, snapshot):
+        self.learnt = list(snapshot)
+
+
+def _unscored(tracks, stamp_s) -> FrameTracks:
+    return FrameTracks(IMAGE, list(tracks), stamp_s, None, {t.track_id: t for t in tracks})
+
+
+def _ended_probation(monkeypatch, reid: bool):
+    """Candidate 7 is named; once it has taught the model, the model likes stranger 8;
+    8 then comes near 7, whose confidence drops: probation ends in that frame."""
+    monkeypatch.setattr(context_module, "track_rois", lambda tracks, size, cfg: {
+        t.track_id: (100 * t.track_id, 0, 100 * t.track_id + 50, 200)
+        for t in tracks if t.observation is not None})  # fmt: skip
+    monkeypatch.setattr(context_module, "person_boxes", lambda tracks, rois, size, cfg: dict(rois))
+    config = dataclasses.replace(CFG, reid_frames=1)
+    model = TaughtModel(clean={7: 0.0, 8: -0.5}, taught={7: -0.5, 8: 0.9}, reid=reid)
+    ctx = IdentityContext(config, model)
+    ctx.observed_frames = {7: 20, 8: 20}
+    ctx.note_target(1, frame([person(1, 2.0, last_seen_s=10.0)], 10.0, {1: 0.9}))
+    state = Probation(7, since_s=10.5).update(ctx, _unscored([person(7, 2.5, last_seen_s=10.6)],
+                                                             10.6))  # fmt: skip
+    assert isinstance(state, Probation) and model.learnt
+    near = [person(7, 2.5, last_seen_s=10.7), person(8, 3.2, last_seen_s=10.7)]
+    after = state.update(ctx, _unscored(near, 10.7))
+    assert model.learnt == []  # undone
+    return after
+
+
+def test_the_frame_a_probation_ends_in_is_judged_by_the_model_as_it_was(monkeypatch):
+    assert isinstance(_ended_probation(monkeypatch, reid=False), Reidentification)
+    lazy = _ended_probation(monkeypatch, reid=True)
+    look = IdentityContext.look
+    monkeypatch.setattr(IdentityContext, "look",
+                        lambda self, f, only=None, embed=True: look(self, f))  # fmt: skip
+    every_frame = _ended_probation(monkeypatch, reid=True)
+    assert (type(lazy), lazy.target_id) == (type(every_frame), every_frame.target_id)
+
+
+def test_a_streak_ends_in_a_frame_the_candidate_is_not_seen_in():
+    ctx = tracked_context(stamp_s=10.0, observed={7: 5})
+    state = Reidentification()
+    assert state.update(ctx, frame([person(7, 2.5)], 10.1, {7: 0.9}, {7: 0.9})) is state
+    hidden = person(7, 2.5, observed=False, last_seen_s=10.1)
+    assert state.update(ctx, frame([hidden], 10.2, {})) is state
+    assert state.streaks == {7: 0}
+    seen = frame([person(7, 2.5, last_seen_s=10.3)], 10.3, {7: 0.9}, {7: 0.9})
+    assert isinstance(state.update(ctx, seen), Reidentification)  # one pass, not two
+
+
+def test_probation_needs_the_candidate_seen_not_only_time():
+    ctx = tracked_context(stamp_s=10.0, observed={7: 20})
+    state, t = Probation(7, since_s=10.5), 10.5
+    while t < 10.5 + CFG.reid_probation_s + 0.05:
+        t += 0.1
+        state = state.update(ctx, frame([person(7, 2.5, observed=False, last_seen_s=10.5)], t, {}))
+    assert type(state) is Probation
+    one_check = Probation(7, since_s=10.5).update(
+        tracked_context(stamp_s=10.0, observed={7: 20}),
+        frame([person(7, 2.5)], 10.5 + CFG.reid_probation_s, {7: 0.9}, {7: 0.9}))  # fmt: skip
+    assert type(one_check) is Probation
+
+
+def test_a_candidate_on_probation_is_doubted_from_the_start():
+    """The old target's track was trusted long ago; the candidate's low confidence is not
+    excused as a turn."""
+    low = CFG.id_switch_confidence - 0.3
+    ctx = tracked_context(stamp_s=10.0, observed={7: 50})
+    state = Probation(7, since_s=30.0)
+    state = state.update(ctx, frame([person(7, 2.5, last_seen_s=30.1)], 30.1, {7: low}, {7: 0.0}))
+    assert isinstance(state, Reidentification)
+
+
+def test_the_targets_stature_comes_only_from_frames_that_vouched_for_it():
+    low = CFG.id_switch_confidence - 0.1
+    ctx = tracked_context(stamp_s=10.0)
+    state = Tracking(1)
+    covered = {1: (0, 0, 100, 200), 2: (40, 0, 140, 200)}
+    for k in range(5):
+        t = 10.1 + 0.1 * k
+        crossing = [person(1, 2.0, neck_height_m=1.37, last_seen_s=t),
+                    person(2, 2.3, last_seen_s=t)]  # fmt: skip
+        assert state.update(ctx, frame(crossing, t, {1: low, 2: 0.9}, boxes=covered)) is state
+    assert ctx.target_height[0] == 1.45
+
+
+class _LikesEveryone:
+    ready = True
+
+    def __init__(self):
+        self.learnt = 0
+
+    def reset(self):
+        pass
+
+    def describe(self, image, rois, embed=None):
+        return [Appearance(maps=np.zeros(1)) for _ in rois]
+
+    def confidence(self, appearances):
+        return np.full(len(appearances), 0.9)
+
+    def learn(self, *args):
+        self.learnt += 1
+
+    def crop(self, image, roi):
+        return None
+
+    def synthetic_negatives(self, crop, n):
+        return []
+
+    def mirrored_positives(self, crop):
+        return []
+
+
+def test_nothing_is_learnt_while_a_person_half_out_of_view_covers_the_target():
+    """A passer-by close to the camera, feet out of view: too clipped for a crop of
+    their own, they still hide the target."""
+    ctx = IdentityContext(CFG, _LikesEveryone())
+    ctx.note_target(1, frame([person(1, 2.0, last_seen_s=10.0)], 10.0, {1: 0.9}))
+    cov = np.eye(5) * 1e-4
+    target = TrackState(1, np.array([2.0, 0, 0, 0, 1.45]), cov, True, 10.1,
+                        observation=Observation(np.array([320.0, 120.0]),
+                                                np.array([320.0, 400.0])))  # fmt: skip
+    passer = TrackState(2, np.array([0.8, 0, 0, 0, 1.45]), cov, True, 10.1,
+                        expected_neck_px=np.array([330.0, 300.0]),
+                        expected_ankle_px=np.array([330.0, 1100.0]),
+                        observation=Observation(np.array([330.0, 300.0]), None))  # fmt: skip
+    image = np.zeros((480, 640, 3), np.uint8)
+    scene_frame = FrameTracks(image, [target, passer], 10.1, None, {1: target, 2: passer})
+    assert Tracking(1).update(ctx, scene_frame).target_id == 1
+    assert 2 in scene_frame.boxes and 2 not in scene_frame.rois
+    assert ctx.model.learnt == 0
+
+
+def test_a_person_the_target_covers_is_not_learnt_as_another_person():
+    ctx = tracked_context(stamp_s=10.0)
+    boxes = {1: (0, 0, 140, 378), 2: (40, 100, 100, 260)}  # 2 stands behind the target
+    tracks = [person(1, 2.0, last_seen_s=10.1), person(2, 3.0, last_seen_s=10.1)]
+    Tracking(1).update(ctx, frame(tracks, 10.1, {1: 0.9, 2: -0.5}, boxes=boxes))
+    assert ctx.model.learnt == [(1, 0)]  # the target, and nobody as a negative
+
+
+def test_a_selected_track_must_be_established_like_any_first_choice():
+    ctx = context(observed={2: 1})
+    ctx.requested_id = 2
+    initial = Initial()
+    assert initial.update(ctx, frame([person(2, 2.0)], 0.0, {2: 0.0})) is initial
+    ctx.observed_frames[2] = CFG.min_target_observations
+    assert initial.update(ctx, frame([person(2, 2.0)], 0.1, {2: 0.0})).target_id == 2
+
+
+def test_a_tie_is_no_lead():
+    ctx = tracked_context(stamp_s=10.0, observed={5: 5, 6: 5})
+    state = Reidentification()
+    twins = [person(5, 2.5), person(6, 2.2)]
+    for k in range(3 * CFG.reid_frames):
+        state = state.update(ctx, frame(twins, 10.1 + 0.1 * k, {5: 1.0, 6: 1.0}, {5: 0.9, 6: 0.9}))
+    assert isinstance(state, Reidentification)
+
+
+@pytest.fixture
+def identifier():
+    extractor = ChannelFeatureExtractor((CHANNELS_CFG.crop_width_px, CHANNELS_CFG.crop_height_px))
+    return TargetIdentifier(CHANNELS_CFG, extractor)
+
+
+def test_the_nearest_person_again_forgets_an_earlier_selection(identifier):
+    identifier.select_target(5)
+    identifier.select_nearest()
+    near, far = Person(1, 2.0, 180, RED), Person(5, 4.0, 450, BLUE)
+    rng = np.random.default_rng(0)
+    estimates = run(identifier, [near, far], CHANNELS_CFG.min_target_observations, rng)
+    assert estimates[-1].target_id == 1
+
+
+def test_a_frame_stamped_before_the_last_is_ignored(identifier):
+    rng = np.random.default_rng(0)
+    target = Person(1, 2.0, 180, RED)
+    run(identifier, [target], 12, rng)
+    assert identifier.status == TargetStatus.TRACKING
+    updates = identifier.model.classifier.num_updates
+    seen = identifier.context.observed_frames[1]
+    last = identifier.last_stamp_s
+    estimate = identifier.update(*scene([target], rng, last), last - 0.6)
+    assert estimate.stamp_s == last  # the newest frame's estimate, unchanged
+    assert identifier.context.observed_frames[1] == seen
+    assert identifier.model.classifier.num_updates == updates
