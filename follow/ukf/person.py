@@ -25,6 +25,9 @@ from follow.ukf.models import (
 )
 
 _MIN_EIGENVALUE = 1e-10
+# ... and at least this share of the largest: an absolute floor drowns in rounding once a
+# long-unseen state's variances reach ~1e10 (Cholesky then fails again on the repair).
+_MIN_EIGENVALUE_RATIO = 1e-9
 
 
 def make_psd(P: np.ndarray) -> np.ndarray:
@@ -35,7 +38,8 @@ def make_psd(P: np.ndarray) -> np.ndarray:
         return P
     except np.linalg.LinAlgError:
         w, V = np.linalg.eigh(P)
-        P = (V * np.maximum(w, _MIN_EIGENVALUE)) @ V.T
+        floor = max(_MIN_EIGENVALUE, _MIN_EIGENVALUE_RATIO * float(np.abs(w).max()))
+        P = (V * np.maximum(w, floor)) @ V.T
         return 0.5 * (P + P.T)
 
 
@@ -214,8 +218,14 @@ class PersonFilter:
             return False
         if not (np.isfinite(x).all() and np.isfinite(P).all()):
             return False
+        before = self.ukf.x, self.ukf.P, self.ukf.sigmas_f
         self.ukf.x, self.ukf.P = x, P
-        self._refresh_sigmas()
+        try:
+            self._refresh_sigmas()
+        except np.linalg.LinAlgError:  # no sigma points for it: keep the state before
+            self.ukf.x, self.ukf.P, self.ukf.sigmas_f = before
+            self._projected_model, self._projected = None, {}
+            return False
         return True
 
 

@@ -155,6 +155,9 @@ class PeopleTracker:
                 obs.append(usable)
                 given.append(original)
 
+        # Tracks past their unseen time go before they can take anything: after a long
+        # gap (a frozen camera) their spread would let them take anyone, anywhere.
+        self._tracks = [t for t in self._tracks if stamp_s - t.last_seen_s <= self._max_unseen_s(t)]
         Q = process_noise(dt, cfg.accel_noise_mps2, cfg.height_noise_mps)
         for track in self._tracks:
             track.filter.predict(dt, Q)
@@ -333,6 +336,10 @@ class PeopleTracker:
             if t.last_seen_s < stamp_s and e is not None and not self.camera.in_image(e[0][:2])[0]
         }  # fmt: skip
 
+    def _max_unseen_s(self, track: _Track) -> float:
+        cfg = self.config
+        return cfg.max_unseen_s if track.confirmed else cfg.tentative_max_unseen_s
+
     def _retire(self, stamp_s: float, robot: Odometry, outside_view: set[int]) -> None:
         """Delete the tracks unseen for too long (shorter while predicted outside the
         image, `outside_view`), too uncertain, or broken."""
@@ -340,7 +347,7 @@ class PeopleTracker:
         keep = []
         for t in self._tracks:
             unseen_s = stamp_s - t.last_seen_s
-            limit_s = cfg.max_unseen_s if t.confirmed else cfg.tentative_max_unseen_s
+            limit_s = self._max_unseen_s(t)
             if t.track_id in outside_view:
                 limit_s = min(limit_s, cfg.max_unseen_outside_view_s)
             mean, P = t.filter.mean, t.filter.cov
