@@ -110,6 +110,29 @@ class CameraPose:
         return np.array([self.x_m, self.y_m, self.height_m])
 
 
+def _radial_factor(d: np.ndarray, r2: np.ndarray) -> np.ndarray:
+    """OpenCV's radial distortion factor at squared normalised radius `r2` (d: 8 coeffs)."""
+    k1, k2, _, _, k3, k4, k5, k6 = d
+    return (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+
+
+FOLD_SEARCH_RADIUS = 10.0  # normalised radius (84 deg off axis) searched for a fold
+
+
+def _radial_fold_r2(dist: np.ndarray) -> float:
+    """The squared normalised radius up to which the distorted radius r * factor(r^2)
+    still grows (infinite where it grows over the whole search): past it the polynomial,
+    fitted to the image, folds back."""
+    if not dist.size:
+        return math.inf
+    d = np.zeros(8)
+    d[: dist.size] = dist
+    r = np.linspace(0.0, FOLD_SEARCH_RADIUS, 20001)
+    distorted = r * _radial_factor(d, r * r)
+    turns = np.nonzero(np.diff(distorted) <= 0)[0]
+    return math.inf if not len(turns) else float(r[turns[0]] ** 2)
+
+
 @dataclass(frozen=True)
 class CameraModel:
     """Intrinsics, distortion, image size and mounting pose of one camera."""
@@ -120,6 +143,7 @@ class CameraModel:
     pose: CameraPose
     _R: np.ndarray = field(init=False, repr=False, compare=False)
     _t: np.ndarray = field(init=False, repr=False, compare=False)
+    _fold_r2: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         K = np.asarray(self.K, dtype=np.float64)
@@ -144,6 +168,7 @@ class CameraModel:
         object.__setattr__(self, "image_size", (w, h))
         object.__setattr__(self, "_R", self.pose.rotation_base_from_cam())
         object.__setattr__(self, "_t", self.pose.position_base())
+        object.__setattr__(self, "_fold_r2", _radial_fold_r2(dist))
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -224,7 +249,11 @@ class CameraModel:
         k1, k2, p1, p2, k3, k4, k5, k6 = d
         if self.dist.size:
             r2 = x * x + y * y
-            radial = (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+            # Beyond the radius where the lens polynomial turns back, it would fold points
+            # outside the view into the image: there the radius grows on at its last
+            # scale instead (outward, never back).
+            radial = _radial_factor(d, np.minimum(r2, self._fold_r2))
+            radial = np.where(radial > 0, radial, np.nan)
             xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
             yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
         else:

@@ -158,3 +158,19 @@ def test_impossible_camera_poses_are_refused_naming_the_field(tmp_path, field, v
     data["pose"][field] = value
     with pytest.raises(CameraFileError, match=match):
         CameraModel.from_dict(data, source="cam.yaml")
+
+
+def test_a_wide_lens_polynomial_never_folds_points_outside_the_view_into_the_image():
+    """Fitted to the image, k1-k3 turn back beyond it: a bearing past the left edge
+    must project farther left, never back onto the image."""
+    camera = CameraModel.from_fov((640, 480), 90.0, CameraPose(height_m=0.9),
+                                  dist=np.array([-0.35, 0.15, 0.0, 0.0, -0.03]))  # fmt: skip
+    edge = camera.pixel_rays_base(np.array([[-0.5, 239.5]]))[0]
+    edge_deg = np.degrees(np.arctan2(edge[1], edge[0]))
+    bearings = np.radians(np.arange(edge_deg + 1.0, 85.0, 1.0))
+    points = np.column_stack([3 * np.cos(bearings), 3 * np.sin(bearings), np.full(len(bearings), 0.9)])
+    uv = camera.project(points)
+    assert not camera.in_image(uv).any()
+    assert (np.diff(uv[:, 0]) < 0).all()  # ever farther left
+    inside = camera.project(np.array([3.0, 0.5, 0.9]))  # within the view: unchanged
+    assert camera.in_image(inside)[0]
