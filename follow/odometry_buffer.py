@@ -9,6 +9,7 @@ used only within `max_gap_s`, and beyond that there is no pose (never an assumed
 from __future__ import annotations
 
 import bisect
+import math
 import threading
 
 from follow.frames import wrap_angle
@@ -63,13 +64,31 @@ class OdometryBuffer:
             before = self._poses[i - 1] if i > 0 else None
             after = self._poses[i] if i < len(self._poses) else None
         if before is not None and after is not None:
-            if after.stamp_s - before.stamp_s <= 2.0 * self.max_gap_s:
-                return interpolate(before, after, stamp_s)
+            span_s = after.stamp_s - before.stamp_s
+            if span_s <= 2.0 * self.max_gap_s and not pose_jumped(before, after, span_s):
+                return interpolate(before, after, stamp_s)  # (across a jump: the nearer)
         near = min((p for p in (before, after) if p is not None),
                    key=lambda p: abs(p.stamp_s - stamp_s))  # fmt: skip
         if abs(near.stamp_s - stamp_s) > self.max_gap_s:
             return None
         return Odometry(near.x_m, near.y_m, near.yaw_rad, stamp_s)
+
+
+# A pose change no mobile base makes in the time between two samples is an odometry
+# jump (a reset to the origin, an estimator's yaw reset), not motion.
+MAX_ROBOT_SPEED_MPS = 3.0
+MAX_ROBOT_YAW_RATE_RADPS = 4.0
+POSE_JUMP_MARGIN_M = 0.2
+POSE_JUMP_MARGIN_RAD = 0.1
+
+
+def pose_jumped(before: Odometry, after: Odometry, dt_s: float) -> bool:
+    """Whether `after` lies farther from `before` than a base drives or turns in `dt_s`."""
+    moved_m = math.hypot(after.x_m - before.x_m, after.y_m - before.y_m)
+    turned_rad = abs(float(wrap_angle(after.yaw_rad - before.yaw_rad)))
+    dt_s = max(0.0, dt_s)
+    return (moved_m > MAX_ROBOT_SPEED_MPS * dt_s + POSE_JUMP_MARGIN_M
+            or turned_rad > MAX_ROBOT_YAW_RATE_RADPS * dt_s + POSE_JUMP_MARGIN_RAD)  # fmt: skip
 
 
 def interpolate(before: Odometry, after: Odometry, stamp_s: float) -> Odometry:

@@ -188,6 +188,16 @@ class PersonFilter:
             self.keep_projection(model, projected, with_ankle)
         return self._projected[with_ankle]
 
+    def move_frame(self, rotation: np.ndarray, offset_m: np.ndarray) -> None:
+        """Express the state in another ground frame: position -> rotation @ position +
+        offset, velocity rotated alike, the covariance with them (the height stays)."""
+        J = np.eye(5)
+        J[0:2, 0:2] = J[2:4, 2:4] = rotation
+        self.ukf.x = J @ self.ukf.x
+        self.ukf.x[0:2] += offset_m
+        self.ukf.P = J @ self.ukf.P @ J.T
+        self._refresh_sigmas()
+
     def predict(self, dt_s: float, Q: np.ndarray) -> None:
         """Move forward by `dt_s` seconds (nothing to do for dt = 0)."""
         if dt_s > 0:

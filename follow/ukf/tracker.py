@@ -21,6 +21,7 @@ import numpy as np
 from follow.camera import CameraModel
 from follow.config import TrackerConfig
 from follow.frames import base_to_odom, odom_to_base
+from follow.odometry_buffer import pose_jumped
 from follow.types import L_ANKLE, R_ANKLE, Observation, Odometry, TrackState
 from follow.ukf.association import InnovationGate, gate_mahalanobis_sq, global_nearest_neighbour
 from follow.ukf.models import MeasurementModel, process_noise
@@ -80,6 +81,7 @@ class PeopleTracker:
         self._tracks: list[_Track] = []
         self._states: list[TrackState] = []
         self._last_stamp_s: float | None = None
+        self._last_robot: Odometry | None = None
         neck_px, ankle_px = measurement_sigmas_px(camera, self.config)
         self._neck_sigma_px, self._ankle_sigma_px = neck_px, ankle_px
         self._focal_px = float(np.sqrt(camera.K[0, 0] * camera.K[1, 1]))
@@ -135,6 +137,9 @@ class PeopleTracker:
         dt = 0.0 if self._last_stamp_s is None else stamp_s - self._last_stamp_s
         self._last_stamp_s = stamp_s
         robot = robot if robot is not None else Odometry.origin(stamp_s)
+        if self._robot_jumped(robot, dt):
+            self._follow_odometry_jump(self._last_robot, robot)
+        self._last_robot = robot
         cfg = self.config
         model = MeasurementModel(
             self.camera,
@@ -212,6 +217,30 @@ class PeopleTracker:
         return self.tracks
 
     # ------------------------------------------------------------------ steps
+    def _robot_jumped(self, robot: Odometry, dt: float) -> bool:
+        """Whether the robot's pose moved farther than it can drive in `dt`: odometry
+        reset to the origin, or an estimator's yaw reset. Every track's position is then
+        in a frame that no longer exists: left there, each would leap, and the robot be
+        sent after a phantom."""
+        last = self._last_robot
+        if last is None or not pose_jumped(last, robot, dt):
+            return False
+        log.warning("robot pose jumped from (%.2f, %.2f, %.2f rad) to (%.2f, %.2f, %.2f rad) "
+                    "in %.2f s (odometry reset?): tracks kept where they stood relative to "
+                    "the robot", last.x_m, last.y_m, last.yaw_rad, robot.x_m, robot.y_m,
+                    robot.yaw_rad, dt)  # fmt: skip
+        return True
+
+    def _follow_odometry_jump(self, before: Odometry, after: Odometry) -> None:
+        """Move every track into the new odom frame, where it stood relative to the
+        robot (which cannot have moved far in one frame)."""
+        turn = after.yaw_rad - before.yaw_rad
+        c, s = math.cos(turn), math.sin(turn)
+        rotation = np.array([[c, -s], [s, c]])
+        offset = np.array([after.x_m, after.y_m]) - rotation @ [before.x_m, before.y_m]
+        for track in self._tracks:
+            track.filter.move_frame(rotation, offset)
+
     def _associate(
         self,
         obs: list[Observation],
