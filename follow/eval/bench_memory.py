@@ -18,7 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 from tqdm import tqdm
 
-from follow.cli_args import positive_int
+from follow.cli_args import non_negative_int, positive_int
 from follow.config import Config
 
 GOAL_GROWTH_MIB = 5.0
@@ -95,7 +95,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=positive_int, default=20_000, help="synthetic frames to run")
     parser.add_argument("--warmup-frames", type=int, default=2_000,
                         help="frames before the first reading")  # fmt: skip
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
 
 
 def main(args: argparse.Namespace) -> dict:

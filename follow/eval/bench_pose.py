@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=PoseConfig().input_height_px,
         help="network input height in px (default: the pose config's)",
     )
-    parser.add_argument("--int8-model", type=Path, default=None, help="INT8 ONNX to time")
+    parser.add_argument("--int8-model", type=Path, default=None, help="INT8 ONNX to time (made there first, calibrated on PETS frames, if missing)")
     parser.add_argument("--data-dir", type=Path, default=None, help="PETS 2009 folder")
     parser.add_argument("--threads", type=non_negative_int, default=0, help="CPU threads (0 = default)")
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from follow.cli_args import non_negative_float, plot_path, positive_float
+from follow.cli_args import non_negative_float, non_negative_int, plot_path, positive_float
 from follow.config import Config, ControlConfig, MavlinkConfig
 from follow.control.mavlink_base import MavlinkBase
 from follow.pipeline import Detections, FrameResult, build_runner
@@ -196,7 +196,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise-m", type=non_negative_float, default=RunSettings.position_noise_m)
     parser.add_argument("--packet-loss", type=float, default=0.0, help="fraction, both ways")
     parser.add_argument("--link-latency-s", type=float, default=0.0, help="one way")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--plot", type=plot_path, help="write a PNG of distance error and paths here")
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from follow.cli_args import plot_path
+from follow.cli_args import non_negative_int, plot_path, positive_float
 from follow.config import TrackerConfig
 from follow.sim.people import random_walker
 from follow.sim.skeletons import DetectorNoiseConfig, SyntheticDetector, observations_with_ids
@@ -153,9 +153,9 @@ def plot(samples: LocalizationSamples, path: str) -> None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", type=plot_path, metavar="FILE.png", help="write error vs distance to a PNG")
-    parser.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="simulation seed (default 0)")
     parser.add_argument(
-        "--duration-s", type=float, default=60.0, help="simulated seconds (default 60)"
+        "--duration-s", type=positive_float, default=60.0, help="simulated seconds (default 60)"
     )
     parser.add_argument("--people", type=int, default=6, help="people walking at once (default 6)")
     parser.add_argument("--config", metavar="FILE.toml", help="follow config ([tracker])")

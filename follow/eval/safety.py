@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from follow.cli_args import non_negative_int
 from follow.config import Config, MavlinkConfig
 from follow.control import mavlink_frames as mf
 from follow.sim.people import Walker
@@ -295,7 +296,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="TOML configuration ([control], [mavlink] are used)")
     parser.add_argument("--fault-at-s", type=float, default=5.0,
                         help="when the fault happens, after the start")  # fmt: skip
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
 
 
 def main(args: argparse.Namespace) -> dict:

@@ -26,6 +26,7 @@ import logging
 
 import numpy as np
 
+from follow.cli_args import non_negative_int
 from follow.config import Config
 from follow.eval.perturb import (
     Variant,
@@ -59,8 +60,8 @@ SUITE_METRICS = {"wrong_person_s": False, "driving_toward_stranger_s": False,
 def add_arguments(p) -> None:
     p.add_argument("--identifiers", default="ccf10,ccf10+reid",
                    help="comma-separated identifier configurations (default ccf10,ccf10+reid)")  # fmt: skip
-    p.add_argument("--strangers", type=int, default=5, help="people who walk in (default 5)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--strangers", type=non_negative_int, default=5, help="people who walk in (default 5)")
+    p.add_argument("--seed", type=non_negative_int, default=0,
                    help="the strangers' heights and looks, and the detector's noise (default 0)")  # fmt: skip
     p.add_argument("--seeds", help="run several draws of the scenario, e.g. 0-4 or 0,3,7, and "
                    "report each plus the mean and the worst (not with --perturb)")  # fmt: skip
