@@ -56,5 +56,6 @@ def test_cli_prints_table_json_and_plot(tmp_path, capsys):
 
 
 def test_cli_rejects_nonsense_arguments(capsys):
-    assert cli.main(["eval", "localization", "--duration-s", "0"]) == 1
-    assert "--duration-s" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # refused by argparse, before the work
+        cli.main(["eval", "localization", "--duration-s", "0"])
+    assert exit_.value.code == 2 and "argument --duration-s" in capsys.readouterr().err
