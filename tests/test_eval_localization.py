@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from follow import cli
 from follow.eval.localization import BINS_M, binned, simulate
