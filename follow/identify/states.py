@@ -33,9 +33,9 @@ class State:
 
 
 class Initial(State):
-    """No target yet. The target is the track the user selected, else the nearest
-    confirmed track in front of the robot within `max_initial_distance_m`; either must be
-    seen now and in `min_target_observations` frames so far."""
+    """No target yet. The target is the track the user selected (seen now, and confirmed
+    by the tracker), else the nearest confirmed track in front of the robot within
+    `max_initial_distance_m` seen now and in `min_target_observations` frames so far."""
 
     status = TargetStatus.INITIAL
 
@@ -49,9 +49,10 @@ class Initial(State):
     @staticmethod
     def _choose(context: IdentityContext, frame: FrameTracks) -> int | None:
         requested = context.requested_id
-        if requested is not None:
+        if requested is not None:  # a real person, by the tracker's word: no ghost track
             track = frame.by_id.get(requested)
-            return requested if track is not None and context.established(track) else None
+            seen = track is not None and track.confirmed and track.observation is not None
+            return requested if seen else None
         robot = frame.robot if frame.robot is not None else Odometry.origin()
         best, best_distance = None, context.config.max_initial_distance_m
         for track in frame.tracks:
