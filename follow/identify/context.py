@@ -224,15 +224,23 @@ class IdentityContext:
         if self.crop_shows_another(target_id, frame):
             return False
         positives = [frame.appearances[target_id]]
-        # Nor is a person whose crop the target covers learnt as another person.
-        target_box, limit = frame.boxes[target_id], self.config.max_learning_overlap
-        negatives = [a for i, a in frame.appearances.items() if i != target_id
-                     and covered_fraction(frame.boxes.get(i, frame.rois[i]), target_box) <= limit]  # fmt: skip
+        negatives = [a for i, a in frame.appearances.items()
+                     if i != target_id and not self._behind_target(i, target_id, frame)]  # fmt: skip
         missing = self.config.min_negatives_per_update - len(negatives)
         crop = self.model.crop(frame.image_bgr, frame.rois[target_id])
         synthetic = self.model.synthetic_negatives(crop, missing) if missing > 0 else []
         self.model.learn(positives, negatives, synthetic, self.model.mirrored_positives(crop))
         return True
+
+    def _behind_target(self, track_id: int, target_id: int, frame: FrameTracks) -> bool:
+        """Whether the track stands behind the target (its feet higher in the image) with
+        more than `max_learning_overlap` of its box covered by the target's: its crop then
+        shows the target, which must not be learnt as another person. (One standing in
+        front hides the target instead, and its crop shows itself.)"""
+        box = frame.boxes.get(track_id, frame.rois[track_id])
+        target_box = frame.boxes[target_id]
+        return (box[3] < target_box[3]
+                and covered_fraction(box, target_box) > self.config.max_learning_overlap)  # fmt: skip
 
     # ------------------------------------------------------------ who may be it
     def established(self, track: TrackState) -> bool:

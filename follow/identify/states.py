@@ -83,7 +83,7 @@ class InitialTraining(State):
             return Initial()
         context.look(frame, only=self.target_id)
         learnt = self.target_id in frame.appearances and context.learn(self.target_id, frame)
-        context.note_target(self.target_id, frame, confirmed=learnt, stature=learnt)
+        context.note_target(self.target_id, frame, confirmed=learnt)
         if learnt:
             self.frames_learnt += 1
             if self.frames_learnt >= context.config.initial_training_frames:
@@ -118,10 +118,12 @@ class Tracking(State):
         confidence = frame.confidences.get(self.target_id)
         threshold = context.config.id_switch_confidence
         confirmed = confidence is not None and confidence >= threshold
-        # The height is the target's only where this frame vouched for the identity: a
-        # crossing stranger the tracker swapped in must not become the bar.
+        # Not the height of a frame that doubts the identity: a crossing stranger the
+        # tracker swapped in must not become the bar. (A frame without a crop, at the
+        # image's edge, judges nothing either way.)
+        doubted = confidence is not None and not confirmed
         context.note_target(self.target_id, frame, confirmed,
-                            stature=self.notes_stature and confirmed)  # fmt: skip
+                            stature=self.notes_stature and not doubted)  # fmt: skip
         if confidence is None:  # not observed this frame: nothing to judge or learn
             return True
         if confirmed:
