@@ -3,20 +3,10 @@ many frames the video has."""
 
 from __future__ import annotations
 
-import cv2
-import numpy as np
+from test_run_bad_input import _video
 
 from calib import cli
 from follow.camera import CameraModel, CameraPose
-
-
-def _video(path, frames: int, size=(64, 48)):
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, size)
-    rng = np.random.default_rng(1)
-    for _ in range(frames):
-        writer.write(rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
-    writer.release()
-    return path
 
 
 def test_a_frame_past_the_end_names_the_frame_and_the_count(tmp_path, capsys):

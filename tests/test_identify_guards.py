@@ -10,6 +10,7 @@ is no lead."""
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 
 import numpy as np
@@ -168,38 +169,11 @@ def test_the_targets_stature_comes_only_from_frames_that_vouched_for_it():
     assert ctx.target_height[0] == 1.45
 
 
-class _LikesEveryone:
-    ready = True
-
-    def __init__(self):
-        self.learnt = 0
-
-    def reset(self):
-        pass
-
-    def describe(self, image, rois, embed=None):
-        return [Appearance(maps=np.zeros(1)) for _ in rois]
-
-    def confidence(self, appearances):
-        return np.full(len(appearances), 0.9)
-
-    def learn(self, *args):
-        self.learnt += 1
-
-    def crop(self, image, roi):
-        return None
-
-    def synthetic_negatives(self, crop, n):
-        return []
-
-    def mirrored_positives(self, crop):
-        return []
-
-
 def test_nothing_is_learnt_while_a_person_half_out_of_view_covers_the_target():
     """A passer-by close to the camera, feet out of view: too clipped for a crop of
     their own, they still hide the target."""
-    ctx = IdentityContext(CFG, _LikesEveryone())
+    likes_everyone = collections.defaultdict(lambda: 0.9)
+    ctx = IdentityContext(CFG, TaughtModel(clean=likes_everyone, taught=likes_everyone))
     ctx.note_target(1, frame([person(1, 2.0, last_seen_s=10.0)], 10.0, {1: 0.9}))
     cov = np.eye(5) * 1e-4
     target = TrackState(1, np.array([2.0, 0, 0, 0, 1.45]), cov, True, 10.1,
@@ -213,7 +187,7 @@ def test_nothing_is_learnt_while_a_person_half_out_of_view_covers_the_target():
     scene_frame = FrameTracks(image, [target, passer], 10.1, None, {1: target, 2: passer})
     assert Tracking(1).update(ctx, scene_frame).target_id == 1
     assert 2 in scene_frame.boxes and 2 not in scene_frame.rois
-    assert ctx.model.learnt == 0
+    assert ctx.model.learnt == []
 
 
 def test_a_person_the_target_covers_is_not_learnt_as_another_person():
