@@ -41,3 +41,13 @@ def test_a_misspelt_parameter_is_refused_with_the_nearest_name():
     with pytest.raises(ConfigError, match=r"control\.max_forwrd_speed_mps \(did you mean "
                        r"control\.max_forward_speed_mps\?\)"):  # fmt: skip
         _parameters("control.max_forwrd_speed_mps:=1.0")
+
+
+def test_a_failed_control_loop_is_an_error_in_the_diagnostics():
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from follow.ros2 import messages
+
+    levels = [messages.diagnostics(1.0, "follow", {}, ok, "m", failed=failed).status[0].level
+              for ok, failed in ((True, False), (False, False), (True, True))]  # fmt: skip
+    assert levels == [DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR]

@@ -116,9 +116,13 @@ def twist(command: VelocityCommand) -> Twist:
     return msg
 
 
-def diagnostics(stamp_s: float, name: str, values: dict[str, str], ok: bool, message: str):
+def diagnostics(stamp_s: float, name: str, values: dict[str, str], ok: bool, message: str,
+                failed: bool = False):  # fmt: skip
+    """One DiagnosticStatus: OK, WARN where not `ok`, ERROR where something `failed`."""
+    level = DiagnosticStatus.ERROR if failed else (
+        DiagnosticStatus.OK if ok else DiagnosticStatus.WARN)  # fmt: skip
     status = DiagnosticStatus(
-        level=DiagnosticStatus.OK if ok else DiagnosticStatus.WARN, name=name,
+        level=level, name=name,
         message=message, hardware_id="follow",
         values=[KeyValue(key=k, value=v) for k, v in values.items()],
     )  # fmt: skip

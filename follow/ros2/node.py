@@ -368,8 +368,13 @@ class FollowNode(Node):
             values["watchdog_trips"] = str(self.control.watchdog_trips)
         ok = bool(recent)
         message = "running" if ok else "no frames processed recently"
+        failed = self.control is not None and self.control.error is not None
+        if failed:  # it stopped the base and sends nothing more: say so, every period
+            message = (f"control loop failed ({type(self.control.error).__name__}: "
+                       f"{self.control.error}); the base is stopped: restart the node")  # fmt: skip
         self.pub_diagnostics.publish(
-            messages.diagnostics(self.now_s(), "follow: perception", values, ok, message)
+            messages.diagnostics(self.now_s(), "follow: perception", values, ok, message,
+                                 failed=failed)  # fmt: skip
         )
 
     # ------------------------------------------------------------------ shutdown
