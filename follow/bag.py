@@ -84,6 +84,7 @@ class BagSource:
             )
         self.fps = self._frame_rate()
         self.frames_without_odometry = 0
+        self.repeated_frames = 0  # images not stamped after the one before: skipped
 
     def _connections(self, topic: str, types: tuple[str, ...]) -> list:
         found = [c for c in self._reader.connections if c.topic == topic]
@@ -145,11 +146,20 @@ class BagSource:
         return (len(stamps) - 1) / ((stamps[-1] - stamps[0]) * 1e-9)
 
     def __iter__(self) -> Iterator[Frame]:
+        last_stamp = None
         for connection, log_time_ns, raw in self._reader.messages(self._images):
             msg = self._reader.deserialize(raw, connection.msgtype)
             stamp = stamp_s(msg.header)
             if stamp == 0.0:  # an unstamped image: the time it was recorded
                 stamp = log_time_ns * 1e-9
+            if last_stamp is not None and stamp <= last_stamp:
+                # A repeated (or older) image: the tracker would fold the same detections
+                # in twice at dt = 0 and grow falsely sure of them (as the ROS node, drop).
+                self.repeated_frames += 1
+                log.warning("skipping the image at %.6f s: not after the previous one (%.6f s)",
+                            stamp, last_stamp)  # fmt: skip
+                continue
+            last_stamp = stamp
             try:
                 frame = Frame(image_from_msg(msg), stamp)
             except InvalidInput as exc:

@@ -92,6 +92,16 @@ def test_images_without_odometry_nearby_are_skipped(tmp_path, small_frames, smal
     assert source.frames_without_odometry == 4
 
 
+def test_a_repeated_image_is_skipped_not_tracked_twice(tmp_path, small_frames, small_camera):
+    path = tmp_path / "repeated.mcap"
+    with BagWriter(path) as bag:
+        for frame in [*small_frames[:3], small_frames[2], *small_frames[3:]]:  # one twice
+            bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+    source = BagSource(str(path), "/camera/image_raw")
+    assert [f.stamp_s for f in source] == pytest.approx([f.stamp_s for f in small_frames])
+    assert source.repeated_frames == 1
+
+
 def test_a_missing_topic_is_named_with_the_topics_the_bag_holds(
     tmp_path, small_frames, small_camera
 ):
