@@ -69,7 +69,11 @@ class FrameSource:
     def __iter__(self) -> Iterator[Frame]:
         if self._folder is not None:
             for index, path in enumerate(self._folder):
-                image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+                data = path.read_bytes()
+                if _truncated_jpeg(path, data):  # OpenCV would decode half and only warn
+                    log.warning("skipping %s: a JPEG cut short (no end-of-image marker)", path)
+                    continue
+                image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
                 if image is None:
                     log.warning("skipping %s: not a readable image", path)
                     continue
@@ -108,6 +112,14 @@ class FrameSource:
     def close(self) -> None:
         if self._cap is not None:
             self._cap.release()
+
+
+def _truncated_jpeg(path: Path, data: bytes) -> bool:
+    """Whether a .jpg/.jpeg file lacks the end-of-image marker a whole JPEG ends with
+    (padding after it allowed): a file cut short in copying or writing."""
+    if path.suffix.lower() not in (".jpg", ".jpeg"):
+        return False
+    return not data.rstrip(b"\x00\r\n ").endswith(b"\xff\xd9")
 
 
 def open_source(

@@ -64,3 +64,14 @@ def test_bad_sources_are_named(tmp_path):
 def test_an_empty_source_is_refused_not_read_as_the_current_folder():
     with pytest.raises(SourceError, match="source is empty"):
         FrameSource("")
+
+
+def test_a_jpeg_cut_short_in_a_folder_is_skipped_not_used_half_decoded(tmp_path, caplog):
+    rng = np.random.default_rng(0)
+    for name in ("a", "b", "c"):
+        image = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
+        assert cv2.imwrite(str(tmp_path / f"{name}.jpg"), image)
+    whole = (tmp_path / "b.jpg").read_bytes()
+    (tmp_path / "b.jpg").write_bytes(whole[: len(whole) // 2])  # cut short
+    frames = list(FrameSource(str(tmp_path)))
+    assert len(frames) == 2 and "b.jpg: a JPEG cut short" in caplog.text
