@@ -14,9 +14,10 @@ from pathlib import Path
 import cv2
 
 from calib.chessboard import ImageInputError, is_video, iter_video_frames, read_image
-from calib.cmd_common import image_path, positive_float
+from calib.cmd_common import image_path
 from calib.overlay import calibration_overlay, visible_ground_extent
 from follow.camera import CameraModel
+from follow.cli_args import positive_float
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.chessboard import ImageInputError, is_video, iter_video_frames, read_image, to_gray
+from follow.cli_args import picture_path, positive_float
 
 
 def pattern_size(text: str) -> tuple[int, int]:
@@ -24,29 +25,8 @@ def pattern_size(text: str) -> tuple[int, int]:
     return cols, rows
 
 
-def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value > 0 or not np.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
-
-
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")  # what OpenCV writes
-
-
-def image_path(text: str) -> Path:
-    """A picture to write once the work is done: its suffix and folder checked now."""
-    path = Path(text)
-    if path.suffix.lower() not in IMAGE_SUFFIXES:
-        raise argparse.ArgumentTypeError(
-            f"{text!r}: an image file is needed, ending in one of {', '.join(IMAGE_SUFFIXES)}"
-        )
-    if path.is_dir() or not path.resolve().parent.is_dir():
-        raise argparse.ArgumentTypeError(f"{text!r}: not a file in an existing folder")
-    return path
+image_path = picture_path(IMAGE_SUFFIXES, Path)
 
 
 def add_board_arguments(parser: argparse.ArgumentParser) -> None:

@@ -38,19 +38,24 @@ positive_float = _at_least(float, 0.0, True, "a positive number")
 non_negative_float = _at_least(float, 0.0, False, "a number >= 0")
 
 
+def picture_path(suffixes: tuple[str, ...], kind: type = str):
+    """An argparse type for a picture to write once the work is done: its suffix and
+    folder checked now, so that a typo does not throw the finished work away."""
+
+    def parse(text: str):
+        path = Path(text)
+        if path.suffix.lower() not in suffixes:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: a picture file is needed, ending in one of {', '.join(suffixes)}"
+            )
+        if path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name")
+        if not path.resolve().parent.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r}: the folder {path.parent} does not exist")
+        return kind(text)
+
+    return parse
+
+
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")  # what matplotlib writes here
-
-
-def plot_path(text: str) -> str:
-    """A picture to write at the end of a long evaluation: checked now, so that a typo
-    does not throw the finished evaluation away."""
-    path = Path(text)
-    if path.suffix.lower() not in PLOT_SUFFIXES:
-        raise argparse.ArgumentTypeError(
-            f"{text!r}: a picture file is needed, ending in one of {', '.join(PLOT_SUFFIXES)}"
-        )
-    if path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name")
-    if not path.resolve().parent.is_dir():
-        raise argparse.ArgumentTypeError(f"{text!r}: the folder {path.parent} does not exist")
-    return text
+plot_path = picture_path(PLOT_SUFFIXES)
