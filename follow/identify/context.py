@@ -237,8 +237,7 @@ class IdentityContext:
         more than `max_learning_overlap` of its box covered by the target's: its crop then
         shows the target, which must not be learnt as another person. (One standing in
         front hides the target instead, and its crop shows itself.)"""
-        box = frame.boxes.get(track_id, frame.rois[track_id])
-        target_box = frame.boxes[target_id]
+        box, target_box = frame.boxes[track_id], frame.boxes[target_id]  # boxes hold every ROI
         return (box[3] < target_box[3]
                 and covered_fraction(box, target_box) > self.config.max_learning_overlap)  # fmt: skip
 
