@@ -5,15 +5,7 @@ negative count used to slice the list from its end)."""
 from __future__ import annotations
 
 import pytest
-
-from follow import cli
-
-
-def _error(capsys, argv) -> str:
-    assert cli.main(argv) == 1
-    err = capsys.readouterr().err.strip()
-    assert "Traceback" not in err and len(err.splitlines()) == 1, err
-    return err
+from test_run_bad_input import _error  # one line on stderr, exit 1, no traceback
 
 
 def test_a_data_dir_that_does_not_exist_is_named(tmp_path, capsys, monkeypatch):
