@@ -231,6 +231,7 @@ class ControlLoop:
         if robot is None:  # the robot's pose is unknown: no target motion, stop
             self.controller.update(None, now)
             command = VelocityCommand.stop(now)
+            self.controller.stopped_elsewhere(now)
             self._send(command)
             return command
         result: FrameResult | None = self.results.peek()
@@ -250,6 +251,7 @@ class ControlLoop:
         command = self.controller.update(target, now)
         if stalled:
             command = VelocityCommand.stop(now)
+            self.controller.stopped_elsewhere(now)
         self._send(command)
         if result is not None and result is not self._last_result:
             self._last_result = result
@@ -261,7 +263,9 @@ class ControlLoop:
             if self._stop.is_set() and not command.is_stop:
                 command = VelocityCommand.stop(command.stamp_s)
             self.last_command = command
-            self.base.send(command)
+            sent = self.base.send(command)
+        if sent is not None and sent.is_stop and not command.is_stop:
+            self.controller.stopped_elsewhere(sent.stamp_s)  # the base refused to move
         if self.on_command is not None:
             self.on_command(command)
 

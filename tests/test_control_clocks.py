@@ -121,3 +121,59 @@ def test_nothing_but_zero_leaves_the_loop_after_stop(monkeypatch):
     loop.stop()
     time.sleep(0.7)  # the stalled tick finishes
     assert not loop._thread.is_alive() and base.commands[-1].is_stop
+
+
+def _result_at(stamp_s: float, position_m: tuple[float, float]) -> FrameResult:
+    track = TrackState(7, np.array([*position_m, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True,
+                       stamp_s, observation=SEEN)  # fmt: skip
+    return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], [track],
+                       TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, stamp_s))  # fmt: skip
+
+
+def test_after_a_watchdog_stop_the_controller_speeds_up_from_the_zero_sent():
+    """While perception stalls the controller, searching, turns on toward the target's
+    last side, but the base is sent zero; when frames come back with the target on the
+    other side, the first command turns toward it from rest, not on from the search turn
+    the base never got."""
+    now = [100.0]
+    slot = LatestSlot()
+    config = ControlConfig(search_duration_s=5.0)
+    loop = ControlLoop(FollowingController(config), NullBase(clock=lambda: now[0]), slot,
+                       rate_hz=15.0, perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
+    slot.put(_result_at(now[0], (3.0, 2.0)))  # to the left: turning left
+    for _ in range(8):
+        assert loop.tick().yaw_rate_radps > 0
+        now[0] += 1 / 15
+    for _ in range(15):  # a second with no frame: the watchdog stops the base
+        command = loop.tick()
+        now[0] += 1 / 15
+    assert command.is_stop and loop.watchdog_trips == 1
+    slot.put(_result_at(now[0], (3.0, -2.0)))  # back, to the right
+    first = loop.tick()
+    assert first.yaw_rate_radps < 0  # toward the target, from rest
+    assert abs(first.yaw_rate_radps) <= config.max_yaw_accel_radps2 / 15 + 1e-9
+
+
+def test_after_an_operator_stop_the_base_speeds_up_from_rest():
+    """While following is stopped the node's gate publishes zero in place of the
+    controller's commands; when following resumes the first command moving the base is
+    within one period's acceleration of rest, not the full speed the controller had
+    slewed up to meanwhile."""
+    now = [100.0]
+    published: list = []
+    gate = CmdVelGate(published.append, lambda: now[0], max_odometry_age_s=0.5)
+    config = ControlConfig()
+    loop = ControlLoop(FollowingController(config), gate, LatestSlot(), rate_hz=15.0,
+                       perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
+    gate.following = False
+    for _ in range(45):  # three seconds stopped, the target 5 m ahead in every frame
+        gate.update_odometry(Odometry.origin(now[0]))
+        loop.results.put(_result_at(now[0], (5.0, 0.0)))
+        loop.tick()
+        now[0] += 1 / 15
+    assert all(command.is_stop for command in published) and gate.blocked > 0
+    gate.following = True
+    gate.update_odometry(Odometry.origin(now[0]))
+    loop.results.put(_result_at(now[0], (5.0, 0.0)))
+    first = loop.tick()
+    assert 0 < first.forward_mps <= config.max_forward_accel_mps2 / 15 + 1e-9

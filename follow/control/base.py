@@ -16,8 +16,10 @@ from follow.types import Odometry, VelocityCommand
 class Base(Protocol):
     """A mobile base: takes body-frame velocity commands, reports odometry in `odom`."""
 
-    def send(self, cmd: VelocityCommand) -> None:
-        """Command a body-frame velocity; the newest command replaces the previous one."""
+    def send(self, cmd: VelocityCommand) -> VelocityCommand:
+        """Command a body-frame velocity; the newest command replaces the previous one.
+        Returns the command passed on: a zero where the base refused to move (a gate),
+        so that the controller speeds up from rest once it may move again."""
 
     def odometry(self) -> Odometry | None:
         """The newest pose in `odom`, or None when there is none or it is stale."""
@@ -49,11 +51,12 @@ class NullBase:
         self.pose = pose or Odometry.origin()
         self.closed = False
 
-    def send(self, cmd: VelocityCommand) -> None:
+    def send(self, cmd: VelocityCommand) -> VelocityCommand:
         with self._lock:
             if self.closed:
                 raise RuntimeError("NullBase: send() after close()")
             self.commands.append(cmd)
+        return cmd
 
     def odometry(self) -> Odometry | None:
         return dataclasses.replace(self.pose, stamp_s=self._clock())

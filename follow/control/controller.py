@@ -107,6 +107,13 @@ class FollowingController:
         self._lost_since_s = None
         self._forward_when_seen_mps = 0.0
 
+    def stopped_elsewhere(self, stamp_s: float) -> None:
+        """The base was sent zero at `stamp_s` instead of this controller's command (a
+        watchdog, odometry lost): the next command speeds up from rest, within the
+        acceleration limits, rather than carrying on from a command the base never got."""
+        self._last = VelocityCommand.stop(stamp_s)
+        self._forward_when_seen_mps = 0.0
+
     def update(self, target: TargetMotion | None, stamp_s: float) -> VelocityCommand:
         """The command for time `stamp_s` given the newest target estimate (None = lost)."""
         if not math.isfinite(stamp_s):

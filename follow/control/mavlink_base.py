@@ -107,13 +107,14 @@ class MavlinkBase:
 
     # -- Base protocol ----------------------------------------------------------------
 
-    def send(self, cmd: VelocityCommand) -> None:
+    def send(self, cmd: VelocityCommand) -> VelocityCommand:
         """Replace the command being streamed; a stop goes out at once."""
         with self._lock:
             if self._state is LinkState.CLOSED:
                 raise MavlinkError("send() on a closed MavlinkBase")
             self._command = (cmd, self._clock())
         self._wake.set()
+        return cmd
 
     def odometry(self) -> Odometry | None:
         """Pose from the newest LOCAL_POSITION_NED and ATTITUDE, stamped with the older

@@ -52,12 +52,13 @@ class CmdVelGate:
     def healthy(self) -> bool:
         return self.odometry() is not None
 
-    def send(self, command: VelocityCommand) -> None:
+    def send(self, command: VelocityCommand) -> VelocityCommand:
         if not command.is_stop and not (self.following and self.healthy()):
             self.blocked += 1
             command = VelocityCommand.stop(command.stamp_s)
         self.last_sent = command
         self.publish(command)
+        return command
 
     def close(self) -> None:
         self.send(VelocityCommand.stop(self.clock()))
