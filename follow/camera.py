@@ -151,6 +151,8 @@ class CameraModel:
             raise ValueError(f"camera K must be a finite 3x3 matrix, got {K.tolist()}")
         if K[2].tolist() != [0.0, 0.0, 1.0]:  # projecting assumes it, never reads it
             raise ValueError(f"camera_matrix last row must be [0, 0, 1], got {K[2].tolist()}")
+        if K[1, 0] != 0.0:  # projecting assumes an upper-triangular K, as OpenCV's
+            raise ValueError(f"camera_matrix[1][0] must be 0 (no vertical skew), got {K[1, 0]}")
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise ValueError(f"camera focal lengths must be positive, got {K[0, 0]}, {K[1, 1]}")
         dist = np.asarray(self.dist, dtype=np.float64).ravel()

@@ -76,6 +76,17 @@ def test_a_camera_matrix_whose_last_row_is_not_0_0_1_is_refused(tmp_path):
     assert str(path) in str(err.value)
 
 
+def test_a_camera_matrix_with_vertical_skew_is_refused(tmp_path):
+    """Projection reads K as upper triangular (as OpenCV writes it): a K[1][0] it would
+    ignore must not give silently wrong positions."""
+    data = _data()
+    data["camera_matrix"][1][0] = 3.0
+    path = _write(tmp_path, data)
+    with pytest.raises(CameraFileError, match=r"camera_matrix\[1\]\[0\] must be 0") as err:
+        CameraModel.load(path)
+    assert str(path) in str(err.value)
+
+
 def test_a_missing_camera_matrix_is_named_missing(tmp_path):
     data = _data()
     del data["camera_matrix"]
