@@ -207,6 +207,19 @@ def test_a_selected_track_must_be_confirmed_by_the_tracker():
     assert initial.update(ctx, frame([person(2, 2.0)], 0.1, {2: 0.0})).target_id == 2
 
 
+def test_a_selected_track_lost_before_it_is_learnt_is_waited_for_with_a_warning(caplog):
+    """Nobody else is taken in its place (the user chose that person), and the user is
+    told to select again."""
+    ctx = context(observed={2: 1, 3: 5})
+    ctx.requested_id = 2
+    state = Initial().update(ctx, frame([person(2, 2.0), person(3, 1.5)], 0.0, {2: 0.0, 3: 0.0}))
+    assert state.target_id == 2
+    for k in range(1, 20):  # track 2 is gone; 3, nearer, stays in view
+        state = state.update(ctx, frame([person(3, 1.5)], 0.1 * k, {3: 0.0}))
+    assert isinstance(state, Initial)
+    assert "selected track 2 lost before it was learnt" in caplog.text
+
+
 def test_a_tie_is_no_lead():
     ctx = tracked_context(stamp_s=10.0, observed={5: 5, 6: 5})
     state = Reidentification()

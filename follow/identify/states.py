@@ -78,7 +78,11 @@ class InitialTraining(State):
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self.target_id not in frame.by_id:
-            log.info("target track %d lost during initial training", self.target_id)
+            if context.requested_id == self.target_id:  # never another: the user chose it
+                log.warning("selected track %d lost before it was learnt: waiting for it; "
+                            "select a track again to follow someone", self.target_id)  # fmt: skip
+            else:
+                log.info("target track %d lost during initial training", self.target_id)
             context.forget()
             return Initial()
         context.look(frame, only=self.target_id)
