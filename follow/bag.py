@@ -97,8 +97,15 @@ class BagSource:
         return found
 
     def _read_odometry(self, connections: list, max_gap_s: float) -> OdometryBuffer:
-        poses = [odometry_from_msg(self._reader.deserialize(raw, c.msgtype))
-                 for c, _, raw in self._reader.messages(connections)]  # fmt: skip
+        poses, bad = [], []
+        for c, log_time_ns, raw in self._reader.messages(connections):
+            try:
+                poses.append(odometry_from_msg(self._reader.deserialize(raw, c.msgtype)))
+            except InvalidInput as exc:  # one bad sample: a gap, not an unreadable bag
+                bad.append(f"{log_time_ns * 1e-9:.3f} s: {exc}")
+        if bad:
+            log.warning("bag %s: %d odometry message(s) on %s skipped (first at %s)",
+                        self.spec, len(bad), connections[0].topic, bad[0])  # fmt: skip
         if not poses:
             raise SourceError(f"bag {self.spec}: odometry topic {connections[0].topic} is empty")
         buffer = OdometryBuffer(max_gap_s, capacity=len(poses))

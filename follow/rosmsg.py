@@ -47,6 +47,8 @@ def image_from_msg(msg) -> np.ndarray:
     raw = msg.data
     data = raw.ravel() if isinstance(raw, np.ndarray) else np.frombuffer(raw, dtype=np.uint8)
     if hasattr(msg, "format"):  # CompressedImage
+        if data.size == 0:
+            raise InvalidInput(f"compressed image ({msg.format!r}) holds no data")
         image = cv2.imdecode(data, cv2.IMREAD_COLOR)
         if image is None:
             raise InvalidInput(f"compressed image ({msg.format!r}) cannot be decoded")
@@ -57,9 +59,13 @@ def image_from_msg(msg) -> np.ndarray:
         )
     channels, conversion = _ENCODINGS[msg.encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    if step < width * channels or data.size < step * height:
+    if height <= 0 or width <= 0:
+        raise InvalidInput(f"image {width}x{height} {msg.encoding} is empty")
+    if step < width * channels or data.size != step * height:  # the message's own rule
         raise InvalidInput(
-            f"image {width}x{height} {msg.encoding}: step {step} and {data.size} bytes do not fit"
+            f"image {width}x{height} {msg.encoding}: step {step} and {data.size} bytes do not "
+            f"fit (expected step >= {width * channels} and step x height = {step * height} "
+            "bytes): wrong encoding or a damaged message"
         )
     rows = data[: step * height].reshape(height, step)[:, : width * channels]
     image = rows.reshape(height, width, channels)
@@ -74,8 +80,15 @@ def image_fields(image_bgr: np.ndarray) -> dict:
 
 
 def yaw_of_quaternion(q) -> float:
-    """Heading (rotation about z) of a geometry_msgs/Quaternion."""
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+    """Heading (rotation about z) of a geometry_msgs/Quaternion. Drivers publish
+    quaternions a little off unit length (float32 maths): this form does not depend on
+    the length, where `1 - 2(y² + z²)` would turn 5 % off into 5 degrees off. A zero or
+    non-finite quaternion (an orientation never filled in) has no heading."""
+    w, x, y, z = float(q.w), float(q.x), float(q.y), float(q.z)
+    norm2 = w * w + x * x + y * y + z * z
+    if not (math.isfinite(norm2) and norm2 > 1e-12):
+        raise InvalidInput(f"orientation quaternion {(x, y, z, w)} has no heading (zero or not finite)")
+    return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
 
 
 def quaternion_of_yaw(yaw_rad: float) -> dict:

@@ -102,6 +102,37 @@ def test_a_repeated_image_is_skipped_not_tracked_twice(tmp_path, small_frames, s
     assert source.repeated_frames == 1
 
 
+def test_one_unusable_odometry_sample_is_a_gap_not_an_unreadable_bag(
+    tmp_path, small_frames, small_camera, caplog
+):
+    path = tmp_path / "nan.mcap"
+    poses = odometry_track(small_frames[0].stamp_s, small_frames[-1].stamp_s)
+    object.__setattr__(poses[7], "x_m", float("nan"))  # a driver's glitch, as recorded
+    with BagWriter(path) as bag:
+        for pose in poses:
+            bag.write_odometry("/odom", pose)
+        for frame in small_frames:
+            bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+    source = BagSource(str(path), "/camera/image_raw", "/odom")
+    assert len(list(source)) == len(small_frames)
+    assert "1 odometry message(s) on /odom skipped" in caplog.text
+
+
+def test_an_empty_image_in_a_bag_is_skipped_not_fatal(tmp_path, small_frames):
+    path = tmp_path / "empty.mcap"
+    with BagWriter(path) as bag:
+        for k, frame in enumerate(small_frames):
+            if k == 2:
+                image_type = bag._types("sensor_msgs/msg/Image")
+                bag.write("/camera/image_raw", frame.stamp_s, image_type(
+                    header=bag._header(frame.stamp_s, "camera"), height=0, width=64,
+                    encoding="mono8", is_bigendian=0, step=64, data=np.zeros(0, np.uint8),
+                ))  # fmt: skip
+            else:
+                bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+    assert len(list(BagSource(str(path), "/camera/image_raw"))) == len(small_frames) - 1
+
+
 def test_a_missing_topic_is_named_with_the_topics_the_bag_holds(
     tmp_path, small_frames, small_camera
 ):

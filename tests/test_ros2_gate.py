@@ -61,3 +61,41 @@ def test_follow_ros2_without_ros_says_what_to_install(tmp_path, monkeypatch, cap
     monkeypatch.setitem(sys.modules, "rclpy", None)  # as if the ros2 extra were missing
     assert cli.main(["ros2", "--camera", str(tmp_path / "camera.yaml")]) == 1
     assert "pip install 'follow[ros2]'" in capsys.readouterr().err
+
+
+def test_one_odometry_sample_from_the_future_does_not_block_the_base_for_good():
+    """A glitched stamp far ahead would make every correct sample after it look older."""
+    now = [1000.0]
+    gate, _ = make_gate(now)
+    gate.update_odometry(Odometry(0.0, 0.0, 0.0, 1000.0 + 2**31))
+    for k in range(1, 5):
+        now[0] = 1000.0 + 0.05 * k
+        gate.update_odometry(Odometry(0.0, 0.0, 0.0, now[0]))
+    assert gate.healthy()
+
+
+def test_an_operator_stop_is_the_last_command_even_with_a_tick_in_flight():
+    """A control tick checked before the stop request and published after its zero would
+    leave the base moving until the next tick."""
+    import threading
+
+    published, inside, release = [], threading.Event(), threading.Event()
+
+    def publish(command):
+        if not command.is_stop:
+            inside.set()
+            release.wait(2.0)
+        published.append(command)
+
+    gate = CmdVelGate(publish, lambda: 10.0, max_odometry_age_s=0.2)
+    gate.update_odometry(Odometry(0.0, 0.0, 0.0, 10.0))
+    tick = threading.Thread(target=gate.send, args=(VelocityCommand(0.8, 0.0, 10.0),))
+    tick.start()
+    assert inside.wait(2.0)
+    stopper = threading.Thread(target=gate.stop_following, args=(10.0,))
+    stopper.start()
+    stopper.join(0.2)  # the request comes while the tick is being published
+    release.set()
+    tick.join(2.0)
+    stopper.join(2.0)
+    assert published[-1].is_stop and not gate.following

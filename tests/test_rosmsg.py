@@ -20,6 +20,7 @@ from follow.rosmsg import (
     quaternion_of_yaw,
     stamp_fields,
     stamp_s,
+    yaw_of_quaternion,
 )
 from follow.types import InvalidInput, Odometry
 
@@ -91,3 +92,40 @@ def test_odometry_is_interpolated_between_samples_and_never_invented():
     sparse.add(Odometry(5.0, 0.0, 0.0, 1.0))
     assert sparse.at(0.5) is None  # a 1 s hole is not bridged
     assert not sparse.wait_until(2.0, timeout_s=0.01) and sparse.wait_until(1.0, timeout_s=0.01)
+
+
+def _raw(**fields):
+    image = np.zeros((6, 8, 3), np.uint8)
+    base = dict(height=6, width=8, encoding="bgr8", is_bigendian=0, step=24,
+                data=image.reshape(-1))  # fmt: skip
+    return Msg(**{**base, **fields})
+
+
+def test_image_data_longer_than_its_rows_is_refused():
+    """bgr8 bytes labelled mono8 would decode as a grey third of the picture."""
+    with pytest.raises(InvalidInput, match="step x height = 48 bytes"):
+        image_from_msg(_raw(encoding="mono8", step=8))
+
+
+@pytest.mark.parametrize("msg", [
+    _raw(height=0, encoding="mono8", step=8, data=np.zeros(0, np.uint8)),
+    _raw(width=0, step=0, encoding="rgb8", data=np.zeros(0, np.uint8)),
+    Msg(format="jpeg", data=b""),
+])  # fmt: skip
+def test_an_empty_image_is_invalid_input_not_an_opencv_error(msg):
+    with pytest.raises(InvalidInput):
+        image_from_msg(msg)
+
+
+@pytest.mark.parametrize("scale", [0.5, 0.95, 1.05, 2.0])
+def test_the_heading_of_a_quaternion_off_unit_length_is_its_rotation(scale):
+    q = quaternion_of_yaw(math.radians(90.0))
+    scaled = Msg(**{k: scale * v for k, v in q.items()})
+    assert math.degrees(yaw_of_quaternion(scaled)) == pytest.approx(90.0)
+
+
+@pytest.mark.parametrize("q", [(0.0, 0.0, 0.0, 0.0), (0.0, 0.0, float("nan"), 1.0)])
+def test_a_quaternion_with_no_heading_is_refused(q):
+    x, y, z, w = q
+    with pytest.raises(InvalidInput, match="has no heading"):
+        yaw_of_quaternion(Msg(x=x, y=y, z=z, w=w))

@@ -14,7 +14,7 @@ import threading
 from collections.abc import Callable
 
 from follow.config import ConfigError, RosConfig
-from follow.freshness import is_fresh
+from follow.freshness import is_ahead, is_fresh
 from follow.types import Odometry, VelocityCommand
 
 
@@ -34,9 +34,14 @@ class CmdVelGate:
         self.blocked = 0  # moving commands replaced by zero
         self.last_sent: VelocityCommand | None = None
         self._odometry: Odometry | None = None
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the newest pose
+        self._send_lock = threading.Lock()  # a command's check and its publishing
 
     def update_odometry(self, pose: Odometry) -> None:
+        """Keep the newest pose; one stamped ahead of the clock is not kept (it would
+        make every later, correct pose look older and block the base for good)."""
+        if is_ahead(self.clock(), pose.stamp_s):
+            return
         with self._lock:
             if self._odometry is None or pose.stamp_s >= self._odometry.stamp_s:
                 self._odometry = pose
@@ -53,12 +58,22 @@ class CmdVelGate:
         return self.odometry() is not None
 
     def send(self, command: VelocityCommand) -> VelocityCommand:
-        if not command.is_stop and not (self.following and self.healthy()):
-            self.blocked += 1
-            command = VelocityCommand.stop(command.stamp_s)
-        self.last_sent = command
-        self.publish(command)
+        # The check and the publishing as one: a command checked before an operator's
+        # stop cannot be published after its zero.
+        with self._send_lock:
+            if not command.is_stop and not (self.following and self.healthy()):
+                self.blocked += 1
+                command = VelocityCommand.stop(command.stamp_s)
+            self.last_sent = command
+            self.publish(command)
         return command
+
+    def stop_following(self, stamp_s: float) -> None:
+        """An operator's stop: zero now, and zero for every command until `following`."""
+        with self._send_lock:
+            self.following = False
+            self.last_sent = VelocityCommand.stop(stamp_s)
+            self.publish(self.last_sent)
 
     def close(self) -> None:
         self.send(VelocityCommand.stop(self.clock()))

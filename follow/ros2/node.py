@@ -89,6 +89,27 @@ def _refuse_unknown_parameters(node: Node, declared: list[str]) -> None:
         raise ConfigError(f"unknown ROS parameter(s): {', '.join(hints)}")
 
 
+def _info_key(msg) -> tuple:
+    """What of a CameraInfo the camera model is built from."""
+    k = getattr(msg, "k", None)
+    d = getattr(msg, "d", None)
+    k = msg.K if k is None else k
+    d = msg.D if d is None else d
+    return (int(msg.width), int(msg.height), str(msg.distortion_model),
+            tuple(float(v) for v in k), tuple(float(v) for v in d))  # fmt: skip
+
+
+def _describe(key: tuple | None) -> str:
+    if key is None:
+        return "no image yet"
+    width, height, info = key
+    if info is None:
+        return f"{width}x{height} images"
+    info_width, info_height, model, k, d = info
+    return (f"{width}x{height} images, camera_info {info_width}x{info_height} {model or 'no'} "
+            f"distortion, fx {k[0]:g} fy {k[4]:g} cx {k[2]:g} cy {k[5]:g}, d {list(d)}")  # fmt: skip
+
+
 class FollowNode(Node):
     """Subscribes, runs perception and control, publishes (see the module doc)."""
 
@@ -120,6 +141,8 @@ class FollowNode(Node):
         self.odometry = OdometryBuffer(ros.max_odometry_age_s) if ros.odom_topic else None
         self.frames = 0
         self.frames_without_odometry = 0
+        self.odometry_dropped = 0  # odometry messages in another frame or unusable
+        self._camera_key: tuple | None = None  # the image size and camera_info perceived with
         self.stale_frames = 0  # images not newer than the last one processed
         self.errors = 0
         self._last_stamp: float | None = None
@@ -199,7 +222,24 @@ class FollowNode(Node):
         self.camera_info = msg
 
     def _on_odometry(self, msg) -> None:
-        pose = odometry_from_msg(msg)
+        """A pose in `ros.odom_frame` (the frame tracks are kept and published in); one in
+        another frame, or unusable (NaN, no orientation), is dropped with a warning: the
+        odometry then goes stale and the base stops, but the node lives on."""
+        odom_frame = self.config.ros.odom_frame
+        frame_id = str(msg.header.frame_id)
+        if frame_id and frame_id.lstrip("/") != odom_frame.lstrip("/"):
+            self.odometry_dropped += 1
+            self.get_logger().warning(
+                f"odometry dropped: in frame {frame_id!r}, not ros.odom_frame {odom_frame!r} "
+                "(set ros.odom_frame to the odometry's frame)", throttle_duration_sec=5.0,
+            )  # fmt: skip
+            return
+        try:
+            pose = odometry_from_msg(msg)
+        except InvalidInput as exc:
+            self.odometry_dropped += 1
+            self.get_logger().warning(f"odometry dropped: {exc}", throttle_duration_sec=5.0)
+            return
         self.odometry.add(pose)
         if self.gate is not None:
             self.gate.update_odometry(pose)
@@ -222,8 +262,7 @@ class FollowNode(Node):
         with self._lock:
             self.following = False
             if self.gate is not None:
-                self.gate.following = False
-                self.gate.send(VelocityCommand.stop(self.now_s()))
+                self.gate.stop_following(self.now_s())
         response.success = True
         response.message = "stopped following; publish a track id on ~/select_target to resume"
         return response
@@ -258,7 +297,18 @@ class FollowNode(Node):
                 log.exception("frame failed")
 
     def _perception_for(self, width: int, height: int):
+        """The perception built for the first image's size and camera_info; an image of
+        another size, or a camera_info that changed, is refused (ValueError): people
+        would be placed on the floor with the wrong camera, nearer or farther than they
+        are."""
+        key = (width, height, None if self.camera_info is None else _info_key(self.camera_info))
         if self.perception is not None:
+            if key != self._camera_key:
+                raise ValueError(
+                    f"the camera changed since perception started ({_describe(self._camera_key)}"
+                    f" -> {_describe(key)}): images are dropped and the base stopped; restart "
+                    "the node to follow with the new camera"
+                )
             return self.perception
         from follow.run import build_perception, camera_for_frames
 
@@ -271,6 +321,7 @@ class FollowNode(Node):
         camera = camera_for_frames(camera, width, height)
         self.perception = build_perception(self.config, camera, detect=self._detect,
                                            pose_backend=self._pose_backend)  # fmt: skip
+        self._camera_key = key
         if self._pending_target is not None and self._pending_target >= 0:
             self.perception.identifier.select_target(self._pending_target)
         return self.perception
@@ -358,6 +409,7 @@ class FollowNode(Node):
         values = {"fps": f"{len(recent) / period:.2f}", "model": self.model_name,
                   "frames": str(self.frames),
                   "frames_without_odometry": str(self.frames_without_odometry),
+                  "odometry_dropped": str(self.odometry_dropped),
                   "following": str(self.following)}  # fmt: skip
         for stage in ("pose", "tracker", "identify"):
             stage_ms = [t[stage] for t in recent if stage in t]
@@ -391,6 +443,7 @@ class FollowNode(Node):
         return {
             "frames": self.frames,
             "frames_without_odometry": self.frames_without_odometry,
+            "odometry_dropped": self.odometry_dropped,
             "stale_frames": self.stale_frames,
             "errors": self.errors,
             "cmd_vel_blocked": self.gate.blocked if self.gate is not None else 0,

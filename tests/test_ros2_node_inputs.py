@@ -1,0 +1,124 @@
+"""What the ROS 2 node does with input it cannot use: odometry that is NaN, has no
+orientation or is in another frame is dropped (the node lives on; without fresh
+odometry the base stops), and an image whose size or camera_info differs from the one
+perception started with is refused rather than placed on the floor with the wrong
+camera. In process, with a stand-in detector; runs where rclpy imports."""
+
+from __future__ import annotations
+
+import os
+import random
+
+import numpy as np
+import pytest
+
+from follow.camera import CameraModel, CameraPose
+from follow.config import Config
+from follow.rosmsg import camera_info_fields, image_fields, quaternion_of_yaw, stamp_fields
+
+try:
+    import rclpy
+    from builtin_interfaces.msg import Time
+    from nav_msgs.msg import Odometry as OdometryMsg
+    from sensor_msgs.msg import CameraInfo, Image
+    from std_msgs.msg import Header
+
+    from follow.ros2.node import FollowNode
+except ImportError as exc:  # pragma: no cover - depends on the installation
+    if os.environ.get("FOLLOW_REQUIRE_ROS2") == "1":
+        raise
+    pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
+
+CAMERA = CameraModel.from_fov((320, 240), 70.0, CameraPose(height_m=1.0))
+
+
+@pytest.fixture(scope="module", autouse=True)
+def ros_context():
+    rclpy.init(domain_id=random.randint(100, 200))  # nothing else on the network hears us
+    yield
+    rclpy.shutdown()
+
+
+@pytest.fixture
+def node():
+    config = Config().replace("identify", identifier="channels")  # no model files needed
+    made = FollowNode(config.replace("ros", publish_cmd_vel=True), CAMERA,
+                      detect=lambda frame: [])  # fmt: skip
+    yield made
+    made.shutdown()
+    made.destroy_node()
+
+
+def _header(stamp_s: float, frame_id: str) -> Header:
+    return Header(stamp=Time(**stamp_fields(stamp_s)), frame_id=frame_id)
+
+
+def _odometry(stamp_s: float, x_m: float = 0.0, frame_id: str = "odom", quaternion=None):
+    msg = OdometryMsg(header=_header(stamp_s, frame_id), child_frame_id="base_link")
+    msg.pose.pose.position.x = x_m
+    q = quaternion or quaternion_of_yaw(0.0)
+    o = msg.pose.pose.orientation
+    o.x, o.y, o.z, o.w = q["x"], q["y"], q["z"], q["w"]
+    return msg
+
+
+def _image(stamp_s: float, width: int, height: int) -> Image:
+    fields = image_fields(np.zeros((height, width, 3), np.uint8))
+    return Image(header=_header(stamp_s, "camera"), **{**fields, "data": fields["data"].tobytes()})
+
+
+@pytest.mark.parametrize("bad", [
+    {"x_m": float("nan")},
+    {"quaternion": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 0.0}},  # orientation never filled in
+])  # fmt: skip
+def test_unusable_odometry_is_dropped_and_the_node_lives_on(node, bad):
+    now = node.now_s()
+    node._on_odometry(_odometry(now, **bad))  # raised out of the callback: the node died
+    assert node.odometry_dropped == 1 and not node.gate.healthy()
+    node._on_odometry(_odometry(now + 0.01))
+    assert node.gate.healthy()
+
+
+def test_odometry_in_another_frame_than_ros_odom_frame_is_not_used(node):
+    now = node.now_s()
+    node._on_odometry(_odometry(now, frame_id="map"))
+    assert node.odometry.at(now) is None and not node.gate.healthy()
+    assert node.odometry_dropped == 1
+    node._on_odometry(_odometry(now + 0.01, frame_id="/odom"))  # the same frame, written so
+    assert node.gate.healthy()
+
+
+def test_an_image_of_another_size_mid_run_is_refused():
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
+                                     camera_info_topic=""),  # the camera file's intrinsics
+                      CAMERA, detect=lambda frame: [])  # fmt: skip
+    try:
+        now = node.now_s()
+        assert node._detect_in(_image(now, 320, 240)) is not None
+        assert node._detect_in(_image(now + 0.1, 400, 300)) is None  # the camera switched mode
+        assert node.perception.tracker.camera.image_size == (320, 240)
+        assert node._detect_in(_image(now + 0.2, 320, 240)) is not None
+    finally:
+        node.shutdown()
+        node.destroy_node()
+
+
+def test_a_camera_info_that_changes_mid_run_is_refused():
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
+                                     camera_info_topic="camera_info"),
+                      CAMERA, detect=lambda frame: [])  # fmt: skip
+    try:
+        info = CameraInfo(header=_header(0.0, "camera"), **camera_info_fields(CAMERA))
+        node._on_camera_info(info)
+        now = node.now_s()
+        assert node._detect_in(_image(now, 320, 240)) is not None
+        zoomed = CameraInfo(header=_header(0.0, "camera"),
+                            **camera_info_fields(CameraModel.from_fov((320, 240), 50.0,
+                                                                      CAMERA.pose)))  # fmt: skip
+        node._on_camera_info(zoomed)
+        assert node._detect_in(_image(now + 0.1, 320, 240)) is None
+    finally:
+        node.shutdown()
+        node.destroy_node()
