@@ -47,10 +47,18 @@ class Range:
         return above and below and (not self.multiple_of or value % self.multiple_of == 0)
 
     def describe(self) -> str:
-        lo = f"{self.lo:g} {'<' if self.lo_open else '<='}"
-        hi = f"{'<' if self.hi_open else '<='} {self.hi:g}"
+        lo = f"{_number(self.lo)} {'<' if self.lo_open else '<='}"
+        hi = f"{'<' if self.hi_open else '<='} {_number(self.hi)}"
         extra = f", a multiple of {self.multiple_of}" if self.multiple_of else ""
         return f"{lo} value {hi}{extra}"
+
+
+def _number(x: float) -> str:
+    """A bound as written in a table or a message: an integral bound in full (2**32 - 1 is
+    4294967295, not 4.29497e+09), any other the shortest way (`:g`)."""
+    if isinstance(x, int) or (math.isfinite(x) and float(x).is_integer()):
+        return str(int(x))
+    return f"{x:g}"
 
 
 def closed(lo: float, hi: float) -> Range:

@@ -69,6 +69,13 @@ def test_values_at_the_bounds_are_accepted():
     assert cfg.control.max_forward_speed_mps == 3.0
 
 
+def test_integral_bounds_are_written_in_full():
+    assert BOUNDS["identify"]["seed"].describe() == "0 <= value <= 4294967295"
+    assert BOUNDS["identify"]["gaussian_memory_samples"].describe() == "1 <= value <= 1000000"
+    assert BOUNDS["tracker"]["gate_chi2_quantile"].describe() == "0 < value < 1"
+    assert BOUNDS["control"]["turn_in_place_bearing_rad"].describe() == "0 < value <= 3.14159"
+
+
 def test_every_key_has_a_declared_range_or_choice():
     """A new key without a line in follow/config_bounds.py fails validation; and no line
     there names a key that does not exist."""
