@@ -36,7 +36,7 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("bench", "memory"): ("follow.eval.bench_memory", "RSS growth over a long synthetic run (bounded memory)"),
     ("bench", "identify"): ("follow.eval.bench_identify", "CCF features and classifier update speed"),
     ("bench", "tracker"): ("follow.eval.bench_tracker", "the tracker alone on PETS detections, per frame and per track"),
-    ("models", None): ("follow.models", "list, fetch or verify the model files"),
+    ("models", None): ("follow.models", "list, fetch, verify or prepare the model files"),
 }
 # fmt: on
 
