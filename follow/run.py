@@ -42,7 +42,7 @@ def add_arguments(p) -> None:
     p.add_argument("--skeletons-topic", help="bag: recorded skeletons (follow demo --bag) "
                    "used instead of the pose network")  # fmt: skip
     p.add_argument("--camera", required=True, help="camera file (YAML/JSON, from follow-calib)")
-    p.add_argument("--config", help="TOML configuration (defaults: the paper's values)")
+    p.add_argument("--config", help="TOML configuration over the robot defaults (docs/config.md)")
     p.add_argument("--mavlink", help="MAVLink connection string, e.g. udpin:0.0.0.0:14550")
     p.add_argument("--target-id", type=non_negative_int,
                    help="follow this track id instead of the nearest")  # fmt: skip
