@@ -1,6 +1,8 @@
 """The one configuration of `follow`: a dataclass per stage, loaded from TOML.
 
-Defaults follow Koide et al. (RAS 2020) where the paper gives a value. A TOML file
+Defaults are for a robot following one person 1-8 m away with its camera 0.5-1.5 m up
+(the comment beside a value says where it comes from: Koide et al., RAS 2020, where the
+paper gives one; a measurement named there otherwise). A TOML file
 holds the same sections and keys (`[tracker]`, `gate_chi2_quantile = 0.99`, ...); an
 unknown section or key, a value of the wrong type, or one outside its allowed range
 (follow/config_bounds.py, docs/config.md) is an error naming it.
