@@ -122,3 +122,26 @@ def test_a_camera_info_that_changes_mid_run_is_refused():
     finally:
         node.shutdown()
         node.destroy_node()
+
+
+def test_what_the_node_publishes_about_an_image_carries_its_stamp_to_the_nanosecond():
+    """Float seconds are ~0.2 us apart at today's epoch: outputs stamped from them would
+    not match their image in an exact-time synchroniser."""
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
+                                     camera_info_topic="", publish_annotated_image=True),
+                      CAMERA, detect=lambda frame: [])  # fmt: skip
+    published = []
+    for publisher in (node.pub_tracks, node.pub_markers, node.pub_image):
+        publisher.publish = published.append
+    try:
+        msg = _image(0.0, 320, 240)
+        msg.header.stamp = Time(sec=int(node.now_s()), nanosec=123_456_789)
+        node._conclude(*node._detect_in(msg))
+        stamps = [m.markers[0].header.stamp if hasattr(m, "markers") else m.header.stamp
+                  for m in published]  # fmt: skip
+        assert len(stamps) == 3
+        assert {(s.sec, s.nanosec) for s in stamps} == {(msg.header.stamp.sec, 123_456_789)}
+    finally:
+        node.shutdown()
+        node.destroy_node()

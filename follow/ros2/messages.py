@@ -24,8 +24,13 @@ MIN_HEADING_SPEED_MPS = 0.1  # slower tracks carry no heading (identity orientat
 MARKER_LIFETIME_S = 1.0  # markers of a node that stopped publishing fade out
 
 
-def header(stamp_s: float, frame_id: str) -> Header:
-    return Header(stamp=Time(**stamp_fields(stamp_s)), frame_id=frame_id)
+def header(stamp: float | Time, frame_id: str) -> Header:
+    """A Header at `stamp`: seconds, or the input message's own Time, passed through so
+    that outputs carry their image's stamp to the nanosecond (float seconds are ~0.2 us
+    apart at today's epoch, too coarse for exact-time matching)."""
+    if isinstance(stamp, Time):
+        return Header(stamp=Time(sec=stamp.sec, nanosec=stamp.nanosec), frame_id=frame_id)
+    return Header(stamp=Time(**stamp_fields(stamp)), frame_id=frame_id)
 
 
 def track_pose(track: TrackState, z_m: float = 0.0) -> Pose:
@@ -43,15 +48,15 @@ def target_track(result: FrameResult) -> TrackState | None:
     return result.target_track
 
 
-def target_pose(result: FrameResult, frame_id: str) -> PoseStamped | None:
+def target_pose(result: FrameResult, frame_id: str, stamp: Time | None = None) -> PoseStamped | None:
     track = target_track(result)
     if track is None:
         return None
-    return PoseStamped(header=header(result.stamp_s, frame_id), pose=track_pose(track))
+    return PoseStamped(header=header(result.stamp_s if stamp is None else stamp, frame_id), pose=track_pose(track))
 
 
-def tracks_pose_array(result: FrameResult, frame_id: str) -> PoseArray:
-    return PoseArray(header=header(result.stamp_s, frame_id),
+def tracks_pose_array(result: FrameResult, frame_id: str, stamp: Time | None = None) -> PoseArray:
+    return PoseArray(header=header(result.stamp_s if stamp is None else stamp, frame_id),
                      poses=[track_pose(t) for t in result.tracks])  # fmt: skip
 
 
@@ -70,10 +75,10 @@ def _ellipse(track: TrackState) -> tuple[float, float, float]:
             math.atan2(major[1], major[0]))  # fmt: skip
 
 
-def track_markers(result: FrameResult, frame_id: str) -> MarkerArray:
+def track_markers(result: FrameResult, frame_id: str, stamp: Time | None = None) -> MarkerArray:
     """Per track: a body (its height), its 2-sigma ground ellipse and a label; the
     target in red. Marker ids are the track ids."""
-    head = header(result.stamp_s, frame_id)
+    head = header(result.stamp_s if stamp is None else stamp, frame_id)
     lifetime = Duration(sec=int(MARKER_LIFETIME_S), nanosec=int(MARKER_LIFETIME_S % 1 * 1e9))
     target_id = target_track(result).track_id if target_track(result) is not None else None
     markers = [Marker(header=head, action=Marker.DELETEALL)]

@@ -327,7 +327,7 @@ class FollowNode(Node):
         return self.perception
 
     def _detect_in(self, msg):
-        """(frame, robot pose, detections, camera frame id) of an image message, or None
+        """(frame, robot pose, detections, the image's header) of an image message, or None
         for an image that is dropped (out of order, unreadable, without odometry, or
         before the camera is known)."""
         ros = self.config.ros
@@ -368,9 +368,9 @@ class FollowNode(Node):
             return None
         self._last_stamp = stamp
         frame = Frame(image, stamp)
-        return frame, robot, perception.detect_people(frame), msg.header.frame_id
+        return frame, robot, perception.detect_people(frame), msg.header
 
-    def _conclude(self, frame: Frame, robot: Odometry, detections, camera_frame: str) -> None:
+    def _conclude(self, frame: Frame, robot: Odometry, detections, image_header) -> None:
         with self._lock:
             result = self.perception.conclude(frame, robot, self.frames, detections)
             following = self.following
@@ -379,16 +379,17 @@ class FollowNode(Node):
         self.results.put(result)
         if self.control is not None:
             self.control.notify()
-        self._publish(result, frame.image, following, camera_frame)
+        self._publish(result, frame.image, following, image_header)
 
     # ------------------------------------------------------------------ outputs
-    def _publish(self, result: FrameResult, image, following: bool, camera_frame: str) -> None:
-        frame_id = self.config.ros.odom_frame
-        self.pub_tracks.publish(messages.tracks_pose_array(result, frame_id))
-        self.pub_markers.publish(messages.track_markers(result, frame_id))
+    def _publish(self, result: FrameResult, image, following: bool, image_header) -> None:
+        """Everything about one image, stamped with that image's own stamp."""
+        frame_id, stamp = self.config.ros.odom_frame, image_header.stamp
+        self.pub_tracks.publish(messages.tracks_pose_array(result, frame_id, stamp))
+        self.pub_markers.publish(messages.track_markers(result, frame_id, stamp))
         name = getattr(self.perception.identifier, "name", "identifier")
         self.pub_state.publish(messages.target_state(result, str(name), following))
-        target = messages.target_pose(result, frame_id)
+        target = messages.target_pose(result, frame_id, stamp)
         if target is not None and following:
             self.pub_target.publish(target)
         if self.pub_image is not None:
@@ -396,7 +397,7 @@ class FollowNode(Node):
 
             command = self.gate.last_sent if self.gate is not None else None
             picture = annotate(image, result.skeletons, result.tracks, result.target, command)
-            self.pub_image.publish(Image(header=messages.header(result.stamp_s, camera_frame),
+            self.pub_image.publish(Image(header=messages.header(stamp, image_header.frame_id),
                                          **image_fields(picture)))  # fmt: skip
 
     def _publish_twist(self, command: VelocityCommand) -> None:
