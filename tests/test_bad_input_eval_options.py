@@ -34,7 +34,18 @@ def test_too_few_identities_are_refused(tmp_path, capsys, count):
     assert "--identities must be >= 4" in err and f"got {count}" in err
 
 
-def test_a_negative_max_targets_is_refused(capsys, monkeypatch):
-    monkeypatch.delenv("FOLLOW_DATA_DIR", raising=False)  # refused before any data is read
-    err = _error(capsys, ["eval", "identification", "--max-targets", "-1"])
-    assert "--max-targets must be >= 0 (0 = all), got -1" in err
+@pytest.mark.parametrize("argv, option", [
+    (["--max-targets", "-1"], "--max-targets"),
+    (["--match-distance-m", "0"], "--match-distance-m"),
+    (["--min-visible-s", "-5"], "--min-visible-s"),
+    (["--plot", "timeline.txt"], "--plot"),
+])  # fmt: skip
+def test_identification_options_are_refused_before_any_data_is_read(capsys, monkeypatch,
+                                                                    argv, option):  # fmt: skip
+    from follow.cli import main
+
+    monkeypatch.delenv("FOLLOW_DATA_DIR", raising=False)
+    with pytest.raises(SystemExit) as exit_:
+        main(["eval", "identification", *argv])
+    assert exit_.value.code == 2
+    assert f"argument {option}:" in capsys.readouterr().err

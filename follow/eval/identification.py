@@ -27,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from follow.cli_args import non_negative_float, non_negative_int, plot_path, positive_float
 from follow.config import Config
 from follow.eval.identification_metrics import OUTCOMES, OutcomeTally, classify
 from follow.eval.perturb import add_perturb_arguments, plot_spread, print_suite, run_suite
@@ -62,17 +63,20 @@ def add_arguments(p) -> None:
     add_evaluation_arguments(p)
     p.add_argument("--identifiers", default=",".join(IDENTIFIERS),
                    help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
-    p.add_argument("--min-visible-s", type=float, default=20.0,
+    p.add_argument("--min-visible-s", type=non_negative_float, default=20.0,
                    help="people visible at least this long become targets")  # fmt: skip
-    p.add_argument("--max-targets", type=int, default=0,
+    p.add_argument("--max-targets", type=non_negative_int, default=0,
                    help="evaluate at most this many targets (0 = all)")  # fmt: skip
-    p.add_argument("--match-distance-m", type=float, default=1.0)
-    p.add_argument("--max-hidden-fraction", type=float, default=0.5)
+    p.add_argument("--match-distance-m", type=positive_float, default=1.0,
+                   help="a named track within this of the target on the floor is the target")  # fmt: skip
+    p.add_argument("--max-hidden-fraction", type=non_negative_float, default=0.5,
+                   help="the target counts as visible while at most this much of its box "
+                        "is hidden")  # fmt: skip
     p.add_argument("--whole-sequence", action="store_true",
                    help="score every target to the end of the sequence, not only until its "
                         "last annotated frame; the ids of one person who leaves and returns "
                         "(pets2009_same_person.toml) are one target")  # fmt: skip
-    p.add_argument("--plot", help="write a PNG timeline of outcomes per target here "
+    p.add_argument("--plot", type=plot_path, help="write a PNG timeline of outcomes per target here "
                                   "(with --perturb: the spread of CT+CL and WT over the variants)")  # fmt: skip
     add_perturb_arguments(p)
 
@@ -331,8 +335,6 @@ def plot(per_identifier: dict, path: str) -> None:
 
 
 def main(args) -> dict:
-    if args.max_targets < 0:
-        raise ValueError(f"--max-targets must be >= 0 (0 = all), got {args.max_targets}")
     config, setup = load_pets(args)
     variants = perturb_variants(args)
     if variants is not None:
