@@ -40,6 +40,9 @@ DISTORTION_FLAGS = {
     "standard": 0,  # k1, k2, p1, p2, k3
     "rational": cv2.CALIB_RATIONAL_MODEL,  # k1..k6, p1, p2
 }
+# The camera file holds OpenCV's first 8 coefficients (k1, k2, p1, p2, k3, k4, k5, k6);
+# with the rational model calibrateCamera returns 14, the last 6 (thin prism, tilt) unused.
+CAMERA_FILE_DIST_COEFFS = 8
 _REGION_NAMES = (
     ("top-left", "top", "top-right"),
     ("left", "centre", "right"),
@@ -124,7 +127,22 @@ def _calibrate(
     rms, K, dist, _, _, _, _, per_view = cv2.calibrateCameraExtended(
         objects, points, image_size, None, None, flags=flags, criteria=criteria
     )
-    return float(rms), K, dist.ravel(), per_view.ravel()
+    return float(rms), K, _file_distortion(dist.ravel()), per_view.ravel()
+
+
+def _file_distortion(dist: np.ndarray) -> np.ndarray:
+    """OpenCV's distortion cut to the coefficients the camera file holds.
+
+    The thin-prism and tilt terms past the eighth are zero unless their flags are set;
+    one that is not would change the projection, so it is refused rather than dropped.
+    """
+    extra = dist[CAMERA_FILE_DIST_COEFFS:]
+    if np.any(extra != 0.0):
+        raise CalibrationError(
+            f"distortion terms past the 8th are not zero ({extra.tolist()}): the camera file "
+            "cannot hold them; use another --distortion-model"
+        )
+    return dist[:CAMERA_FILE_DIST_COEFFS]
 
 
 def calibrate_intrinsics(

@@ -39,6 +39,24 @@ def test_focal_length_within_half_a_percent_from_twelve_views(views):
     assert angle.max() < 0.3
 
 
+@pytest.mark.parametrize("model, coefficients", [("radial", 5), ("standard", 5), ("rational", 8)])
+def test_every_distortion_model_gives_a_camera_file(views, tmp_path, model, coefficients):
+    result = calibrate_intrinsics(
+        views, BOARD.pattern_size, BOARD.square_size_m, distortion_model=model, progress=False
+    )
+    assert result.dist.size == coefficients
+    if model == "radial":
+        assert result.dist[2:4].tolist() == [0.0, 0.0]
+    # The file `follow` reads holds it (OpenCV's rational model returns 14 coefficients).
+    CameraModel(result.K, result.dist, result.image_size, CameraPose(1.0)).save(tmp_path / "c.yaml")
+    saved = CameraModel.load(tmp_path / "c.yaml")
+    assert saved.K[0, 0] == pytest.approx(TRUE_CAMERA.K[0, 0], rel=0.005)
+    # Inside the image, away from its corners, it maps pixels to rays like the true camera.
+    grid = np.array([[u, v] for u in (80, 320, 560) for v in (60, 240, 420)], float)
+    cosines = (TRUE_CAMERA.pixel_rays_base(grid) * saved.pixel_rays_base(grid)).sum(1)
+    assert np.degrees(np.arccos(np.clip(cosines, -1, 1))).max() < 0.3
+
+
 def test_rejects_blurred_duplicate_and_boardless_views(views):
     blurred = cv2.GaussianBlur(views[3][1], (0, 0), 3.0)
     duplicate = np.clip(views[5][1].astype(int) + 2, 0, 255).astype(np.uint8)
