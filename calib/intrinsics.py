@@ -34,6 +34,16 @@ OUTLIER_VIEW_MIN_PX = 0.5  # ... unless its RMS is below this anyway
 COVERAGE_GRID = (12, 9)
 COVERAGE_WARN_FRACTION = 0.5
 REGION_MIN_COVERED = 0.25
+# Tilt: a board parallel to the image looks the same to a camera of focal length f at
+# distance d as to one of 2f at 2d; only its foreshortening (perspective) tells them apart.
+# A tilt about the image's vertical axis foreshortens the board along x and measures fx,
+# one about the horizontal axis measures fy. On rendered views (calib.synthetic), boards
+# parallel to the image or all turned about one image axis gave focal lengths 2.5-35% off
+# at an RMS under 0.25 px; one view turned each way up to 17% off, two views each way
+# about 0.5% at most.
+# So each way, at least MIN_TILTED_VIEWS views must turn the board by MIN_TILT_DEG or more.
+MIN_TILT_DEG = 15.0
+MIN_TILTED_VIEWS = 2
 
 DISTORTION_FLAGS = {
     "radial": cv2.CALIB_ZERO_TANGENT_DIST,  # k1, k2, k3
@@ -51,7 +61,7 @@ _REGION_NAMES = (
 
 
 class CalibrationError(ValueError):
-    """Not enough usable views to calibrate."""
+    """Not enough usable views to calibrate, or views that cannot fix the focal length."""
 
 
 @dataclass(frozen=True)
@@ -120,14 +130,36 @@ def _calibrate(
     object_pts: np.ndarray,
     image_size: tuple[int, int],
     flags: int,
-) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """RMS, K, distortion, per-view RMS and the board normals (N, 3) in the camera frame."""
     objects = [object_pts.astype(np.float32)] * len(views)
     points = [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in views]
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    rms, K, dist, _, _, _, _, per_view = cv2.calibrateCameraExtended(
+    rms, K, dist, rvecs, _, _, _, per_view = cv2.calibrateCameraExtended(
         objects, points, image_size, None, None, flags=flags, criteria=criteria
     )
-    return float(rms), K, _file_distortion(dist.ravel()), per_view.ravel()
+    normals = np.array([cv2.Rodrigues(rvec)[0][:, 2] for rvec in rvecs])
+    return float(rms), K, _file_distortion(dist.ravel()), per_view.ravel(), normals
+
+
+def check_tilts(board_normals: np.ndarray) -> None:
+    """Raise CalibrationError unless the boards are tilted enough both ways (see
+    MIN_TILT_DEG): otherwise the focal length is a guess however low the RMS."""
+    lean = np.abs(np.asarray(board_normals, dtype=np.float64)[:, :2])  # sin of the tilt
+    left_right, up_down = (lean > math.sin(math.radians(MIN_TILT_DEG))).sum(axis=0).tolist()
+    if min(left_right, up_down) >= MIN_TILTED_VIEWS:
+        return
+    if left_right == up_down == 0:
+        problem = "the board is nearly parallel to the image in every view"
+    elif min(left_right, up_down) == 0:
+        problem = f"the board is tilted {'up/down' if up_down else 'left/right'} only"
+    else:
+        problem = f"too few views tilt the board ({left_right} left/right, {up_down} up/down)"
+    raise CalibrationError(
+        f"{problem}, so the focal length cannot be told from the board's distance: add at "
+        f"least {MIN_TILTED_VIEWS} views with the board tilted left/right and "
+        f"{MIN_TILTED_VIEWS} tilted up/down, by {MIN_TILT_DEG:.0f}-45 degrees"
+    )
 
 
 def _file_distortion(dist: np.ndarray) -> np.ndarray:
@@ -158,7 +190,8 @@ def calibrate_intrinsics(
 ) -> IntrinsicsResult:
     """Calibrate from chessboard images (arrays, or (name, array) pairs).
 
-    Raises CalibrationError when fewer than MIN_VIEWS views survive the screening.
+    Raises CalibrationError when fewer than MIN_VIEWS views survive the screening, or when
+    too few of them tilt the board left/right and up/down (`check_tilts`).
     """
     cols, rows = check_pattern_size(pattern_size)
     if not (math.isfinite(square_size_m) and square_size_m > 0):
@@ -216,7 +249,7 @@ def calibrate_intrinsics(
             f"recommended). Rejected: {reasons or 'none'}"
         )
     flags = DISTORTION_FLAGS[distortion_model]
-    rms, K, dist, per_view = _calibrate(kept, object_pts, image_size, flags)
+    rms, K, dist, per_view, normals = _calibrate(kept, object_pts, image_size, flags)
     limit = max(OUTLIER_VIEW_MIN_PX, OUTLIER_VIEW_FACTOR * float(np.median(per_view)))
     outliers = per_view > limit
     if outliers.any() and (~outliers).sum() >= MIN_VIEWS:
@@ -224,7 +257,8 @@ def calibrate_intrinsics(
             if err > limit:
                 rejected.append((view.name, f"reprojection error {err:.2f} px > {limit:.2f} px"))
         kept = [v for v, bad in zip(kept, outliers, strict=True) if not bad]
-        rms, K, dist, per_view = _calibrate(kept, object_pts, image_size, flags)
+        rms, K, dist, per_view, normals = _calibrate(kept, object_pts, image_size, flags)
+    check_tilts(normals)
     fraction, uncovered = coverage([v.corners for v in kept], image_size, (cols, rows))
     warnings = []
     if fraction < COVERAGE_WARN_FRACTION or uncovered:

@@ -5,8 +5,14 @@ import numpy as np
 import pytest
 
 from calib import cli
-from calib.intrinsics import CalibrationError, calibrate_intrinsics, coverage
-from calib.synthetic import BoardSpec, calibration_views
+from calib.intrinsics import CalibrationError, calibrate_intrinsics, check_tilts, coverage
+from calib.synthetic import (
+    BoardSpec,
+    board_fully_visible,
+    calibration_views,
+    render_board,
+    rotation_from_euler_deg,
+)
 from follow.camera import CameraModel, CameraPose
 
 BOARD = BoardSpec((9, 6), 0.03)
@@ -55,6 +61,52 @@ def test_every_distortion_model_gives_a_camera_file(views, tmp_path, model, coef
     grid = np.array([[u, v] for u in (80, 320, 560) for v in (60, 240, 420)], float)
     cosines = (TRUE_CAMERA.pixel_rays_base(grid) * saved.pixel_rays_base(grid)).sum(1)
     assert np.degrees(np.arccos(np.clip(cosines, -1, 1))).max() < 0.3
+
+
+def turned_views(tilts_deg, depths_m=(0.4, 0.55)):
+    """The board at each distance and five places in the image, turned by each of
+    `tilts_deg` ((about x, about y) in degrees), where it fits in the image."""
+    out = []
+    for depth_m in depths_m:
+        for u, v in [(0.3, 0.3), (0.7, 0.3), (0.3, 0.7), (0.7, 0.7), (0.5, 0.5)]:
+            for about_x, about_y in tilts_deg:
+                R = rotation_from_euler_deg(about_x, about_y, 0.0)
+                aim = np.linalg.inv(TRUE_CAMERA.K) @ [u * 640, v * 480, 1.0] * depth_m
+                t = aim - R @ [*BOARD.centre_m, 0.0]
+                if board_fully_visible(TRUE_CAMERA, BOARD, R, t):
+                    name = f"{tilts_deg} {len(out)}"
+                    out.append((name, render_board(TRUE_CAMERA, BOARD, R, t)))
+    return out
+
+
+@pytest.mark.parametrize(
+    "tilts_deg, problem",
+    [
+        ([(0, 0)], "nearly parallel to the image in every view"),
+        ([(0, -30), (0, 30)], "tilted left/right only"),
+        ([(-30, 0), (30, 0)], "tilted up/down only"),
+    ],
+)
+def test_views_that_cannot_fix_the_focal_length_are_refused(tilts_deg, problem):
+    # These fit with a low RMS a focal length 2.5-35 % off: the board's distance absorbs it.
+    with pytest.raises(
+        CalibrationError, match=problem + ".*tilted left/right and 2 tilted up/down"
+    ):
+        calibrate_intrinsics(
+            turned_views(tilts_deg), BOARD.pattern_size, BOARD.square_size_m, progress=False
+        )
+
+
+def test_two_views_tilted_each_way_fix_the_focal_length():
+    # Flat views at 0.4 m, and at 0.55 m views turned left/right, up/down, ... in turn.
+    turned = turned_views([(0, 30), (30, 0)], depths_m=(0.55,))
+    views = turned_views([(0, 0)], depths_m=(0.4,)) + turned[::3]  # 2 each way
+    result = calibrate_intrinsics(views, BOARD.pattern_size, BOARD.square_size_m, progress=False)
+    assert not result.rejected
+    assert result.K[0, 0] == pytest.approx(TRUE_CAMERA.K[0, 0], rel=0.01)
+    one_way = np.array([[0.0, 0.0, 1.0], [0.0, 0.3, 0.95], [0.0, -0.3, 0.95], [0.3, 0.0, 0.95]])
+    with pytest.raises(CalibrationError, match=r"too few views tilt the board \(1 left/right, 2"):
+        check_tilts(one_way)
 
 
 def test_rejects_blurred_duplicate_and_boardless_views(views):
