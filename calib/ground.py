@@ -25,6 +25,17 @@ OUTLIER_ROUNDS = 3
 OUTLIER_FACTOR = 4.0
 OUTLIER_MIN_PX = 1.0
 MIN_INLIER_FRACTION = 0.7
+# Roll is read from the floor normal's sideways lean, which shrinks as cos(pitch): looking
+# (nearly) straight down there is none, and any roll (traded against yaw) fits the board.
+# On rendered views a 2 deg roll came out within 0.2 deg up to 78 deg of pitch, 0.7 deg off
+# at 82 and 3 deg off at 85. --board-in-base fixes the camera's whole rotation but still not
+# how it splits into yaw and roll, nor which of the board's symmetric yaws is meant (the
+# one nearest the file's yaw), so a steeper camera is refused either way.
+MAX_PITCH_DEG = 80.0
+
+
+class GroundPoseError(ValueError):
+    """The board was seen but the camera's pose cannot be measured from it."""
 
 
 @dataclass(frozen=True)
@@ -127,7 +138,8 @@ def estimate_ground_pose(
 
     Works whatever the board's orientation and corner order in the image: the floor
     normal is taken on the camera's side of the board. Raises BoardNotFoundError when no
-    board of `pattern_size` inner corners is seen.
+    board of `pattern_size` inner corners is seen, GroundPoseError when the camera looks
+    down more steeply than MAX_PITCH_DEG (its roll cannot be measured).
     """
     cols, rows = check_pattern_size(pattern_size)
     if not (math.isfinite(square_size_m) and square_size_m > 0):
@@ -155,6 +167,13 @@ def estimate_ground_pose(
     if height < 0:  # the detected corner order made the board's z point into the floor
         up, height = -up, -height
     pitch, roll = pitch_roll_from_up(up)
+    if abs(pitch) > math.radians(MAX_PITCH_DEG):
+        raise GroundPoseError(
+            f"the camera looks {math.degrees(pitch):.0f} deg down, more than {MAX_PITCH_DEG:.0f}: "
+            "looking (nearly) straight down its roll cannot be measured from a board on the "
+            f"floor; pitch it to at most {MAX_PITCH_DEG:.0f} deg (follow needs to see people "
+            "ahead anyway) or enter the pose in the camera file by hand"
+        )
     level = CameraPose(height, pitch, roll).rotation_base_from_cam()
     camera_level = np.array([0.0, 0.0, height])
 

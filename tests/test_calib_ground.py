@@ -7,7 +7,7 @@ import pytest
 
 from calib import cli
 from calib.chessboard import BoardNotFoundError, ImageInputError, detect_chessboard
-from calib.ground import average_frames, estimate_ground_pose, pitch_roll_from_up
+from calib.ground import GroundPoseError, average_frames, estimate_ground_pose, pitch_roll_from_up
 from calib.synthetic import BoardSpec, render_floor_board
 from follow.camera import CameraModel, CameraPose
 
@@ -59,6 +59,38 @@ def test_recovers_height_pitch_roll_and_board(
     assert math.degrees(result.roll_rad) == pytest.approx(roll_deg, abs=0.2)
     assert result.board_centre_level_m == pytest.approx(centre, abs=0.03)
     assert result.reprojection_rms_px < 0.5
+
+
+def board_under(cam, board):
+    """A view of `board` lying where the camera's optical axis meets the floor."""
+    ahead_m = cam.pose.height_m / math.tan(cam.pose.pitch_rad)
+    return render_floor_board(cam, board, ahead_m - board.centre_m[0], -board.centre_m[1])
+
+
+@pytest.mark.parametrize("pitch_deg", [85.0, 90.0])
+def test_a_camera_looking_straight_down_is_refused(pitch_deg, tmp_path, capsys):
+    # Its roll is unobservable: at 90 deg the estimate was any angle, at 85 deg 3 deg off.
+    cam = camera(1.0, pitch_deg, 2.0)
+    image = board_under(cam, BoardSpec((7, 5), 0.1))
+    with pytest.raises(GroundPoseError, match="roll cannot be measured"):
+        estimate_ground_pose(image, cam.K, cam.dist, (7, 5), 0.1)
+    cv2.imwrite(str(tmp_path / "down.png"), image)
+    cam.with_pose(CameraPose(1.0)).save(tmp_path / "cam.yaml")
+    before = (tmp_path / "cam.yaml").read_text()
+    for extra in ([], ["--board-in-base", "0.5", "0", "0"]):
+        assert ground_command(tmp_path / "down.png", tmp_path, *extra) == 2
+        assert f"looks {pitch_deg:.0f}" in capsys.readouterr().err
+    assert (tmp_path / "cam.yaml").read_text() == before
+    assert not list(tmp_path.glob("*_ground.png"))
+
+
+def test_a_steep_camera_below_the_limit_keeps_its_roll():
+    cam = camera(1.0, 78.0, 2.0)
+    result = estimate_ground_pose(
+        board_under(cam, BoardSpec((7, 5), 0.1)), cam.K, cam.dist, (7, 5), 0.1
+    )
+    assert math.degrees(result.pitch_rad) == pytest.approx(78.0, abs=0.2)
+    assert math.degrees(result.roll_rad) == pytest.approx(2.0, abs=0.3)
 
 
 def test_pitch_roll_from_up_inverts_the_camera_convention():
@@ -173,10 +205,10 @@ def test_an_overlay_that_cannot_be_written_leaves_the_camera_file_alone(
     assert (folder / "cam.yaml").read_text() == before
 
 
-def ground_command(image, folder):
+def ground_command(image, folder, *extra):
     """`follow-calib ground` on one image with the scene's camera and board."""
     return cli.main(["ground", str(image), "--camera", str(folder / "cam.yaml"),
-                     "--pattern", "7x5", "--square-size-m", "0.1"])  # fmt: skip
+                     "--pattern", "7x5", "--square-size-m", "0.1", *extra])  # fmt: skip
 
 
 def test_ground_command_names_a_broken_image(board_scene, capsys):
