@@ -2,11 +2,16 @@
 
 The file is `follow.camera.CameraModel`'s YAML/JSON; a `calibration` section is added
 that `follow` ignores and people read: which command measured what, and its quality.
+Files are replaced whole (`write_file_atomic`): a failed write never leaves a measured
+camera file half-written.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import secrets
 from pathlib import Path
 
 import yaml
@@ -28,6 +33,41 @@ def read_calibration_notes(path: str | Path) -> dict:
     return dict(notes) if isinstance(notes, dict) else {}
 
 
+def write_file_atomic(path: str | Path, data: bytes) -> None:
+    """Replace `path` with `data` in one step: written to a new file beside it, synced
+    to disk, then renamed over it. A failure part-way (disk full) leaves an old file at
+    `path` as it was and removes the partial one. An old file's permissions are kept, and
+    a symbolic link is followed (its target is replaced, the link stays)."""
+    path = Path(os.path.realpath(path))
+    temp = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
+    try:
+        mode = os.stat(path).st_mode & 0o7777
+    except FileNotFoundError:
+        mode = None
+    try:
+        fd = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        try:
+            with os.fdopen(fd, "wb") as file:
+                file.write(data)
+                file.flush()
+                os.fsync(file.fileno())
+            if mode is not None:
+                os.chmod(temp, mode)
+            os.replace(temp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(temp)
+            raise
+    except OSError as exc:
+        raise OSError(f"cannot write {path}: {exc.strerror or exc}") from exc
+    with contextlib.suppress(OSError):  # make the rename itself durable
+        folder = os.open(path.parent, os.O_RDONLY)
+        try:
+            os.fsync(folder)
+        finally:
+            os.close(folder)
+
+
 def write_camera_file(path: str | Path, model: CameraModel, notes: dict | None = None) -> None:
     """Write the camera file (YAML for .yaml/.yml, else JSON) with a `calibration` section.
 
@@ -42,6 +82,7 @@ def write_camera_file(path: str | Path, model: CameraModel, notes: dict | None =
     if path.parent and not path.parent.exists():
         path.parent.mkdir(parents=True)
     if path.suffix.lower() in (".yaml", ".yml"):
-        path.write_text(yaml.safe_dump(data, sort_keys=False))
+        text = yaml.safe_dump(data, sort_keys=False)
     else:
-        path.write_text(json.dumps(data, indent=2) + "\n")
+        text = json.dumps(data, indent=2) + "\n"
+    write_file_atomic(path, text.encode())

@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calib.camera_file import write_camera_file
+from calib.camera_file import write_camera_file, write_file_atomic
 from calib.chessboard import ImageInputError
 from calib.cmd_common import add_board_arguments, image_path, read_grey_frames
 from calib.ground import average_frames, estimate_ground_pose
@@ -96,8 +96,10 @@ def main(args: argparse.Namespace) -> dict:
     overlay = calibration_overlay(
         image, calibrated.scaled(w, h), result.corners_px, args.pattern, lines=lines
     )
-    if not cv2.imwrite(str(overlay_path), overlay):  # before the camera file: all or nothing
-        raise OSError(f"cannot write the overlay image {overlay_path}")
+    encoded, overlay_bytes = cv2.imencode(overlay_path.suffix, overlay)
+    if not encoded:
+        raise OSError(f"cannot encode the overlay image {overlay_path}")
+    write_file_atomic(overlay_path, overlay_bytes.tobytes())  # before the camera file
     write_camera_file(output, calibrated, notes)
     warnings = []
     if result.reprojection_rms_px > RMS_WARNING_PX:
