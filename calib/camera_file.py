@@ -68,13 +68,21 @@ def write_file_atomic(path: str | Path, data: bytes) -> None:
             os.close(folder)
 
 
-def write_camera_file(path: str | Path, model: CameraModel, notes: dict | None = None) -> None:
+def write_camera_file(
+    path: str | Path,
+    model: CameraModel,
+    notes: dict | None = None,
+    notes_from: str | Path | None = None,
+) -> None:
     """Write the camera file (YAML for .yaml/.yml, else JSON) with a `calibration` section.
 
-    Notes from an existing file at `path` are kept unless `notes` replaces them.
+    The notes of the file the model was read from, `notes_from` (default: an existing file
+    at `path`), are kept where `notes` does not replace them: they say how the parts of
+    the model that were not measured now were measured.
     """
     path = Path(path)
-    merged = read_calibration_notes(path) if path.exists() else {}
+    source = Path(notes_from) if notes_from is not None else path
+    merged = read_calibration_notes(source) if source.exists() else {}
     merged.update(notes or {})
     data = model.to_dict()
     if merged:

@@ -100,7 +100,7 @@ def main(args: argparse.Namespace) -> dict:
     if not encoded:
         raise OSError(f"cannot encode the overlay image {overlay_path}")
     write_file_atomic(overlay_path, overlay_bytes.tobytes())  # before the camera file
-    write_camera_file(output, calibrated, notes)
+    write_camera_file(output, calibrated, notes, notes_from=args.camera)  # its intrinsics' notes
     warnings = []
     if result.reprojection_rms_px > RMS_WARNING_PX:
         warnings.append(

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from calib import cli
+from calib.camera_file import read_calibration_notes, write_camera_file
 from calib.chessboard import BoardNotFoundError, ImageInputError, detect_chessboard
 from calib.ground import GroundPoseError, average_frames, estimate_ground_pose, pitch_roll_from_up
 from calib.synthetic import BoardSpec, render_floor_board
@@ -180,6 +181,19 @@ def test_ground_command_updates_the_camera_file_and_draws_an_overlay(board_scene
     column = overlay[:, 320].astype(int)
     bluish = np.nonzero((column[:, 0] > 200) & (column[:, 2] < 80))[0]
     assert np.min(np.abs(bluish - horizon_v)) < 3
+
+
+def test_ground_command_to_another_file_keeps_the_intrinsics_notes(board_scene):
+    cam, folder = board_scene
+    measured = {"intrinsics": "follow-calib intrinsics", "intrinsics_rms_px": 0.15}
+    write_camera_file(folder / "cam.yaml", CameraModel.load(folder / "cam.yaml"), measured)
+    # Notes of an older file at -o described a camera no longer in it: they go.
+    write_camera_file(folder / "old.yaml", cam, {"intrinsics": "elsewhere", "lens": "old"})
+    for output in ("new.yaml", "old.yaml"):
+        assert ground_command(folder / "board0.png", folder, "-o", str(folder / output)) == 0
+        notes = read_calibration_notes(folder / output)
+        assert notes.items() >= {**measured, "pose": "follow-calib ground"}.items()
+        assert "lens" not in notes and notes["pose_board_rms_px"] < 0.5
 
 
 def test_ground_command_without_board_fails_cleanly(board_scene, capsys):
