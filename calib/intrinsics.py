@@ -236,7 +236,7 @@ def calibrate_intrinsics(
             continue
         kept.append(_View(name, detection.corners_px))
     if image_size is None:
-        raise CalibrationError("no images given")
+        raise CalibrationError("no images to calibrate from")
     if max_views is not None and len(kept) > max_views:
         chosen = np.unique(np.linspace(0, len(kept) - 1, max_views).round().astype(int))
         for index in sorted(set(range(len(kept))) - set(chosen.tolist())):

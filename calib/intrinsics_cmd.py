@@ -53,12 +53,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def _frames(args: argparse.Namespace, unreadable: list[tuple[str, str]]):
+def _image_files(inputs: list[Path]) -> list[Path] | None:
+    """The image files of `inputs`, or None for one video file or camera index."""
+    if len(inputs) == 1 and (is_video(inputs[0]) or str(inputs[0]).isdigit()):
+        return None
+    paths = list_inputs(inputs)
+    for path in paths:
+        if is_video(path):
+            raise ImageInputError(f"{path}: give a video on its own, not among images")
+    return paths
+
+
+def _frames(args: argparse.Namespace, paths: list[Path] | None, unreadable: list[tuple[str, str]]):
     """(name, image) of the inputs; unreadable image files are noted and skipped."""
-    if len(args.inputs) == 1 and (is_video(args.inputs[0]) or str(args.inputs[0]).isdigit()):
+    if paths is None:
         yield from iter_video_frames(str(args.inputs[0]), every=args.every)
         return
-    for path in list_inputs(args.inputs):
+    for path in paths:
         try:
             yield path.name, read_image(path)
         except ImageInputError as exc:
@@ -87,18 +98,28 @@ def main(args: argparse.Namespace) -> dict:
             f"--every must be >= 1 and --max-views >= {intr.MIN_VIEWS}, "
             f"got {args.every} and {args.max_views}"
         )
+    paths = _image_files(args.inputs)
     kept_pose = _pose_to_keep(args.output)
     unreadable: list[tuple[str, str]] = []
-    result = intr.calibrate_intrinsics(
-        _frames(args, unreadable),
-        args.pattern,
-        args.square_size_m,
-        distortion_model=args.distortion_model,
-        max_edge_width_px=args.max_edge_width_px,
-        duplicate_fraction=args.duplicate_fraction,
-        max_views=args.max_views,
-        progress=not args.json,
-    )
+    try:
+        result = intr.calibrate_intrinsics(
+            _frames(args, paths, unreadable),
+            args.pattern,
+            args.square_size_m,
+            distortion_model=args.distortion_model,
+            max_edge_width_px=args.max_edge_width_px,
+            duplicate_fraction=args.duplicate_fraction,
+            max_views=args.max_views,
+            progress=not args.json,
+        )
+    except intr.CalibrationError as exc:
+        if not unreadable:
+            raise
+        reasons = "; ".join(reason for _, reason in unreadable[:10])
+        more = f" and {len(unreadable) - 10} more" if len(unreadable) > 10 else ""
+        raise intr.CalibrationError(
+            f"{exc}; {len(unreadable)} unreadable file(s): {reasons}{more}"
+        ) from None
     notes = {
         "intrinsics": "follow-calib intrinsics",
         "intrinsics_rms_px": round(result.rms_px, 4),

@@ -173,6 +173,32 @@ def test_intrinsics_command_on_a_folder(views, tmp_path, capsys):
     assert out.read_text() == broken
 
 
+def test_intrinsics_command_names_unreadable_files_when_too_few_views_remain(
+    views, tmp_path, capsys
+):
+    for name, image in views[:2]:
+        cv2.imwrite(str(tmp_path / f"{name.replace(' ', '_')}.png"), image)
+    (tmp_path / "corrupt.png").write_bytes(b"not an image")
+    out = tmp_path / "cam.yaml"
+    argv = ["intrinsics", "--pattern", "9x6", "--square-size-m", "0.03", "-o", str(out), "--json"]
+
+    def error(*inputs):
+        assert cli.main(argv + [str(tmp_path / name) for name in inputs]) == 2
+        return json.loads(capsys.readouterr().out.strip().splitlines()[-1])["error"]
+
+    message = error(".")
+    assert message.startswith("only 2 usable view(s)")
+    assert message.endswith("; 1 unreadable file(s): image " + str(tmp_path / "corrupt.png") +
+                            ": not a readable image (corrupt or unknown format)")  # fmt: skip
+    assert error("corrupt.png").startswith("no images to calibrate from; 1 unreadable file(s)")
+    # A video among images is refused, as by `ground`, not taken for a corrupt image.
+    (tmp_path / "board.avi").write_bytes(b"")
+    assert error("synthetic_00.png", "board.avi").endswith(
+        "board.avi: give a video on its own, not among images"
+    )
+    assert not out.exists()
+
+
 def test_intrinsics_command_names_a_missing_folder(tmp_path, capsys):
     argv = ["intrinsics", str(tmp_path / "nowhere"), "--pattern", "9x6", "--square-size-m", "0.03"]
     assert cli.main(argv) == 2
