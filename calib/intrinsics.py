@@ -26,6 +26,10 @@ log = logging.getLogger(__name__)
 # Screening defaults.
 MAX_EDGE_WIDTH_PX = 3.5  # estimateChessboardSharpness: mean edge width; sharp prints ~1.5-2.5
 DUPLICATE_FRACTION = 0.015  # mean corner shift below this fraction of the diagonal: a copy
+# ... unless the board's shape changed by this fraction of its own size (tilted in place,
+# as the tilt rule asks: a small board turned 30 deg moves its corners only a few pixels,
+# a board held still by hand changes shape by well under 1 %).
+DUPLICATE_SHAPE_FRACTION = 0.02
 MIN_VIEWS = 4
 OUTLIER_VIEW_FACTOR = 3.0  # a view reprojecting worse than this x the median is dropped
 OUTLIER_VIEW_MIN_PX = 0.5  # ... unless its RMS is below this anyway
@@ -93,6 +97,16 @@ def _named(images: Iterable) -> Iterable[tuple[str, np.ndarray]]:
             yield item
         else:
             yield f"view {index}", item
+
+
+def _shape_change(a: np.ndarray, b: np.ndarray) -> float:
+    """Mean corner displacement between two detections once each is centred on its own
+    mean, as a fraction of the board's diagonal in the image (a change of tilt or
+    distance, not of place), whichever end each starts from."""
+    a0, b0 = a - a.mean(axis=0), b - b.mean(axis=0)
+    size_px = max(float(np.linalg.norm(np.ptp(a, axis=0))), 1.0)
+    return min(np.linalg.norm(a0 - b0, axis=1).mean(),
+               np.linalg.norm(a0 - b0[::-1], axis=1).mean()) / size_px  # fmt: skip
 
 
 def _mean_shift_px(a: np.ndarray, b: np.ndarray) -> float:
@@ -229,8 +243,11 @@ def calibrate_intrinsics(
             continue
         limit_px = duplicate_fraction * math.hypot(*image_size)
         twin = next(
-            (v for v in kept if _mean_shift_px(v.corners, detection.corners_px) < limit_px), None
-        )
+            (v for v in kept
+             if _mean_shift_px(v.corners, detection.corners_px) < limit_px
+             and _shape_change(v.corners, detection.corners_px) < DUPLICATE_SHAPE_FRACTION),
+            None,
+        )  # fmt: skip
         if twin is not None:
             rejected.append((name, f"near-duplicate of {twin.name}"))
             continue

@@ -229,3 +229,17 @@ def test_intrinsics_command_on_a_video_drops_repeated_frames(views, tmp_path, ca
     assert CameraModel.load(tmp_path / "cam.json").K[0, 0] == pytest.approx(
         TRUE_CAMERA.K[0, 0], rel=0.02
     )
+
+
+def test_a_view_tilted_where_a_flat_one_was_is_no_duplicate():
+    """Tilting the board in place, as the tilt rule asks, changes its shape in the image,
+    not its place: the view is new, however small the board looks."""
+    flat = turned_views([(0, 0)], depths_m=(0.9,))
+    tilted = turned_views([(0, 30), (30, 0)], depths_m=(0.9,))
+    result = calibrate_intrinsics(flat + tilted, BOARD.pattern_size, BOARD.square_size_m,
+                                  progress=False)  # fmt: skip
+    assert not [r for r in result.rejected if "duplicate" in r[1]]
+    still = np.clip(flat[0][1].astype(int) + 2, 0, 255).astype(np.uint8)  # held still: a copy
+    again = calibrate_intrinsics([*flat, *tilted, ("still", still)], BOARD.pattern_size,
+                                 BOARD.square_size_m, progress=False)  # fmt: skip
+    assert dict(again.rejected)["still"] == f"near-duplicate of {flat[0][0]}"
