@@ -107,3 +107,14 @@ def test_the_twin_a_few_centimetres_taller_is_dropped_within_probation(model_pat
     added_up = config.replace("identify", reid_height_tolerance_stds=0.0,
                               reid_height_tolerance_m=0.03 + 2 * 0.021)  # fmt: skip
     assert run_scenario(added_up, strangers=4, seed=2)["wrong_person_s"] > 5.0
+
+
+def test_reacquired_means_named_from_then_to_the_end():
+    from follow.eval.strangers import reacquisition_s
+
+    frames = [(0.1 * k, named) for k, named in enumerate(
+        [False] * 10 + [True] * 7 + [False] * 5 + [True] * 8)]  # fmt: skip
+    assert reacquisition_s(frames, back_seen_s=0.5) == pytest.approx(2.2 - 0.5)
+    dropped = frames[:17] + [(0.1 * k, False) for k in range(17, 30)]  # probation dropped it
+    assert reacquisition_s(dropped, back_seen_s=0.5) is None
+    assert reacquisition_s(frames, back_seen_s=None) is None
