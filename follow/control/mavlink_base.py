@@ -30,6 +30,11 @@ mavlink = mavutil.mavlink
 
 # Boot-time counters that jump back by more than this are a vehicle reboot, not reordering.
 _REBOOT_JUMP_MS = 10_000
+# Vehicles that run Rover firmware (ArduPilot Rover drives boats too; a PX4 rover is a
+# ground rover): another type's mode numbers mean other modes (ArduCopter's 15 is
+# AUTOTUNE, not GUIDED), so it is refused.
+ROVER_TYPES = frozenset({mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_TYPE_SURFACE_BOAT})
+_RECEIVE_ERROR_LOG_S = 5.0  # a failing link is logged at most this often
 _ACK_RETRIES = 3
 
 
@@ -86,13 +91,20 @@ class MavlinkBase:
         self._prestream = False  # PX4: stream setpoints before asking for OFFBOARD
         self.last_error: str | None = None
         self.setpoints_sent = 0
+        self._other_vehicle: str | None = None  # an autopilot heard that is no rover
+        self._receive_error_logged_s = -math.inf
         try:
+            # autoreconnect: a TCP peer or USB serial adapter that goes and comes back
+            # (a router or SITL restart, a loose cable) is reopened by pymavlink instead
+            # of failing every read for good.
             self._conn = mavutil.mavlink_connection(
                 config.connection,
                 source_system=config.source_system,
                 source_component=config.source_component,
+                autoreconnect=True,
             )
-        except OSError as exc:  # an unknown host, a port in use, a missing serial device
+        except (OSError, ValueError) as exc:  # unknown host, port in use, no such device,
+            # a malformed string ("udpin:0.0.0.0" without a port)
             raise MavlinkError(f"MAVLink connection {config.connection!r}: {exc}") from exc
         self._receiver = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
         self._sender = threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)
@@ -108,10 +120,16 @@ class MavlinkBase:
     # -- Base protocol ----------------------------------------------------------------
 
     def send(self, cmd: VelocityCommand) -> VelocityCommand:
-        """Replace the command being streamed; a stop goes out at once."""
+        """Replace the command being streamed; a stop goes out at once. Returns zero in
+        place of a moving command while the vehicle will not move on it (link lost, the
+        pilot's mode, disarmed): the controller then speeds up from rest once it may,
+        and nothing stale is kept to go out when the vehicle is back."""
         with self._lock:
             if self._state is LinkState.CLOSED:
                 raise MavlinkError("send() on a closed MavlinkBase")
+            self._check_link_locked()
+            if not cmd.is_stop and not (self._state is LinkState.ACTIVE and self._armed_locked()):
+                cmd = VelocityCommand.stop(cmd.stamp_s)
             self._command = (cmd, self._clock())
         self._wake.set()
         return cmd
@@ -203,8 +221,13 @@ class MavlinkBase:
         deadline = self._clock() + cfg.connect_timeout_s
         with self._lock:
             while self._heartbeat is None:
+                if self._other_vehicle is not None:
+                    raise MavlinkError(
+                        f"the autopilot on {cfg.connection} is no rover ({self._other_vehicle}; "
+                        "follow drives ArduPilot Rover or PX4 rovers: ground rover or boat)"
+                    )
                 if not self._changed.wait(timeout=max(0.0, deadline - self._clock())):
-                    if self._heartbeat is None:
+                    if self._heartbeat is None and self._other_vehicle is None:
                         raise MavlinkError(
                             f"no vehicle heartbeat on {cfg.connection} within "
                             f"{cfg.connect_timeout_s} s"
@@ -281,9 +304,12 @@ class MavlinkBase:
         while not self._stop.is_set():
             try:
                 msg = self._conn.recv_match(blocking=True, timeout=0.05)
-            except (OSError, ValueError) as exc:  # socket closed under us at shutdown
+            except (OSError, ValueError) as exc:  # socket closed under us, a port gone
                 if not self._stop.is_set():
-                    log.error("MAVLink receive failed: %s", exc)
+                    now = time.monotonic()
+                    if now - self._receive_error_logged_s >= _RECEIVE_ERROR_LOG_S:
+                        self._receive_error_logged_s = now
+                        log.error("MAVLink receive failed (retrying): %s", exc)
                     time.sleep(0.05)
                 continue
             if msg is not None:
@@ -301,14 +327,18 @@ class MavlinkBase:
                     or msg.get_srcComponent() != mavlink.MAV_COMP_ID_AUTOPILOT1
                 ):
                     return  # a ground station, companion or peripheral, not the autopilot
+                if self._target is None and msg.type not in ROVER_TYPES:
+                    self._other_vehicle = f"MAV_TYPE {msg.type}"
+                    self._changed.notify_all()
+                    return
                 if self._target is None:
                     self._target = (msg.get_srcSystem(), msg.get_srcComponent())
                 if (msg.get_srcSystem(), msg.get_srcComponent()) != self._target:
                     return
                 self._heartbeat, self._heartbeat_at_s = msg, now
                 self._on_heartbeat_locked()
-            elif self._target is None or msg.get_srcSystem() != self._target[0]:
-                return
+            elif self._target is None or (msg.get_srcSystem(), msg.get_srcComponent()) != self._target:
+                return  # another vehicle, or another component of ours (a gimbal's ATTITUDE)
             elif kind == "COMMAND_ACK":
                 self._acks[msg.command] = msg.result
             elif kind in ("LOCAL_POSITION_NED", "ATTITUDE"):
@@ -390,8 +420,8 @@ class MavlinkBase:
                 return VelocityCommand.stop(now)
             if self._state is not LinkState.ACTIVE:
                 return None
-            if self._command is None:
-                return VelocityCommand.stop(now)
+            if self._command is None or not self._armed_locked():
+                return VelocityCommand.stop(now)  # disarmed: nothing to drive off on arming
             command, received_s = self._command
         if now - received_s > self.config.command_timeout_s:
             return VelocityCommand.stop(now)

@@ -1,0 +1,260 @@
+"""The MAVLink base against a vehicle written apart from the project's simulated rover
+(tests/fake_mavlink_vehicle.py, straight on pymavlink's encoder): what a real link does
+that the simulator never did. A pilot's mode switch or a disarmed vehicle refuses motion
+and the controller hears it (it speeds up from rest afterwards); a TCP link that drops
+reconnects; only the autopilot component's telemetry is odometry; a vehicle that is no
+rover, or a malformed connection string, is refused by name. Conventions (setpoint
+frame and mask, yaw-rate sign, NED to odom) are checked by hand-computed examples."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+from fake_mavlink_vehicle import GUIDED, MANUAL, FakeRover, UdpRover
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from waiting import wait_for
+
+from follow.config import ConfigError, ControlConfig, MavlinkConfig
+from follow.control import mavlink_frames as mf
+from follow.control.controller import FollowingController
+from follow.control.mavlink_base import LinkState, MavlinkBase, MavlinkError
+from follow.control.target import TargetMotion
+from follow.frames import base_to_odom, odom_to_base
+from follow.types import Odometry, VelocityCommand
+
+FAST = dict(heartbeat_timeout_s=0.6, connect_timeout_s=2.0, odometry_timeout_s=0.3)
+
+
+@pytest.fixture
+def vehicle():
+    v = UdpRover()
+    yield v
+    v.close()
+
+
+# -- conventions ------------------------------------------------------------------------
+
+
+def test_hand_computed_frames():
+    # Robot 1 m north, 2 m east, heading east (NED yaw +90 deg).
+    x, y, yaw = mf.ned_pose_to_odom(1.0, 2.0, math.pi / 2)
+    robot = Odometry(x, y, yaw, 0.0)
+    # A person 1 m straight ahead must be 1 m further east: NED (1, 3).
+    p_odom = base_to_odom(np.array([1.0, 0.0]), robot)
+    n, e, _ = mf.odom_pose_to_ned(p_odom[0], p_odom[1], 0.0)
+    assert (n, e) == pytest.approx((1.0, 3.0))
+    # A person 1 m to the robot's left (north when facing east): NED (2, 2).
+    p_odom = base_to_odom(np.array([0.0, 1.0]), robot)
+    n, e, _ = mf.odom_pose_to_ned(p_odom[0], p_odom[1], 0.0)
+    assert (n, e) == pytest.approx((2.0, 2.0))
+    # A point fixed in the world stays fixed while the robot turns in place: NED yaw 90->60
+    # deg is a left (CCW) turn; a person at NED (1, 3) moves to the robot's left.
+    person_odom = base_to_odom(np.array([1.0, 0.0]), robot)
+    x2, y2, yaw2 = mf.ned_pose_to_odom(1.0, 2.0, math.radians(60))
+    rel = odom_to_base(person_odom, Odometry(x2, y2, yaw2, 0.0))
+    assert rel[1] < 0  # turned left -> the person is now to the right
+    assert rel == pytest.approx([math.cos(math.radians(30)), -math.sin(math.radians(30))])
+    # A CCW (left) command becomes a negative (counter-clockwise in NED) yaw rate.
+    vx, vy, r = mf.ardupilot_setpoint(VelocityCommand(0.5, 0.3, 0.0))
+    assert (vx, vy, r) == (0.5, 0.0, -0.3)
+    # type_mask: ArduPilot Rover's "velocity + turn rate" branch (vel used, acc/yaw ignored).
+    m = mf.TYPE_MASK_VELOCITY_YAW_RATE
+    assert not m & 0b11000 and m & 0b11000000 and m & (1 << 10) and not m & (1 << 11)
+
+
+def test_gcs_heartbeat_is_not_taken_for_the_vehicle(vehicle):
+    gcs = mavlink.MAVLink(vehicle.rover.mav.file, srcSystem=255, srcComponent=190)
+    vehicle.extra.append(lambda: gcs.heartbeat_send(
+        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+    vehicle.rover.silent = True  # only the GCS is heard
+    with pytest.raises(MavlinkError):
+        MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST))
+
+
+# -- link faults ------------------------------------------------------------------------
+
+
+def test_send_reports_a_refused_command_when_the_pilot_took_over(vehicle):
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        assert base.state is LinkState.ACTIVE
+        vehicle.rover.mode = MANUAL  # pilot flips the mode switch
+        assert wait_for(lambda: base.state is LinkState.MODE_OVERRIDDEN, 2.0)
+        sent = base.send(VelocityCommand(1.0, 0.3, time.monotonic()))
+        assert sent.is_stop  # the controller hears it: it speeds up from rest afterwards
+
+
+def test_no_moving_setpoints_to_a_disarmed_vehicle(vehicle):
+    vehicle.rover.armed = False
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        assert not base.healthy()
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 0.5:
+            sent = base.send(VelocityCommand(1.0, 0.0, time.monotonic()))
+            time.sleep(0.05)
+        moving = [s for s in vehicle.rover.setpoints if s[3] != 0.0]
+        assert sent.is_stop and not moving  # arming later must not drive off at once
+
+
+def test_after_override_the_robot_restarts_from_rest():
+    """Through the control loop's own _send (as the runner uses it): the pilot holds the
+    robot in MANUAL for 2 s while the target stands 6 m ahead; back in GUIDED the first
+    setpoints should ramp from rest (max_forward_accel_mps2), not jump to full speed."""
+    from follow.capture import LatestSlot
+    from follow.pipeline import ControlLoop
+
+    v = UdpRover()
+    try:
+        cfg = ControlConfig()
+        with MavlinkBase(MavlinkConfig(connection=v.connection, **FAST)) as base:
+            ctrl = FollowingController(cfg)
+            loop = ControlLoop(ctrl, base, LatestSlot(), 15.0, 0.5)
+
+            def tick():
+                now = time.monotonic()
+                target = TargetMotion(np.array([6.0, 0.0]), np.zeros(2), now)
+                loop._send(ctrl.update(target, now))
+                time.sleep(1 / 15)
+
+            for _ in range(3):
+                tick()
+            v.rover.mode = MANUAL
+            assert wait_for(lambda: base.state is LinkState.MODE_OVERRIDDEN, 2.0)
+            for _ in range(30):
+                tick()
+            v.rover.mode = GUIDED
+            assert wait_for(lambda: base.state is LinkState.ACTIVE, 2.0)
+            n = len(v.rover.setpoints)
+            tick()
+            time.sleep(0.05)
+            first = [s[3] for s in v.rover.setpoints[n:]]
+            assert max(first) <= cfg.max_forward_accel_mps2 * 0.2, (
+                f"first setpoints after GUIDED returned: {first} m/s (controller never told)"
+            )
+    finally:
+        v.close()
+
+
+def test_attitude_from_another_component_is_not_odometry(vehicle):
+    # Another component on the vehicle's system (e.g. a gimbal, a second IMU/AHRS board,
+    # a companion process) emitting ATTITUDE with its own boot clock.
+    other = mavlink.MAVLink(vehicle.rover.mav.file, srcSystem=1, srcComponent=154)
+    t_other = [100_000]
+
+    def gimbal():
+        t_other[0] += 50
+        other.attitude_send(t_other[0], 0, 0, 2.5, 0, 0, 0)
+
+    vehicle.extra.append(gimbal)
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        yaws = set()
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            odo = base.odometry()
+            if odo is not None:
+                yaws.add(round(odo.yaw_rad, 2))
+            time.sleep(0.01)
+        assert yaws == {0.0}, f"odometry yaw took values {yaws} (the autopilot reports 0)"
+
+
+def test_malformed_connection_string_is_a_config_or_mavlink_error():
+    with pytest.raises((ConfigError, MavlinkError)):
+        MavlinkBase(MavlinkConfig(connection="udpin:0.0.0.0", **FAST))
+
+
+class TcpRover:
+    """FakeRover behind a TCP server (like SITL's 5760 or mavlink-router's TCP port) that
+    can drop the client and accept a new one (a router/SITL restart, a Wi-Fi blip)."""
+
+    def __init__(self):
+        import socket
+        import threading
+
+        self.srv = socket.socket()
+        self.srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.srv.bind(("127.0.0.1", 0))
+        self.srv.listen(4)
+        self.port = self.srv.getsockname()[1]
+        self.client = None
+        self.accepted = 0
+        self.rover = FakeRover(self._write)
+        self._stop = threading.Event()
+        threading.Thread(target=self._accept, daemon=True).start()
+        threading.Thread(target=self._run, daemon=True).start()
+
+    def _write(self, data):
+        c = self.client
+        if c is not None:
+            c.sendall(data)
+
+    def _accept(self):
+        while not self._stop.is_set():
+            try:
+                c, _ = self.srv.accept()
+            except OSError:
+                return
+            c.settimeout(0.01)
+            self.client, self.accepted = c, self.accepted + 1
+
+    def _run(self):
+        nxt = 0.0
+        while not self._stop.is_set():
+            c = self.client
+            if c is not None:
+                try:
+                    data = c.recv(4096)
+                    if data:
+                        self.rover.feed(data)
+                except OSError:
+                    pass
+            else:
+                time.sleep(0.01)
+            if time.monotonic() >= nxt:
+                nxt = time.monotonic() + 0.05
+                self.rover.tick()
+
+    def drop_client(self):
+        c, self.client = self.client, None
+        c.close()
+
+    def close(self):
+        self._stop.set()
+        self.srv.close()
+        if self.client:
+            self.client.close()
+
+
+def test_tcp_link_recovers_after_the_peer_restarts(capfd):
+    v = TcpRover()
+    try:
+        with MavlinkBase(MavlinkConfig(connection=f"tcp:127.0.0.1:{v.port}", **FAST)) as base:
+            assert base.state is LinkState.ACTIVE
+            v.drop_client()  # server still listening: a new connection would work
+            cpu0 = time.process_time()
+            time.sleep(3.0)
+            cpu_s = time.process_time() - cpu0
+            out = capfd.readouterr().out
+            assert v.accepted > 1 and base.state is LinkState.ACTIVE, (
+                f"never reconnected: state {base.state}, cpu {cpu_s:.2f} s in 3 s, "
+                f"{out.count('EOF on TCP socket')} 'EOF on TCP socket' lines on stdout"
+            )
+    finally:
+        v.close()
+
+
+def test_a_non_rover_autopilot_is_refused():
+    # ArduCopter custom mode 15 is AUTOTUNE, not GUIDED (4): the driver must not assume
+    # Rover mode numbers for whatever vehicle answers.
+    v = UdpRover(mav_type=mavlink.MAV_TYPE_QUADROTOR)
+    try:
+        try:
+            base = MavlinkBase(MavlinkConfig(connection=v.connection, **FAST))
+        except MavlinkError:
+            return
+        modes = [c for c in v.rover.commands if c == mavlink.MAV_CMD_DO_SET_MODE]
+        state = base.state
+        base.close()
+        pytest.fail(f"connected to a quadrotor as a rover: state {state}, sent DO_SET_MODE(15) "
+                    f"{len(modes)}x, {len(v.rover.setpoints)} setpoints streamed")
+    finally:
+        v.close()
