@@ -470,3 +470,19 @@ def test_probation_ends_in_tracking_once_the_stature_held_for_its_time():
     assert len(waiting) >= int(CFG.reid_probation_s / 0.1) - 1
     assert isinstance(states[-1], Tracking) and states[-1].target_id == 7
     assert len(ctx.model.learnt) == len(states)  # learnt on probation as when tracking
+
+
+def test_a_reidentified_track_does_not_set_the_stature_the_target_is_judged_by():
+    """A stranger who passes every test (the twin in the target's clothes, 3 cm taller)
+    is followed, but its height must not become the bar: the real target, back once the
+    twin has gone, must still pass the stature test."""
+    ctx = tracked_context(stamp_s=10.0, observed={7: 20, 9: 20})
+    assert ctx.target_height[0] == pytest.approx(1.45)
+    twin = dict(neck_height_m=1.48, height_std_m=0.002)
+    state, t = Probation(7, since_s=10.5), 10.5
+    for _ in range(int(CFG.reid_probation_s / 0.1) + 35):  # probation, then 3 s followed
+        t += 0.1
+        state = state.update(ctx, frame([person(7, 2.5, **twin)], t, {7: 0.9}, {7: 0.9}))
+    assert type(state) is Tracking and state.target_id == 7  # the twin passed
+    assert ctx.target_height[0] == pytest.approx(1.45)
+    assert ctx.same_height(person(9, 2.0, neck_height_m=1.44, height_std_m=0.002))

@@ -100,13 +100,23 @@ class Tracking(State):
     """Following the target's track, learning while its confidence stays at or above
     `id_switch_confidence`. Below it the identity is no longer trusted, unless nobody
     came near the target for `identity_trust_s` (it turned round) or another person
-    covers its crop (judged once the crop is clear); losing the track also ends it."""
+    covers its crop (judged once the crop is clear); losing the track also ends it.
+
+    The target's stature is taken from the track learnt in initial training only
+    (`reidentified` False): a re-identified track may be a stranger who passed every
+    test (the twin in the target's clothes), and its height must not become the bar
+    that the real target, coming back, is then refused by."""
 
     status = TargetStatus.TRACKING
-    notes_stature = True  # the track's height is the target's
 
-    def __init__(self, target_id: int):
+    def __init__(self, target_id: int, reidentified: bool = False):
         self.target_id = target_id
+        self.reidentified = reidentified
+
+    @property
+    def notes_stature(self) -> bool:
+        """Whether the track's height is the target's."""
+        return not self.reidentified
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self._keeps(context, frame):
@@ -256,10 +266,8 @@ class Probation(Tracking):
     identity) also undoes what the candidate taught the model and where it walked, so a
     wrong pick leaves nothing behind. Then it is the target: tracking."""
 
-    notes_stature = False
-
     def __init__(self, target_id: int, since_s: float):
-        super().__init__(target_id)
+        super().__init__(target_id, reidentified=True)
         self.since_s = since_s
         self.observed = 0  # frames of probation in which the candidate was seen
         self.before: tuple | None = None  # the model and the target's whereabouts when named
@@ -283,7 +291,7 @@ class Probation(Tracking):
         long_enough = frame.stamp_s - self.since_s >= context.config.reid_probation_s
         if long_enough and self.observed >= context.config.min_target_observations:
             log.info("re-identified track %d kept its stature: tracking", self.target_id)
-            return Tracking(self.target_id)
+            return Tracking(self.target_id, reidentified=True)
         return self
 
     def _undo(self, context: IdentityContext, frame: FrameTracks) -> State:
