@@ -8,9 +8,13 @@ thread, in order, and raises its first error in the thread that feeds it.
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
+import time
 from collections.abc import Callable, Iterator
+
+log = logging.getLogger(__name__)
 
 POLL_S = 0.05  # how often a waiting thread looks at the stop flag
 
@@ -107,14 +111,20 @@ class OrderedWorker:
             raise self.error
 
     def close(self, timeout_s: float = 30.0) -> None:
-        """Finish every submitted item, then raise the callback's error if there was one."""
-        while self._thread.is_alive():
+        """Finish every submitted item within `timeout_s` (one deadline for queueing the
+        end and for the thread to reach it: a callback stuck on a stalled disk must not
+        hang shutdown), then raise the callback's error if there was one."""
+        deadline = time.monotonic() + timeout_s
+        while self._thread.is_alive() and time.monotonic() < deadline:
             try:
                 self._queue.put(self._DONE, timeout=POLL_S)
                 break
             except queue.Full:
                 continue
-        self._thread.join(timeout_s)
+        self._thread.join(max(0.0, deadline - time.monotonic()))
+        if self._thread.is_alive():
+            log.error("%s thread still busy %.0f s after close: the items left are lost",
+                      self._thread.name, timeout_s)  # fmt: skip
         if self.error is not None:
             raise self.error
 

@@ -38,6 +38,7 @@ from follow.frames import odom_to_base, vector_odom_to_base
 from follow.freshness import is_ahead, is_fresh
 from follow.handoff import Handoff, OrderedWorker
 from follow.latency import LatencyRecorder
+from follow.shutdown import cleanup_begins
 from follow.types import (
     Frame,
     Observation,
@@ -429,6 +430,7 @@ class ThreadedRunner:
                 if max_frames is not None and self.processed >= max_frames:
                     break
         finally:
+            cleanup_begins()  # a signal now is recorded, not raised into this cleanup
             self._stop.set()
             detected.close()
             self.control.stop()

@@ -303,10 +303,15 @@ def main(args) -> dict:
         except KeyboardInterrupt:
             log.warning("%s: stopping the base", signals.reason or "interrupted")
         finally:
-            if base is not None:
-                base.close()
-            outputs.close()
-            source.close()
+            signals.cleaning_up = True  # a signal now is recorded, not raised in here
+            try:
+                if base is not None:
+                    base.close()
+            finally:
+                try:
+                    outputs.close()
+                finally:
+                    source.close()
     elapsed = time.perf_counter() - started
     dropped = summary.dropped_frames
     result = {

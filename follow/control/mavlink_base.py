@@ -178,6 +178,22 @@ class MavlinkBase:
                 thread.join(timeout=1.0)
         self._conn.close()
 
+    def emergency_stop(self) -> None:
+        """Zero setpoints now, from any thread, taking no lock that the interrupted main
+        thread may hold (the second signal's path, `follow.shutdown`): from here on the
+        sender streams nothing moving, and a few zeros go out at once."""
+        self._state = LinkState.CLOSED  # read by the sender under its lock: no more motion
+        self._command = (VelocityCommand.stop(self._clock()), self._clock())
+        if self._target is None:
+            return
+        got = self._send_lock.acquire(timeout=0.2)  # held by the interrupted code: go on
+        try:
+            for _ in range(3):
+                self._write_setpoint(VelocityCommand.stop(self._clock()))
+        finally:
+            if got:
+                self._send_lock.release()
+
     def __enter__(self) -> MavlinkBase:
         return self
 
@@ -430,6 +446,15 @@ class MavlinkBase:
     def _send_setpoint(self, cmd: VelocityCommand) -> None:
         if self._target is None:
             return
+        with self._send_lock:
+            # A moving setpoint the sender took just before close() must not follow
+            # close()'s zeros: closed is set before they are sent, under this lock.
+            if self._state is LinkState.CLOSED and not cmd.is_stop:
+                return
+            self._write_setpoint(cmd)
+
+    def _write_setpoint(self, cmd: VelocityCommand) -> None:
+        """One SET_POSITION_TARGET_LOCAL_NED (the caller holds `_send_lock`, or cannot)."""
         if self._px4:
             vx, vy = mf.px4_setpoint(cmd, self.config.px4_turn_horizon_s)
             yaw_rate, mask, frame = 0.0, mf.TYPE_MASK_VELOCITY_ONLY, mavlink.MAV_FRAME_BODY_NED
@@ -437,13 +462,8 @@ class MavlinkBase:
             vx, vy, yaw_rate = mf.ardupilot_setpoint(cmd)
             mask, frame = mf.TYPE_MASK_VELOCITY_YAW_RATE, mavlink.MAV_FRAME_BODY_OFFSET_NED
         boot_ms = int(self._clock() * 1000) & 0xFFFFFFFF
-        with self._send_lock:
-            # A moving setpoint the sender took just before close() must not follow
-            # close()'s zeros: closed is set before they are sent, under this lock.
-            if self._state is LinkState.CLOSED and not cmd.is_stop:
-                return
-            self._conn.mav.set_position_target_local_ned_send(
-                boot_ms, *self._target, frame, mask,
-                0, 0, 0, vx, vy, 0, 0, 0, 0, 0, yaw_rate,
-            )  # fmt: skip
+        self._conn.mav.set_position_target_local_ned_send(
+            boot_ms, *self._target, frame, mask,
+            0, 0, 0, vx, vy, 0, 0, 0, 0, 0, yaw_rate,
+        )  # fmt: skip
         self.setpoints_sent += 1
