@@ -135,6 +135,9 @@ def test_mean_and_worst_take_each_metric_in_its_own_direction():
     assert s["worst"]["ours"] == {"mota": 0.7, "misses": 30.0}
     assert s["worst_variant"]["ours"] == {"mota": "b", "misses": "b"}
     assert "frames" not in s["mean"]  # not a method
+    alike = {k: {"ours": {"never_reacquired": 0}} for k in ("seed 0", "seed 1")}
+    assert summarise(alike, {"never_reacquired": False})["worst_variant"]["ours"] == {
+        "never_reacquired": None}  # no seed is worse than another
 
 
 # --- the skeleton cache, keyed by the frames' pixels ---

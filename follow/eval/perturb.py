@@ -204,7 +204,7 @@ def _plain(value):
 
 def summarise(per_variant: dict[str, dict], metrics: Metrics) -> dict:
     """{"mean", "worst", "worst_variant"}: per method (those every variant reports), per
-    metric, over the variants."""
+    metric, over the variants; the worst variant is None where all are alike."""
     methods = [m for m in next(iter(per_variant.values()))
                if all(isinstance(r.get(m), dict) for r in per_variant.values())]  # fmt: skip
     mean: dict[str, dict] = {}
@@ -222,7 +222,10 @@ def summarise(per_variant: dict[str, dict], metrics: Metrics) -> dict:
             name = pick(finite, key=finite.get)
             mean[method][metric] = round(float(np.mean(list(finite.values()))), 4)
             worst[method][metric] = round(finite[name], 4)
-            worst_variant[method][metric] = name
+            # None where every variant gives the same figure: none is worse than another
+            # (naming the first would say "seed 0 never took the target back" of 0 s).
+            alike = len(set(finite.values())) == 1 and len(finite) > 1
+            worst_variant[method][metric] = None if alike else name
     return {"mean": mean, "worst": worst, "worst_variant": worst_variant}
 
 
