@@ -40,19 +40,30 @@ def add_board_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def video_source(sources: list[Path]) -> str | None:
+    """The one video file or camera index `sources` name, else None (image files)."""
+    if len(sources) == 1 and (is_video(sources[0]) or str(sources[0]).isdigit()):
+        return str(sources[0])
+    return None
+
+
+def refuse_videos_among_images(paths: list[Path]) -> None:
+    """A video is read on its own: among image files it is an error, not skipped."""
+    for path in paths:
+        if is_video(path):
+            raise ImageInputError(f"{path}: give a video on its own, not among images")
+
+
 def read_grey_frames(
     sources: list[Path], every: int = 1, limit: int | None = None
 ) -> list[tuple[str, np.ndarray]]:
     """(name, grey frame) from image files, or from one video file or camera index."""
-    if len(sources) == 1 and (is_video(sources[0]) or str(sources[0]).isdigit()):
-        source = str(sources[0])
+    source = video_source(sources)
+    if source is not None:
         frames = [(name, to_gray(f, name)) for name, f in iter_video_frames(source, every, limit)]
         if not frames:
             raise ImageInputError(f"video {source}: no frames")
         return frames
-    out = []
-    for path in sources:
-        if is_video(path):
-            raise ImageInputError(f"{path}: give a video on its own, not among images")
-        out.append((path.name, to_gray(read_image(path), str(path))))
+    refuse_videos_among_images(sources)
+    out = [(path.name, to_gray(read_image(path), str(path))) for path in sources]
     return out[:limit] if limit else out

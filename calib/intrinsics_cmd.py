@@ -10,8 +10,8 @@ import numpy as np
 
 from calib import intrinsics as intr
 from calib.camera_file import write_camera_file
-from calib.chessboard import ImageInputError, is_video, iter_video_frames, list_inputs, read_image
-from calib.cmd_common import add_board_arguments
+from calib.chessboard import ImageInputError, iter_video_frames, list_inputs, read_image
+from calib.cmd_common import add_board_arguments, refuse_videos_among_images, video_source
 from follow.camera import CameraFileError, CameraModel, CameraPose
 
 log = logging.getLogger(__name__)
@@ -54,20 +54,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _image_files(inputs: list[Path]) -> list[Path] | None:
-    """The image files of `inputs`, or None for one video file or camera index."""
-    if len(inputs) == 1 and (is_video(inputs[0]) or str(inputs[0]).isdigit()):
+    """The image files of `inputs` (folders listed), or None for one video or camera."""
+    if video_source(inputs) is not None:
         return None
     paths = list_inputs(inputs)
-    for path in paths:
-        if is_video(path):
-            raise ImageInputError(f"{path}: give a video on its own, not among images")
+    refuse_videos_among_images(paths)
     return paths
 
 
 def _frames(args: argparse.Namespace, paths: list[Path] | None, unreadable: list[tuple[str, str]]):
     """(name, image) of the inputs; unreadable image files are noted and skipped."""
     if paths is None:
-        yield from iter_video_frames(str(args.inputs[0]), every=args.every)
+        yield from iter_video_frames(video_source(args.inputs), every=args.every)
         return
     for path in paths:
         try:
