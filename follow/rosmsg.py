@@ -67,7 +67,7 @@ def image_from_msg(msg) -> np.ndarray:
             f"fit (expected step >= {width * channels} and step x height = {step * height} "
             "bytes): wrong encoding or a damaged message"
         )
-    rows = data[: step * height].reshape(height, step)[:, : width * channels]
+    rows = data.reshape(height, step)[:, : width * channels]
     image = rows.reshape(height, width, channels)
     return np.ascontiguousarray(image) if conversion is None else cv2.cvtColor(image, conversion)
 
@@ -107,6 +107,14 @@ def _field(msg, name: str):
     """A CameraInfo field: lower case in ROS 2 (`k`), upper case in ROS 1 (`K`)."""
     value = getattr(msg, name, None)
     return getattr(msg, name.upper()) if value is None else value
+
+
+def camera_info_key(msg) -> tuple:
+    """What of a sensor_msgs/CameraInfo a camera model is built from (size, distortion
+    model, K, D): equal keys, the same camera."""
+    return (int(msg.width), int(msg.height), str(msg.distortion_model),
+            tuple(float(v) for v in _field(msg, "k")),
+            tuple(float(v) for v in _field(msg, "d")))  # fmt: skip
 
 
 def camera_from_info(msg, mounted: CameraModel) -> CameraModel:

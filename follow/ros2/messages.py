@@ -33,6 +33,12 @@ def header(stamp: float | Time, frame_id: str) -> Header:
     return Header(stamp=Time(**stamp_fields(stamp)), frame_id=frame_id)
 
 
+def _result_header(result: FrameResult, frame_id: str, stamp: Time | None) -> Header:
+    """A Header for what is published about a result: at `stamp` (its image's own), else
+    at the result's stamp."""
+    return header(result.stamp_s if stamp is None else stamp, frame_id)
+
+
 def track_pose(track: TrackState, z_m: float = 0.0) -> Pose:
     """A track's ground position, facing where it walks."""
     vx, vy = track.velocity_mps
@@ -52,11 +58,11 @@ def target_pose(result: FrameResult, frame_id: str, stamp: Time | None = None) -
     track = target_track(result)
     if track is None:
         return None
-    return PoseStamped(header=header(result.stamp_s if stamp is None else stamp, frame_id), pose=track_pose(track))
+    return PoseStamped(header=_result_header(result, frame_id, stamp), pose=track_pose(track))
 
 
 def tracks_pose_array(result: FrameResult, frame_id: str, stamp: Time | None = None) -> PoseArray:
-    return PoseArray(header=header(result.stamp_s if stamp is None else stamp, frame_id),
+    return PoseArray(header=_result_header(result, frame_id, stamp),
                      poses=[track_pose(t) for t in result.tracks])  # fmt: skip
 
 
@@ -78,7 +84,7 @@ def _ellipse(track: TrackState) -> tuple[float, float, float]:
 def track_markers(result: FrameResult, frame_id: str, stamp: Time | None = None) -> MarkerArray:
     """Per track: a body (its height), its 2-sigma ground ellipse and a label; the
     target in red. Marker ids are the track ids."""
-    head = header(result.stamp_s if stamp is None else stamp, frame_id)
+    head = _result_header(result, frame_id, stamp)
     lifetime = Duration(sec=int(MARKER_LIFETIME_S), nanosec=int(MARKER_LIFETIME_S % 1 * 1e9))
     target_id = target_track(result).track_id if target_track(result) is not None else None
     markers = [Marker(header=head, action=Marker.DELETEALL)]

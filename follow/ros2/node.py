@@ -42,7 +42,14 @@ from follow.odometry_buffer import OdometryBuffer
 from follow.pipeline import ControlLoop, FrameResult, overlaps_stages
 from follow.ros2 import messages
 from follow.ros2.gate import CmdVelGate, check_ros_config
-from follow.rosmsg import camera_from_info, image_fields, image_from_msg, odometry_from_msg, stamp_s
+from follow.rosmsg import (
+    camera_from_info,
+    camera_info_key,
+    image_fields,
+    image_from_msg,
+    odometry_from_msg,
+    stamp_s,
+)
 from follow.shutdown import SIGNALS
 from follow.types import Frame, InvalidInput, Odometry, VelocityCommand
 
@@ -87,16 +94,6 @@ def _refuse_unknown_parameters(node: Node, declared: list[str]) -> None:
         hints = [f"{name} (did you mean {close[0]}?)" if close else name for name in unknown
                  for close in [difflib.get_close_matches(name, declared, n=1)]]  # fmt: skip
         raise ConfigError(f"unknown ROS parameter(s): {', '.join(hints)}")
-
-
-def _info_key(msg) -> tuple:
-    """What of a CameraInfo the camera model is built from."""
-    k = getattr(msg, "k", None)
-    d = getattr(msg, "d", None)
-    k = msg.K if k is None else k
-    d = msg.D if d is None else d
-    return (int(msg.width), int(msg.height), str(msg.distortion_model),
-            tuple(float(v) for v in k), tuple(float(v) for v in d))  # fmt: skip
 
 
 def _describe(key: tuple | None) -> str:
@@ -301,7 +298,7 @@ class FollowNode(Node):
         another size, or a camera_info that changed, is refused (ValueError): people
         would be placed on the floor with the wrong camera, nearer or farther than they
         are."""
-        key = (width, height, None if self.camera_info is None else _info_key(self.camera_info))
+        key = (width, height, None if self.camera_info is None else camera_info_key(self.camera_info))
         if self.perception is not None:
             if key != self._camera_key:
                 raise ValueError(
