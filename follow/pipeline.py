@@ -232,8 +232,7 @@ class ControlLoop:
         if robot is None:  # the robot's pose is unknown: no target motion, stop
             self.controller.update(None, now)
             command = VelocityCommand.stop(now)
-            self.controller.stopped_elsewhere(now)
-            self._send(command)
+            self._send(command, overridden=True)
             return command
         result: FrameResult | None = self.results.peek()
         stalled = result is None or not is_fresh(now, result.stamp_s, self.perception_timeout_s)
@@ -252,21 +251,23 @@ class ControlLoop:
         command = self.controller.update(target, now)
         if stalled:
             command = VelocityCommand.stop(now)
-            self.controller.stopped_elsewhere(now)
-        self._send(command)
+        self._send(command, overridden=stalled)
         if result is not None and result is not self._last_result:
             self._last_result = result
             self.latency.add(now - result.stamp_s)
         return command
 
-    def _send(self, command: VelocityCommand) -> None:
+    def _send(self, command: VelocityCommand, overridden: bool = False) -> None:
+        """Send `command` (zero once stopping); the controller is told of every zero it
+        did not choose, `overridden` here (a watchdog, no odometry) or by the base
+        refusing to move, so that it speeds up from rest afterwards."""
         with self._send_lock:
             if self._stop.is_set() and not command.is_stop:
                 command = VelocityCommand.stop(command.stamp_s)
             self.last_command = command
             sent = self.base.send(command)
-        if sent is not None and sent.is_stop and not command.is_stop:
-            self.controller.stopped_elsewhere(sent.stamp_s)  # the base refused to move
+        if overridden or (sent is not None and sent.is_stop and not command.is_stop):
+            self.controller.stopped_elsewhere(command.stamp_s)
         if self.on_command is not None:
             self.on_command(command)
 
