@@ -33,6 +33,17 @@ def read_calibration_notes(path: str | Path) -> dict:
     return dict(notes) if isinstance(notes, dict) else {}
 
 
+def write_image_atomic(path: str | Path, image) -> None:
+    """Encode `image` in the format `path`'s suffix names and replace `path` with it whole
+    (`write_file_atomic`): an overlay that fails half-way never replaces a good one."""
+    import cv2
+
+    encoded, data = cv2.imencode(Path(path).suffix, image)
+    if not encoded:
+        raise OSError(f"cannot encode the image {path}")
+    write_file_atomic(path, data.tobytes())
+
+
 def write_file_atomic(path: str | Path, data: bytes) -> None:
     """Replace `path` with `data` in one step: written to a new file beside it, synced
     to disk, then renamed over it. A failure part-way (disk full) leaves an old file at

@@ -11,8 +11,7 @@ import argparse
 import math
 from pathlib import Path
 
-import cv2
-
+from calib.camera_file import write_image_atomic
 from calib.chessboard import ImageInputError, is_video, iter_video_frames, read_image
 from calib.cmd_common import image_path
 from calib.overlay import calibration_overlay, visible_ground_extent
@@ -73,8 +72,7 @@ def main(args: argparse.Namespace) -> dict:
     overlay = calibration_overlay(
         frame, seen, grid_step_m=args.grid_step_m, max_range_m=args.max_range_m, lines=lines
     )
-    if not cv2.imwrite(str(args.output), overlay):
-        raise OSError(f"cannot write the overlay image {args.output}")
+    write_image_atomic(args.output, overlay)  # a failed write keeps the old overlay
     extent = visible_ground_extent(seen, args.max_range_m)
     horizon = seen.horizon_line()
     horizon_v = None

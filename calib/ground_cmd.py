@@ -7,10 +7,9 @@ import logging
 import math
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from calib.camera_file import write_camera_file, write_file_atomic
+from calib.camera_file import write_camera_file, write_image_atomic
 from calib.chessboard import ImageInputError
 from calib.cmd_common import add_board_arguments, image_path, read_grey_frames
 from calib.ground import average_frames, estimate_ground_pose
@@ -96,10 +95,7 @@ def main(args: argparse.Namespace) -> dict:
     overlay = calibration_overlay(
         image, calibrated.scaled(w, h), result.corners_px, args.pattern, lines=lines
     )
-    encoded, overlay_bytes = cv2.imencode(overlay_path.suffix, overlay)
-    if not encoded:
-        raise OSError(f"cannot encode the overlay image {overlay_path}")
-    write_file_atomic(overlay_path, overlay_bytes.tobytes())  # before the camera file
+    write_image_atomic(overlay_path, overlay)  # before the camera file
     write_camera_file(output, calibrated, notes, notes_from=args.camera)  # its intrinsics' notes
     warnings = []
     if result.reprojection_rms_px > RMS_WARNING_PX:

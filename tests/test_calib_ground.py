@@ -282,3 +282,27 @@ def test_check_command_names_a_missing_frame(data_path, tmp_path, capsys):
     rc = cli.main(["check", str(tmp_path / "nothing.png"), "--camera", str(tmp_path / "cam.yaml")])
     assert rc == 2
     assert "nothing.png: no such file" in capsys.readouterr().err
+
+
+def test_check_keeps_the_old_overlay_when_the_new_one_cannot_be_written(tmp_path, monkeypatch):
+    """The overlay is replaced whole: a disk that fills up part-way leaves the last good
+    overlay as it was, not a cut image, and no temporary file behind."""
+    import calib.camera_file
+
+    cam = camera(0.8, 15.0)
+    cam.save(tmp_path / "cam.yaml")
+    frame_path = tmp_path / "frame.png"
+    cv2.imwrite(str(frame_path), np.full((480, 640, 3), 90, np.uint8))
+    out_png = tmp_path / "check.png"
+    out_png.write_bytes(b"the overlay of yesterday")
+
+    def disk_full(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(calib.camera_file.os, "fsync", disk_full)
+    args = ["check", str(frame_path), "--camera", str(tmp_path / "cam.yaml"), "-o", str(out_png)]
+    assert cli.main(args) != 0
+    assert out_png.read_bytes() == b"the overlay of yesterday"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cam.yaml", "check.png", "frame.png"]
+    monkeypatch.undo()
+    assert cli.main(args) == 0 and cv2.imread(str(out_png)).shape == (480, 640, 3)
