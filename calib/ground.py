@@ -20,6 +20,7 @@ import numpy as np
 
 from calib.chessboard import BoardNotFoundError, Detection, check_pattern_size, detect_chessboard
 from follow.camera import CameraPose
+from follow.frames import rotation_2d
 
 OUTLIER_ROUNDS = 3
 OUTLIER_FACTOR = 4.0
@@ -80,8 +81,7 @@ class GroundPoseResult:
         raw = board_yaw_base_rad - self.board_yaw_level_rad
         k = round((prior_yaw_rad - raw) / step)
         dyaw = raw + k * step
-        c, s = math.cos(dyaw), math.sin(dyaw)
-        rotated = np.array([[c, -s], [s, c]]) @ self.board_centre_level_m
+        rotated = rotation_2d(dyaw) @ self.board_centre_level_m
         offset = np.asarray(board_centre_base_m, dtype=np.float64) - rotated
         yaw = math.atan2(math.sin(dyaw), math.cos(dyaw))
         return self.pose(yaw, float(offset[0]), float(offset[1]))

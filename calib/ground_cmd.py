@@ -7,14 +7,13 @@ import logging
 import math
 from pathlib import Path
 
-import numpy as np
-
 from calib.camera_file import write_camera_file, write_image_atomic
 from calib.chessboard import ImageInputError
 from calib.cmd_common import add_board_arguments, image_path, read_grey_frames
 from calib.ground import average_frames, estimate_ground_pose
 from calib.overlay import calibration_overlay
 from follow.camera import CameraModel
+from follow.frames import rotation_2d
 
 log = logging.getLogger(__name__)
 
@@ -81,8 +80,7 @@ def main(args: argparse.Namespace) -> dict:
     }
 
     # The board's centre in `base`, through the final pose.
-    c, s = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
-    centre_base = np.array([[c, -s], [s, c]]) @ result.board_centre_level_m + [pose.x_m, pose.y_m]
+    centre_base = rotation_2d(pose.yaw_rad) @ result.board_centre_level_m + [pose.x_m, pose.y_m]
     board_yaw_base = math.degrees(result.board_yaw_level_rad + pose.yaw_rad)
     board_yaw_base = (board_yaw_base + 180.0) % 360.0 - 180.0
     overlay_path = args.overlay or output.with_name(output.stem + "_ground.png")

@@ -9,7 +9,9 @@ from follow.types import Odometry
 
 def odom_to_base(points_xy: np.ndarray, robot: Odometry) -> np.ndarray:
     """Ground points (..., 2) given in `odom` expressed in the robot's `base` frame."""
-    return vector_odom_to_base(np.asarray(points_xy, dtype=np.float64) - (robot.x_m, robot.y_m), robot)
+    return vector_odom_to_base(
+        np.asarray(points_xy, dtype=np.float64) - (robot.x_m, robot.y_m), robot
+    )
 
 
 def base_to_odom(points_xy: np.ndarray, robot: Odometry) -> np.ndarray:
@@ -27,6 +29,13 @@ def vector_odom_to_base(vectors_xy: np.ndarray, robot: Odometry) -> np.ndarray:
     c, s = np.cos(robot.yaw_rad), np.sin(robot.yaw_rad)
     v = np.asarray(vectors_xy, dtype=np.float64)
     return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1]], axis=-1)
+
+
+def rotation_2d(angle_rad: float) -> np.ndarray:
+    """The 2x2 matrix turning ground vectors by `angle_rad` (counter-clockwise, seen from
+    above: x toward y)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, -s], [s, c]])
 
 
 def wrap_angle(angle_rad: float | np.ndarray) -> float | np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 
 from follow.camera import CameraModel
 from follow.config import TrackerConfig
-from follow.frames import base_to_odom, odom_to_base
+from follow.frames import base_to_odom, odom_to_base, rotation_2d
 from follow.odometry_buffer import pose_jumped
 from follow.types import L_ANKLE, R_ANKLE, Observation, Odometry, TrackState
 from follow.ukf.association import InnovationGate, gate_mahalanobis_sq, global_nearest_neighbour
@@ -234,9 +234,7 @@ class PeopleTracker:
     def _follow_odometry_jump(self, before: Odometry, after: Odometry) -> None:
         """Move every track into the new odom frame, where it stood relative to the
         robot (which cannot have moved far in one frame)."""
-        turn = after.yaw_rad - before.yaw_rad
-        c, s = math.cos(turn), math.sin(turn)
-        rotation = np.array([[c, -s], [s, c]])
+        rotation = rotation_2d(after.yaw_rad - before.yaw_rad)
         offset = np.array([after.x_m, after.y_m]) - rotation @ [before.x_m, before.y_m]
         for track in self._tracks:
             track.filter.move_frame(rotation, offset)
@@ -336,14 +334,12 @@ class PeopleTracker:
             )
             return None
         xyh, P3 = init
-        c, s = math.cos(robot.yaw_rad), math.sin(robot.yaw_rad)
-        rot = np.array([[c, -s], [s, c]])
         mean = np.zeros(5)
         mean[:2] = base_to_odom(xyh[:2], robot)
         mean[4] = xyh[2]
         cov = np.zeros((5, 5))
         T = np.zeros((3, 3))
-        T[:2, :2] = rot
+        T[:2, :2] = rotation_2d(robot.yaw_rad)
         T[2, 2] = 1.0
         P3 = T @ P3 @ T.T
         idx = [0, 1, 4]
