@@ -184,6 +184,11 @@ class IdentifyConfig:
     identity_trust_s: float = 1.5
     identity_risk_distance_m: float = 1.0
     identity_risk_unseen_s: float = 0.5
+    # While the identity is at risk (as above), a frame is learnt only where no other
+    # track seen scores higher than the target's own: right after a crossing or a gap the
+    # tracker may carry a stranger on the target's track (the target on another), and
+    # learning them at a middling confidence teaches the model the stranger.
+    learn_needs_lead_at_risk: bool = True
     # A track becomes the target (first choice or re-identification) only while it is
     # seen in the frame and after it has been seen in this many frames: a ghost track
     # made of a few split skeletons is never followed.

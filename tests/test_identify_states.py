@@ -244,6 +244,48 @@ def test_a_low_confidence_while_another_covers_the_target_keeps_tracking():
     assert isinstance(state.update(ctx, frame(near, 10.2, {1: low, 2: 0.9})), Reidentification)
 
 
+def test_after_a_crossing_the_target_is_not_learnt_while_another_looks_more_like_it():
+    """A tracker swap hands the target's track to the person crossing it: their crop then
+    scores middling on the target's track while the target, on the other track, scores
+    higher. Learning that frame would teach the model the stranger."""
+
+    def learnt_after(config, confidences):
+        ctx = tracked_context(stamp_s=10.0, config=config)
+        crossing = [person(1, 2.0, last_seen_s=10.1),
+                    person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m, last_seen_s=10.1)]  # fmt: skip
+        state = Tracking(1)
+        assert state.update(ctx, frame(crossing, 10.1, confidences)) is state  # still named
+        return len(ctx.model.learnt)
+
+    assert learnt_after(CFG, {1: 0.1, 2: 0.6}) == 0  # the other looks more like the target
+    assert learnt_after(CFG, {1: 0.6, 2: 0.1}) == 1  # the target leads: learnt
+    assert learnt_after(CFG, {1: 0.6, 2: 0.6}) == 0  # a tie is no lead
+    off = dataclasses.replace(CFG, learn_needs_lead_at_risk=False)
+    assert learnt_after(off, {1: 0.1, 2: 0.6}) == 1
+
+
+def test_after_a_gap_the_target_is_not_learnt_while_a_new_track_looks_more_like_it():
+    """The target's track went unseen; the target came back on a new track, and the old
+    track was re-attached to someone else, far from the new one."""
+    ctx = tracked_context(stamp_s=10.0)
+    state = Tracking(1)
+    gap = CFG.identity_risk_unseen_s + 0.5
+    hidden = person(1, 2.0, observed=False, last_seen_s=10.0)
+    assert state.update(ctx, frame([hidden], 10.0 + gap - 0.1, {})) is state
+    back = [person(1, 2.0, last_seen_s=10.0 + gap), person(3, 4.0, last_seen_s=10.0 + gap)]
+    assert state.update(ctx, frame(back, 10.0 + gap, {1: -0.05, 3: 0.8})) is state
+    assert ctx.model.learnt == []
+
+
+def test_away_from_any_risk_the_target_is_learnt_whoever_else_scores_higher():
+    ctx = tracked_context(stamp_s=10.0)
+    ctx.identity_risk_s = 10.0 - CFG.identity_trust_s - 1.0  # nobody near for a while
+    apart = [person(1, 2.0, last_seen_s=10.1), person(2, 5.0, last_seen_s=10.1)]
+    state = Tracking(1)
+    assert state.update(ctx, frame(apart, 10.1, {1: 0.1, 2: 0.6})) is state
+    assert len(ctx.model.learnt) == 1  # a look-alike across the room is no swap
+
+
 # ------------------------------------------------------------------- re-identification
 def reid_frames(state, ctx, tracks, t0, confidences, similarities=None, n=CFG.reid_frames):
     return [

@@ -206,6 +206,16 @@ class IdentityContext:
         """Whether nobody could have swapped the target's track for `identity_trust_s`."""
         return stamp_s - self.identity_risk_s > self.config.identity_trust_s
 
+    def may_learn(self, target_id: int, frame: FrameTracks, confidence: float) -> bool:
+        """Whether a frame that keeps the target is learnt: while its identity is at risk
+        (`identity_trusted` false) only where no other track seen in the frame scores
+        higher (`learn_needs_lead_at_risk`). After a crossing or a gap the tracker may
+        carry a stranger on the target's track, the target on another (or on a new one);
+        learning that frame teaches the model the stranger, and the next frames trust it."""
+        if not self.config.learn_needs_lead_at_risk or self.identity_trusted(frame.stamp_s):
+            return True
+        return all(c < confidence for i, c in frame.confidences.items() if i != target_id)
+
     def crop_shows_another(self, target_id: int, frame: FrameTracks) -> bool:
         """Whether another person's box covers more than `max_learning_overlap` of the
         target's: its crop then shows (part of) someone else."""

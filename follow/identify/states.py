@@ -141,7 +141,8 @@ class Tracking(State):
         if confidence is None:  # not observed this frame: nothing to judge or learn
             return True
         if confirmed:
-            context.learn(self.target_id, frame)
+            if context.may_learn(self.target_id, frame, confidence):
+                context.learn(self.target_id, frame)
             return True
         if context.identity_trusted(frame.stamp_s):
             log.debug(
