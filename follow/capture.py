@@ -29,9 +29,10 @@ class SourceError(RuntimeError):
 class FrameSource:
     """Iterates frames from a video file, camera index, GStreamer pipeline or folder.
 
-    Frames that cannot be decoded are skipped with a warning. Timestamps are taken from
-    the file's frame rate for files and folders (so replay is reproducible) and from the
-    monotonic clock for live cameras.
+    Frames that cannot be decoded are skipped with a warning; a live camera whose reads
+    keep failing raises SourceError (a camera does not end: it was lost). Timestamps are
+    taken from the file's frame rate for files and folders (so replay is reproducible)
+    and from the monotonic clock for live cameras.
     """
 
     def __init__(self, spec: str, folder_fps: float = 15.0):
@@ -88,6 +89,11 @@ class FrameSource:
                 if self.live and failures < 10:
                     failures += 1
                     continue
+                if self.live:  # a camera has no end: it was unplugged or stopped
+                    raise SourceError(
+                        f"source {self.spec}: the camera delivered no frame after {index} "
+                        "frames (every read since failed: disconnected or stalled?)"
+                    )
                 self._warn_if_short(index)
                 return
             failures = 0

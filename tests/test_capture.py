@@ -75,3 +75,36 @@ def test_a_jpeg_cut_short_in_a_folder_is_skipped_not_used_half_decoded(tmp_path,
     (tmp_path / "b.jpg").write_bytes(whole[: len(whole) // 2])  # cut short
     frames = list(FrameSource(str(tmp_path)))
     assert len(frames) == 2 and "b.jpg: a JPEG cut short" in caplog.text
+
+
+class _UnpluggedCamera:
+    """A camera that delivers `frames` images, then fails every read (unplugged)."""
+
+    def __init__(self, frames: int):
+        self.frames = frames
+
+    def isOpened(self):
+        return True
+
+    def get(self, prop):
+        return 30.0
+
+    def read(self):
+        if self.frames == 0:
+            return False, None
+        self.frames -= 1
+        return True, np.zeros((24, 32, 3), np.uint8)
+
+    def release(self):
+        pass
+
+
+def test_a_camera_that_stops_delivering_frames_is_an_error_not_the_end_of_the_run(
+    monkeypatch,
+):
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _UnpluggedCamera(3))
+    source = FrameSource("0")
+    frames = iter(source)
+    assert len([next(frames) for _ in range(3)]) == 3
+    with pytest.raises(SourceError, match="source 0: the camera delivered no frame"):
+        next(frames)
