@@ -156,7 +156,9 @@ class Outputs:
                     raise OSError(f"cannot write video {self.video_path}")
             self._writer.write(canvas)
         if self.frames_dir:
-            cv2.imwrite(str(self.frames_dir / f"{result.frame_index:06d}.jpg"), canvas)
+            path = self.frames_dir / f"{result.frame_index:06d}.jpg"
+            if not cv2.imwrite(str(path), canvas):  # OpenCV reports a failed write so only
+                raise OSError(f"cannot write frame {path}")
 
     def close(self) -> None:
         if self._writer is not None:

@@ -4,6 +4,7 @@ in folders that do not exist, before it opens or writes anything."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 import pytest
 
@@ -41,3 +42,23 @@ def test_outputs_that_would_lose_something_are_refused(tmp_path, outputs, messag
 def test_new_files_in_existing_folders_pass(tmp_path):
     check_output_paths(_args(tmp_path, output_video=str(tmp_path / "out.mp4"),
                              log=str(tmp_path / "run.jsonl"), frames_dir=str(tmp_path / "f")))  # fmt: skip
+
+
+def test_an_annotated_frame_that_cannot_be_written_is_an_error_not_lost(tmp_path):
+    import shutil
+
+    import numpy as np
+
+    from follow.pipeline import FrameResult
+    from follow.run import Outputs
+    from follow.types import Frame, Odometry, TargetEstimate, TargetStatus
+
+    outputs = Outputs({}, 15.0, frames_dir=tmp_path / "frames")
+    frame = Frame(np.zeros((48, 64, 3), np.uint8), 0.0)
+    result = FrameResult(0, 0.0, Odometry.origin(0.0), [], [],
+                         TargetEstimate(TargetStatus.INITIAL, None, {}, 0.0))  # fmt: skip
+    outputs.write(frame, result, None)
+    assert (tmp_path / "frames" / "000000.jpg").is_file()
+    shutil.rmtree(tmp_path / "frames")  # the folder is gone (or the disk is full)
+    with pytest.raises(OSError, match="000001.jpg"):
+        outputs.write(frame, dataclasses.replace(result, frame_index=1), None)
