@@ -433,8 +433,8 @@ class ThreadedRunner:
         finally:
             cleanup_begins()  # a signal now is recorded, not raised into this cleanup
             self._stop.set()
+            self.control.stop()  # first: waiting for the pose thread must not drive on
             detected.close()
-            self.control.stop()
             capture.join(timeout=2.0)
             if outputs is not None:
                 outputs.close()

@@ -1,5 +1,6 @@
 """The overlapped runner: pose inference one frame ahead, outputs on their own thread."""
 
+import dataclasses
 import threading
 import time
 
@@ -18,7 +19,14 @@ from follow.pipeline import (
     ThreadedRunner,
     overlaps_stages,
 )
-from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
+from follow.types import (
+    Frame,
+    Observation,
+    Odometry,
+    TargetEstimate,
+    TargetStatus,
+    TrackState,
+)
 
 
 def _result(index: int, stamp_s: float) -> FrameResult:
@@ -235,3 +243,42 @@ def test_build_runner_overlaps_by_the_perception_s_pose_runtime():
         perception.pose_backend = backend
         runner = build_runner(perception, NullBase(), ControlConfig())
         assert runner.overlap_stages is overlapped
+
+
+class _SlowingPerception(_TimedPerception):
+    """The first `fast` frames are inferred in `stage_s`, every later one takes `slow_s`;
+    the target is seen in every frame."""
+
+    def __init__(self, fast: int, slow_s: float):
+        super().__init__(stage_s=0.01)
+        self.fast, self.slow_s = fast, slow_s
+
+    def detect_people(self, frame):
+        detections = super().detect_people(frame)
+        if self.detected > self.fast:
+            time.sleep(self.slow_s)
+        return detections
+
+    def conclude(self, frame, robot, index, detections):
+        result = super().conclude(frame, robot, index, detections)
+        seen = dataclasses.replace(result.tracks[0], observation=Observation(np.zeros(2)))
+        return dataclasses.replace(result, tracks=[seen])
+
+
+def test_the_base_gets_no_moving_command_once_the_run_is_stopping():
+    """A run that ends (here at --max-frames; as well Ctrl-C or an error) while the pose
+    thread is still inferring stops the base at once, not after the inference."""
+    stopping_moves = []
+
+    class _Base(NullBase):
+        def send(self, command):
+            if runner._stop.is_set() and not command.is_stop:
+                stopping_moves.append(command)
+            return super().send(command)
+
+    base = _Base()
+    runner = _runner(_SlowingPerception(fast=20, slow_s=1.0), overlap=True, base=base)
+    runner.run(_frames(100), pace_hz=50.0, max_frames=20)
+    assert any(not c.is_stop for c in base.commands)  # the target was followed
+    assert stopping_moves == []
+    assert base.commands[-1].is_stop
