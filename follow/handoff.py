@@ -37,9 +37,10 @@ class Mailbox:
         """Each item as it comes, until the mailbox is closed and empty or `stop` is set
         (looked at every `poll_s` seconds while nothing comes)."""
         while stop is None or not stop.is_set():
+            closed = self._closed  # before `get`: an item put just before closing is read
             item = self.get(timeout_s=poll_s)
             if item is None:
-                if self._closed:
+                if closed:
                     return
                 continue
             yield item

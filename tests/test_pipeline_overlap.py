@@ -217,6 +217,24 @@ def test_a_mailbox_reader_ends_when_it_is_closed_or_told_to_stop():
     assert list(open_slot.items(stop, poll_s=0.01)) == []  # stopped before reading
 
 
+def test_a_last_item_put_as_the_reader_times_out_is_still_read():
+    """The capture thread puts the last frame and closes the slot between a reader's
+    time-out and its look at `closed`: the frame is read, not dropped."""
+
+    class _Slot(LatestSlot):
+        raced = False
+
+        def get(self, timeout_s=None):
+            item = super().get(timeout_s)
+            if item is None and not self.raced:
+                self.raced = True
+                self.put("last frame")
+                self.close()
+            return item
+
+    assert list(_Slot().items(poll_s=0.01)) == ["last frame"]
+
+
 @pytest.mark.parametrize(
     ("setting", "backend", "overlapped"),
     [
