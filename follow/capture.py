@@ -78,7 +78,12 @@ class FrameSource:
                 if image is None:
                     log.warning("skipping %s: not a readable image", path)
                     continue
-                yield Frame(image, index / self.fps)
+                try:
+                    frame = Frame(image, index / self.fps)
+                except InvalidInput as exc:  # decoded, but no usable frame (too small)
+                    log.warning("skipping %s: %s", path, exc)
+                    continue
+                yield frame
             return
         index = 0
         start = time.monotonic()

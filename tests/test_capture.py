@@ -108,3 +108,12 @@ def test_a_camera_that_stops_delivering_frames_is_an_error_not_the_end_of_the_ru
     assert len([next(frames) for _ in range(3)]) == 3
     with pytest.raises(SourceError, match="source 0: the camera delivered no frame"):
         next(frames)
+
+
+def test_an_unusable_image_in_a_folder_is_skipped_by_name(tmp_path, caplog):
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), np.full((20, 30, 3), i * 40, np.uint8))
+    cv2.imwrite(str(tmp_path / "001b.png"), np.zeros((4, 4, 3), np.uint8))  # a thumbnail
+    frames = list(FrameSource(str(tmp_path)))
+    assert [int(f.image[0, 0, 0]) for f in frames] == [0, 40, 80]
+    assert "001b.png" in caplog.text and "too small" in caplog.text
