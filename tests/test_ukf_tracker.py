@@ -179,6 +179,22 @@ def test_timestamps_going_back_are_ignored_with_a_warning(camera, caplog):
     assert later[0].observation is not None and later[0].last_seen_s == 10 / FPS
 
 
+def test_a_frame_repeated_at_the_same_time_is_not_fused_again(camera, caplog):
+    """A frame delivered twice (same stamp, same detections) is one measurement, not two
+    independent ones: fusing it again would shrink the covariance and confirm a track
+    from a single sighting."""
+    tracker = PeopleTracker(camera)
+    robot = Odometry.origin()
+    obs = observe(camera, robot, (6.0, 0.5), 1.45)
+    first = tracker.update([obs], 1.0, robot)
+    with caplog.at_level(logging.WARNING, logger="follow.ukf"):
+        for _ in range(TrackerConfig().min_updates_to_confirm):
+            again = tracker.update([obs], 1.0, robot)
+    assert [s.track_id for s in again] == [1] and not again[0].confirmed
+    np.testing.assert_array_equal(again[0].cov, first[0].cov)
+    assert "same" in caplog.text
+
+
 def test_out_of_image_and_impossible_observations_are_rejected(camera, caplog):
     tracker = PeopleTracker(camera)
     outside = Observation(np.array([5000.0, -300.0]), np.array([5000.0, 100.0]))

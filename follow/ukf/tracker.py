@@ -127,10 +127,14 @@ class PeopleTracker:
         if not math.isfinite(stamp_s):
             log.warning("ignoring a frame with a non-finite timestamp %r", stamp_s)
             return self.tracks
-        if self._last_stamp_s is not None and stamp_s < self._last_stamp_s:
+        if self._last_stamp_s is not None and stamp_s <= self._last_stamp_s:
+            # A frame at the same time as the last one is that frame again (a repeated
+            # message): fusing it twice would count one sighting as two.
+            same = stamp_s == self._last_stamp_s
             log.warning(
-                "ignoring a frame whose timestamp %.3f s goes back from %.3f s",
+                "ignoring a frame whose timestamp %.3f s %s %.3f s",
                 stamp_s,
+                "is the same as the last frame's," if same else "goes back from",
                 self._last_stamp_s,
             )
             return self.tracks
