@@ -241,6 +241,26 @@ ORDERED: tuple[tuple[str, str, str], ...] = (
     ("identify", "reid_accept_similarity", "reid_strict_similarity"),
 )
 
+# The unscented filter's sigma points lie sqrt(sigma_alpha^2 (n + sigma_kappa)) standard
+# deviations out (n = 5 state dimensions). At zero or below there is no spread (a
+# division by zero, or a negative matrix to factor); the floor keeps the weights, which
+# grow as its inverse, from drowning the mean in rounding (alpha = 1e-3, the smallest
+# usual choice, gives 5e-6).
+SIGMA_POINT_STATE_DIM = 5
+MIN_SIGMA_POINT_SPREAD = 1e-6
+
+
+def _sigma_spread_error(section) -> str | None:
+    spread = section.sigma_alpha**2 * (SIGMA_POINT_STATE_DIM + section.sigma_kappa)
+    if spread >= MIN_SIGMA_POINT_SPREAD:
+        return None
+    return (
+        f"[tracker] sigma_alpha ({section.sigma_alpha}) and sigma_kappa "
+        f"({section.sigma_kappa}) leave the sigma points no spread: sigma_alpha^2 * "
+        f"({SIGMA_POINT_STATE_DIM} + sigma_kappa) = {spread:g} must be at least "
+        f"{MIN_SIGMA_POINT_SPREAD:g}"
+    )
+
 
 def section_errors(name: str, section) -> list[str]:
     """One line per key of `section` (a config section instance) that is out of range."""
@@ -274,6 +294,9 @@ def section_errors(name: str, section) -> list[str]:
                 f"[{name}] {small} ({getattr(section, small)}) must not exceed "
                 f"{large} ({getattr(section, large)})"
             )
+    keys_ok = not any(f"{key} =" in e for e in errors for key in ("sigma_alpha", "sigma_kappa"))
+    if name == "tracker" and keys_ok and (spread := _sigma_spread_error(section)):
+        errors.append(spread)
     return errors
 
 

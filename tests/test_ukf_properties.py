@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from follow.camera import CameraModel, CameraPose
-from follow.config import TrackerConfig
+from follow.config import Config, ConfigError, TrackerConfig
 from follow.types import InvalidInput, Observation, Odometry
 from follow.ukf.direct import DirectBaseline
 from follow.ukf.tracker import PeopleTracker
@@ -105,3 +105,24 @@ def test_ids_are_never_reused():
         assert seen == [1, 2]
     finally:
         logging.disable(logging.NOTSET)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(1e-300, 10.0), st.floats(-10.0, 10.0))
+def test_every_sigma_point_spread_the_config_accepts_runs(alpha, kappa):
+    """A sigma_alpha / sigma_kappa the configuration accepts gives a filter that runs; one
+    that leaves the sigma points no spread (alpha^2 (5 + kappa) <= 0, or lost to rounding)
+    is refused naming the keys, not met by a ZeroDivisionError at the first person."""
+    try:
+        config = Config().replace("tracker", sigma_alpha=alpha, sigma_kappa=kappa)
+    except ConfigError as exc:
+        assert "sigma_alpha" in str(exc) and "sigma_kappa" in str(exc)
+        return
+    logging.disable(logging.WARNING)
+    try:
+        tracker = PeopleTracker(CAMERA, config.tracker)
+        for k in range(4):
+            states = tracker.update([_person(6.0 - 0.1 * k, 0.1, 1.4, 0.0)], k * 0.1)
+    finally:
+        logging.disable(logging.NOTSET)
+    assert states and all(np.isfinite(s.mean).all() for s in states)
