@@ -223,6 +223,24 @@ def test_an_ankle_outside_the_image_is_dropped_but_the_neck_used(camera, caplog)
     assert states[0].last_seen_s == 0.4
 
 
+def test_an_ankle_above_the_horizon_is_dropped_but_the_neck_used(camera, caplog):
+    """Feet above the horizon are on no floor: the ankle is ignored with a warning, and
+    the neck still updates the person's track instead of the whole observation being
+    lost (it fits no track's 4-d gate and can start none)."""
+    tracker = PeopleTracker(camera)
+    robot = Odometry.origin()
+    for k in range(10):
+        tracker.update([observe(camera, robot, (8.0, 0.0), 1.45)], k / FPS, robot)
+    good = observe(camera, robot, (8.0, 0.0), 1.45)
+    horizon_v = camera.project(np.array([1e6, 0.0, camera.position_base[2]]))[1]
+    bad_ankle = Observation(good.neck_px, np.array([good.ankle_px[0], horizon_v - 20.0]))
+    with caplog.at_level(logging.WARNING, logger="follow.ukf"):
+        states = tracker.update([bad_ankle], 10 / FPS, robot)
+    assert [s.track_id for s in states] == [1]
+    assert states[0].observation is bad_ankle and states[0].last_seen_s == 10 / FPS
+    assert "horizon" in caplog.text
+
+
 def test_direct_baseline_back_projects_the_ankle(camera):
     robot = Odometry(2.0, 1.0, 0.4, 0.0)
     baseline = DirectBaseline(camera)

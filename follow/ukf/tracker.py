@@ -51,7 +51,7 @@ def check_observation(
 ) -> Observation | None:
     """The observation as the tracker may use it: None (with a warning) when it is not an
     Observation or its neck lies outside the image; its ankle is dropped (with a warning)
-    when that lies outside the image."""
+    when that lies outside the image or on or above the horizon."""
     if not isinstance(obs, Observation):
         log.warning("dropping an observation of type %s", type(obs).__name__)
         return None
@@ -60,6 +60,9 @@ def check_observation(
         return None
     if obs.ankle_px is not None and not camera.in_image(obs.ankle_px, -max_outside_px)[0]:
         log.warning("ignoring an ankle %s outside the image", obs.ankle_px)
+        return Observation(obs.neck_px, None, obs.touches_border, obs.skeleton)
+    if obs.ankle_px is not None and not camera.is_below_horizon(obs.ankle_px)[0]:
+        log.warning("ignoring an ankle %s on or above the horizon (on no floor)", obs.ankle_px)
         return Observation(obs.neck_px, None, obs.touches_border, obs.skeleton)
     return obs
 
