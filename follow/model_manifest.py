@@ -44,8 +44,8 @@ def read_manifest(model_path: Path) -> dict | None:
     if not path.exists():
         return None
     try:
-        record = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):  # unreadable, not UTF-8 (a ValueError) or not JSON
         return None
     return record if isinstance(record, dict) and "sha256" in record else None
 

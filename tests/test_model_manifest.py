@@ -122,3 +122,15 @@ def test_prepare_makes_a_recorded_int8_model_calibrated_on_both_kinds_of_frames(
     record = model_manifest.read_manifest(path)
     assert "ccf_crops" in record["made_from"]["calibration"]
     assert record["source_sha256"] == models.get_spec("human-pose-estimation-0001").files[0].sha256
+
+
+def test_a_binary_integrity_record_is_reported_not_a_codec_error(cache, tmp_path, capsys):
+    source = tmp_path / "net.onnx"
+    _save_graph(source)
+    cut = initial_stage_file(source)
+    model_manifest.manifest_path(cut).write_bytes(b"\xff\xfe\x00\x01binary\x80\x81")
+    assert "no integrity record" in model_manifest.check(cut)
+    code, out = _verify_all(capsys)
+    assert code == 1 and "FAIL" in out and cut.name in out
+    assert initial_stage_file(source) == cut  # an unreadable record: cut again
+    assert model_manifest.check(cut) == "ok"
