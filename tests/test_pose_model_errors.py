@@ -23,3 +23,13 @@ def test_a_file_that_is_no_model_is_refused_by_name(tmp_path, provider):
     broken.write_bytes(b"\x08\x07" + bytes(range(256)) * 8)  # not a protobuf model
     with pytest.raises(ModelError, match=r"pose model .*pose\.onnx cannot be loaded .*model_file"):
         create_backend(provider, broken)
+
+
+@pytest.mark.parametrize("content", [b"\x08\x07" + bytes(range(256)) * 8, b""])
+def test_a_file_that_is_no_model_is_refused_by_name_when_cut_to_one_stage(tmp_path, content):
+    from follow.pose.stages import initial_stage_file
+
+    broken = tmp_path / "pose.onnx"
+    broken.write_bytes(content)
+    with pytest.raises(ModelError, match=r"pose model .*pose\.onnx.*network_stages"):
+        initial_stage_file(broken)

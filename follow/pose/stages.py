@@ -101,8 +101,17 @@ def initial_stage_file(model_path: Path) -> Path:
             target, f"Delete it and {manifest_path(target).name}: it is cut again on the next run."
         )
         return target
-    model = onnx.load(str(model_path))
-    outputs = initial_stage_outputs(model)
+    try:
+        model = onnx.load(str(model_path))
+    except Exception as exc:  # protobuf's DecodeError and onnx's own: a truncated or wrong file
+        raise StageCutError(
+            f"pose model {model_path}: not a readable ONNX model ({type(exc).__name__}: "
+            f"{exc}); a truncated or wrong file? network_stages = 1 cuts an ONNX graph"
+        ) from None
+    try:
+        outputs = initial_stage_outputs(model)
+    except StageCutError as exc:
+        raise StageCutError(f"pose model {model_path}: {exc}") from None
     weights = {t.name for t in model.graph.initializer}
     inputs = [i.name for i in model.graph.input if i.name not in weights]
     target.parent.mkdir(parents=True, exist_ok=True)
