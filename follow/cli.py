@@ -88,9 +88,11 @@ def main(argv: list[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
     )
     module = getattr(args, "_module", None)
-    if module is None:
-        parser.parse_args([args.command, "--help"])
-        return 2  # pragma: no cover  (--help exits)
+    if module is None:  # a group (`follow eval`) without one of its commands
+        commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        commands.choices[args.command].print_help(sys.stderr)
+        print(f"follow {args.command}: error: name one of its commands", file=sys.stderr)
+        return 2
     from follow.memory import fix_mmap_threshold
 
     fix_mmap_threshold()  # a robot runs for hours: its memory must not creep
