@@ -329,6 +329,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> dict | int:
+    if args.source is not None and args.action != "fetch":
+        raise ValueError(f"--from names where fetch downloads from; {args.action} takes none")
+    if args.action == "prepare" and args.names:
+        raise ValueError(
+            f"prepare takes no model names (it makes the INT8 pose model), got {' '.join(args.names)}"
+        )
     if args.action == "prepare":
         from follow import model_manifest
         from follow.pose.prepare import prepare_int8

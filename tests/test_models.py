@@ -127,3 +127,23 @@ def test_fetching_everything_skips_models_without_a_download(cache, monkeypatch,
     assert "human-pose-estimation-0001" in result["skipped"]
     assert "human-pose-estimation-0001" not in fetched
     assert {"human-pose-estimation-0001-ir", "ccf10", "ccf25"} <= set(fetched)
+
+
+@pytest.mark.parametrize(
+    "argv, named",
+    [
+        (["models", "prepare", "ccf10"], "ccf10"),
+        (["models", "verify", "ccf10", "--from", "/media/usb/models"], "--from"),
+        (["models", "prepare", "--from", "/media/usb/models"], "--from"),
+    ],
+)
+def test_what_an_action_does_not_take_is_refused_not_ignored(argv, named, cache, monkeypatch,
+                                                              capsys):  # fmt: skip
+    from follow.pose import prepare
+
+    made = []
+    monkeypatch.setattr(prepare, "prepare_int8", lambda force=False: made.append(force))
+    assert cli.main(argv) != 0
+    err = capsys.readouterr().err
+    assert named in err and "Traceback" not in err
+    assert not made
