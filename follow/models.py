@@ -317,7 +317,7 @@ def _download(url: str, target: Path, sha256: str) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("action", choices=("list", "fetch", "verify", "prepare"),
                         help="what to do (prepare: make the INT8 pose model)")  # fmt: skip
-    parser.add_argument("names", nargs="*", help="model names (default: all)")
+    parser.add_argument("names", nargs="*", default=[], help="model names (default: all)")
     parser.add_argument(
         "--from",
         dest="source",

@@ -147,3 +147,11 @@ def test_what_an_action_does_not_take_is_refused_not_ignored(argv, named, cache,
     err = capsys.readouterr().err
     assert named in err and "Traceback" not in err
     assert not made
+
+
+def test_no_action_asks_for_the_action_only(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["models"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "required: action" in err and "names" not in err.splitlines()[-1]
