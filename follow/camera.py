@@ -376,7 +376,7 @@ class CameraModel:
                 )
             try:
                 out = float(value)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):  # Overflow: an int beyond floats
                 raise CameraFileError(
                     f"{source}: field '{where}{key}' must be a number, got {value!r}"
                 ) from None
@@ -399,13 +399,13 @@ class CameraModel:
         matrix = need(data, "camera_matrix", "")
         try:
             K = np.asarray(matrix, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise CameraFileError(f"{source}: field 'camera_matrix' is not numeric") from None
         if K.shape != (3, 3):
             raise CameraFileError(f"{source}: field 'camera_matrix' must be 3x3, got {K.shape}")
         try:
             dist = np.asarray(data.get("distortion", []), dtype=np.float64).ravel()
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise CameraFileError(f"{source}: field 'distortion' is not numeric") from None
         pose_data = need(data, "pose", "")
         if not isinstance(pose_data, dict):

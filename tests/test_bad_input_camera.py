@@ -92,3 +92,19 @@ def test_a_missing_camera_matrix_is_named_missing(tmp_path):
     del data["camera_matrix"]
     with pytest.raises(CameraFileError, match="missing field 'camera_matrix'"):
         CameraModel.load(_write(tmp_path, data))
+
+
+@pytest.mark.parametrize("field", ["pose.height_m", "camera_matrix", "distortion"])
+def test_a_number_too_large_for_a_float_is_refused_by_name(tmp_path, field):
+    data = _data()
+    huge = 10**400  # a whole number JSON and YAML read exactly, beyond any float
+    if field == "pose.height_m":
+        data["pose"]["height_m"] = huge
+    elif field == "camera_matrix":
+        data["camera_matrix"][0][0] = huge
+    else:
+        data["distortion"] = [huge, 0.0, 0.0, 0.0]
+    path = tmp_path / "cam.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(CameraFileError, match=re.escape(f"camera file {path}: field '{field}'")):
+        CameraModel.load(path)
