@@ -225,6 +225,9 @@ def verify(name: str) -> list[FileStatus]:
         if found is None:
             out.append(FileStatus(name, f.relpath, None, False, "missing"))
             continue
+        if found.is_dir():
+            out.append(FileStatus(name, f.relpath, found, False, "a folder, not a file"))
+            continue
         actual = sha256_of(found)
         if actual == f.sha256:
             out.append(FileStatus(name, f.relpath, found, True, "ok"))

@@ -155,3 +155,15 @@ def test_no_action_asks_for_the_action_only(capsys):
     assert exit_.value.code == 2
     err = capsys.readouterr().err
     assert "required: action" in err and "names" not in err.splitlines()[-1]
+
+
+def test_verify_reports_a_folder_in_place_of_a_model_file_and_goes_on(mirror, cache, monkeypatch,
+                                                                       capsys):  # fmt: skip
+    (mirror / "ccf/ccf10/conv_t1").unlink()
+    (mirror / "ccf/ccf10/conv_t1").mkdir()
+    monkeypatch.setenv("FOLLOW_MODEL_DIR", str(mirror))
+    assert cli.main(["models", "verify", "ccf10", "--json"]) == 1
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    by_path = {f["path"].rsplit("/", 1)[-1]: f for f in report["files"]}
+    assert not by_path["conv_t1"]["ok"] and "folder" in by_path["conv_t1"]["detail"]
+    assert by_path["conv_t2"]["ok"]
