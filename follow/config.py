@@ -187,8 +187,10 @@ class IdentifyConfig:
     # While the identity is at risk (as above), a frame is learnt only where no other
     # track seen scores higher than the target's own: right after a crossing or a gap the
     # tracker may carry a stranger on the target's track (the target on another), and
-    # learning them at a middling confidence teaches the model the stranger.
-    learn_needs_lead_at_risk: bool = True
+    # learning them at a middling confidence teaches the model the stranger. "with_reid":
+    # only beside a re-id cue (the classifier alone scores others too unsteadily: the
+    # rule cost ccf10 alone on PETS); "always"; "never".
+    learn_needs_lead_at_risk: str = "with_reid"
     # A track becomes the target (first choice or re-identification) only while it is
     # seen in the frame and after it has been seen in this many frames: a ghost track
     # made of a few split skeletons is never followed.

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 POSE_PROVIDERS = ("auto", "cpu", "cuda", "tensorrt", "openvino")
 POSE_PRECISIONS = ("auto", "fp32", "int8")
 MIRRORED_POSITIVES = ("with_reid", "always", "never")
+LEARN_NEEDS_LEAD_AT_RISK = ("with_reid", "always", "never")
 IDENTIFIERS = ("ccf10", "ccf25", "channels", "reid", "ccf10+reid", "ccf25+reid", "channels+reid")
 AUTOPILOTS = ("ardupilot", "px4")
 # Text keys with free values (a model name is checked by the model registry, a file
@@ -226,7 +227,11 @@ BOUNDS: dict[str, dict[str, Range]] = {
 
 CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
     "pose": {"provider": POSE_PROVIDERS, "precision": POSE_PRECISIONS},
-    "identify": {"identifier": IDENTIFIERS, "mirrored_positives": MIRRORED_POSITIVES},
+    "identify": {
+        "identifier": IDENTIFIERS,
+        "mirrored_positives": MIRRORED_POSITIVES,
+        "learn_needs_lead_at_risk": LEARN_NEEDS_LEAD_AT_RISK,
+    },
     "mavlink": {"autopilot": AUTOPILOTS},
     "control": {"overlap_stages": ("auto",)},  # or true / false
 }

@@ -47,6 +47,10 @@ class TaughtModel:
                            embedding=np.ones(1) if self.reid and (embed is None or embed[k])
                            else None) for k, roi in enumerate(rois)]  # fmt: skip
 
+    @property
+    def has_reid(self):
+        return self.reid
+
     def lacks_embedding(self, appearance):
         return self.reid and appearance.embedding is None
 

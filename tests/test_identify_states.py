@@ -88,6 +88,10 @@ class RecordingModel:
     def restore(self, snapshot) -> None:
         self.learnt = list(snapshot)
 
+    @property
+    def has_reid(self) -> bool:
+        return self.reid
+
     def lacks_embedding(self, appearance) -> bool:
         return self.reid and appearance.embedding is None
 
@@ -249,8 +253,8 @@ def test_after_a_crossing_the_target_is_not_learnt_while_another_looks_more_like
     scores middling on the target's track while the target, on the other track, scores
     higher. Learning that frame would teach the model the stranger."""
 
-    def learnt_after(config, confidences):
-        ctx = tracked_context(stamp_s=10.0, config=config)
+    def learnt_after(config, confidences, reid=True):
+        ctx = tracked_context(stamp_s=10.0, config=config, reid=reid)
         crossing = [person(1, 2.0, last_seen_s=10.1),
                     person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m, last_seen_s=10.1)]  # fmt: skip
         state = Tracking(1)
@@ -260,8 +264,12 @@ def test_after_a_crossing_the_target_is_not_learnt_while_another_looks_more_like
     assert learnt_after(CFG, {1: 0.1, 2: 0.6}) == 0  # the other looks more like the target
     assert learnt_after(CFG, {1: 0.6, 2: 0.1}) == 1  # the target leads: learnt
     assert learnt_after(CFG, {1: 0.6, 2: 0.6}) == 0  # a tie is no lead
-    off = dataclasses.replace(CFG, learn_needs_lead_at_risk=False)
+    off = dataclasses.replace(CFG, learn_needs_lead_at_risk="never")
     assert learnt_after(off, {1: 0.1, 2: 0.6}) == 1
+    # The default asks it beside a re-id cue only; "always" of the classifier alone too.
+    assert learnt_after(CFG, {1: 0.1, 2: 0.6}, reid=False) == 1
+    always = dataclasses.replace(CFG, learn_needs_lead_at_risk="always")
+    assert learnt_after(always, {1: 0.1, 2: 0.6}, reid=False) == 0
 
 
 def test_after_a_gap_the_target_is_not_learnt_while_a_new_track_looks_more_like_it():

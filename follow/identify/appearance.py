@@ -142,6 +142,11 @@ class AppearanceModel:
                 out[i] = dataclasses.replace(out[i], embedding=embedding)
         return out
 
+    @property
+    def has_reid(self) -> bool:
+        """Whether a re-id cue is fused with the boosted classifier."""
+        return self.reid is not None
+
     def lacks_embedding(self, appearance: Appearance) -> bool:
         return self.reid is not None and appearance.embedding is None
 

@@ -209,10 +209,16 @@ class IdentityContext:
     def may_learn(self, target_id: int, frame: FrameTracks, confidence: float) -> bool:
         """Whether a frame that keeps the target is learnt: while its identity is at risk
         (`identity_trusted` false) only where no other track seen in the frame scores
-        higher (`learn_needs_lead_at_risk`). After a crossing or a gap the tracker may
-        carry a stranger on the target's track, the target on another (or on a new one);
-        learning that frame teaches the model the stranger, and the next frames trust it."""
-        if not self.config.learn_needs_lead_at_risk or self.identity_trusted(frame.stamp_s):
+        higher (`learn_needs_lead_at_risk`: "with_reid", the default, beside a re-id
+        cue only; "always"; "never"). After a crossing or a gap the tracker may carry a
+        stranger on the target's track, the target on another (or on a new one);
+        learning that frame teaches the model the stranger, and the next frames trust
+        it. The boosted classifier alone scores others too unsteadily to be outscored
+        by them as evidence (docs/identification.md)."""
+        mode = self.config.learn_needs_lead_at_risk
+        if mode == "never" or (mode == "with_reid" and not self.model.has_reid):
+            return True
+        if self.identity_trusted(frame.stamp_s):
             return True
         return all(c < confidence for i, c in frame.confidences.items() if i != target_id)
 
