@@ -161,10 +161,14 @@ class Outputs:
                 raise OSError(f"cannot write frame {path}")
 
     def close(self) -> None:
-        if self._writer is not None:
-            self._writer.release()
-        if self.log is not None:
-            self.log.close()
+        """Close the video and the log; a video that fails to close still lets the log
+        close (flushed: the run's record is what tells what happened)."""
+        try:
+            if self._writer is not None:
+                self._writer.release()
+        finally:
+            if self.log is not None:
+                self.log.close()
 
 
 class RunSummary:

@@ -62,3 +62,20 @@ def test_an_annotated_frame_that_cannot_be_written_is_an_error_not_lost(tmp_path
     shutil.rmtree(tmp_path / "frames")  # the folder is gone (or the disk is full)
     with pytest.raises(OSError, match="000001.jpg"):
         outputs.write(frame, dataclasses.replace(result, frame_index=1), None)
+
+
+def test_the_log_is_closed_even_when_the_video_fails_to_close(tmp_path):
+    from follow.run import Outputs
+    from follow.runlog import read_run_log
+
+    class FailingWriter:
+        def release(self):
+            raise OSError("No space left on device")
+
+    outputs = Outputs({"run": "test"}, 15.0, log_path=tmp_path / "run.jsonl")
+    outputs._writer = FailingWriter()
+    with pytest.raises(OSError, match="No space"):
+        outputs.close()
+    assert outputs.log._fh.closed
+    header, records = read_run_log(tmp_path / "run.jsonl")
+    assert header["run"] == "test" and list(records) == []
