@@ -272,6 +272,14 @@ def main(args) -> dict:
         return replay(args, config)
     source = open_source(args.source, args.image_topic, args.odom_topic, args.camera_info_topic,
                          config.ros.max_odometry_age_s, args.skeletons_topic)  # fmt: skip
+    try:  # released on every path, a failure before the run included (a camera stays busy)
+        return _run_source(args, config, source)
+    finally:
+        source.close()
+
+
+def _run_source(args, config: Config, source) -> dict:
+    """`main` on an opened source, which the caller closes."""
     bag_odometry = source.odometry_at if getattr(source, "odometry", None) is not None else None
     if bag_odometry and (args.realtime or config.mavlink.connection):
         raise ValueError("a bag's odometry is replayed frame by frame only: leave out "
@@ -314,10 +322,7 @@ def main(args) -> dict:
                 if base is not None:
                     base.close()
             finally:
-                try:
-                    outputs.close()
-                finally:
-                    source.close()
+                outputs.close()
     elapsed = time.perf_counter() - started
     dropped = summary.dropped_frames
     result = {

@@ -82,3 +82,33 @@ def test_memory_stays_flat_over_a_synthetic_run():
     assert result["frames"] == 1100
     # Keeping every result grows 4.6 MiB per 400 frames on this path (~9 MiB here).
     assert result["growth_mib"] < 4.0, result
+
+
+@pytest.mark.parametrize("fails", ["no frames", "camera file"])
+def test_the_source_is_released_when_the_run_fails_before_it_starts(tmp_path, monkeypatch, fails):
+    """A camera opened for a run that then fails (an empty source, an unreadable camera
+    file) is released, not left busy for the next attempt in the same process."""
+
+    class Source:
+        fps = 15.0
+        closed = False
+
+        def __iter__(self):
+            if fails == "no frames":
+                return iter([])
+            return iter([Frame(np.zeros((48, 64, 3), np.uint8), 0.0)])
+
+        def close(self):
+            self.closed = True
+
+    source = Source()
+    monkeypatch.setattr(run_module, "open_source", lambda *a, **k: source)
+    args = SimpleNamespace(
+        max_frames=None, config=None, mavlink=None, replay=None, source="0",
+        image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
+        realtime=False, camera=str(tmp_path / "missing.yaml"), output_video=None, log=None,
+        frames_dir=None, target_id=None,
+    )  # fmt: skip
+    with pytest.raises((ValueError, OSError)):
+        run_module.main(args)
+    assert source.closed
