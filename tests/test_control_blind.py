@@ -122,3 +122,15 @@ def test_blind_speed_falls_from_the_speed_at_the_last_observation_not_the_maximu
         assert c.forward_mps <= v0 * max(0.0, 1 - unseen_s / cfg.max_blind_drive_s) + 1e-9
     driven_m = sum(c.forward_mps * PERIOD for _, c in blind)
     assert driven_m <= 0.5 * v0 * cfg.max_blind_drive_s + v0 * PERIOD
+
+
+def test_after_a_loss_the_robot_does_not_speed_up_toward_a_target_it_does_not_see():
+    c = FollowingController()
+    last_seen, commands = _drive_then_lose(c, blind_s=0.0)
+    assert commands[-1][1].forward_mps == pytest.approx(CFG.max_forward_speed_mps)
+    t = last_seen + PERIOD
+    assert c.update(None, t).is_stop  # lost: stopped at once
+    for _ in range(5):  # the track's prediction comes back, still unseen
+        t += PERIOD
+        blind = TargetMotion(np.array([4.0, 0.0]), np.zeros(2), last_seen, observed=False)
+        assert c.update(blind, t).forward_mps == 0.0

@@ -144,6 +144,7 @@ class FollowingController:
 
     def _lost(self, stamp_s: float, dt_s: float) -> VelocityCommand:
         cfg = self.config
+        self._forward_when_seen_mps = 0.0  # stopped: blind driving may not start from rest
         if self._lost_since_s is None:
             self._lost_since_s = stamp_s
         searching = (
