@@ -160,14 +160,16 @@ def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
                 raise ValueError(f"run log {path}: line {number} is not JSON") from None
             try:
                 yield _record(d)
-            except (KeyError, TypeError, ValueError, IndexError) as exc:
+            except (KeyError, TypeError, ValueError, IndexError, AttributeError,
+                    OverflowError) as exc:
                 raise ValueError(f"run log {path}: line {number}: {_problem(exc)}") from None
 
     return header, records()
 
 
 def _record(d: dict) -> FrameRecord:
-    """One frame line, parsed; KeyError / TypeError / ValueError when malformed."""
+    """One frame line, parsed; KeyError / TypeError / ValueError (or AttributeError,
+    OverflowError: a field of the wrong shape) when malformed."""
     if not isinstance(d, dict):
         raise TypeError(f"a frame record must be a JSON object, got {type(d).__name__}")
     stamp_s = float(d["stamp_s"])

@@ -75,3 +75,17 @@ def test_annotation_highlights_the_target():
     assert image.sum() == 0  # the input frame is not drawn on
     view = top_down(tracks, 2, Odometry.origin())
     assert view.shape == (360, 360, 3) and (view != 255).any()
+
+
+@pytest.mark.parametrize(
+    "record",
+    ['{"frame": 0, "stamp_s": 0.0, "target": "tracking"}',
+     '{"frame": 0, "stamp_s": 0.0, "target": {"id": 1, "confidences": [0.5]}}',
+     '{"frame": 1e400, "stamp_s": 0.0}'],
+)  # fmt: skip
+def test_a_frame_record_of_the_wrong_shape_is_named_not_a_crash(tmp_path, record):
+    path = tmp_path / "run.jsonl"
+    path.write_text('{"log_version": 1}\n' + record + '\n{"frame": 1, "stamp_s": 0.1}\n')
+    _, records = read_run_log(path)
+    with pytest.raises(ValueError, match=rf"run log {path}: line 2: malformed frame record"):
+        list(records)
