@@ -124,8 +124,25 @@ class BagWriter:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
 
+    def abort(self) -> None:
+        """Close and remove what was written: a bag cut short by a failure would read
+        back as a valid, shorter recording."""
+        try:
+            self._writer.close()
+        finally:
+            if self._tmp is not None:
+                shutil.rmtree(self._tmp, ignore_errors=True)
+                self._tmp = None
+            elif self.path.is_dir():
+                shutil.rmtree(self.path, ignore_errors=True)
+            else:
+                self.path.unlink(missing_ok=True)
+
     def __enter__(self) -> BagWriter:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

@@ -242,3 +242,17 @@ def test_follow_run_on_a_pets_bag_matches_the_video(tmp_path, data_path, model_p
     shared = last_v.keys() & last_m.keys()
     assert shared and max(np.linalg.norm(last_v[k] - last_m[k]) for k in shared) > 0.2
     assert math.isfinite(moving["fps"])
+
+
+@pytest.mark.parametrize("name", ["robot.bag", "robot.mcap", "robot_ros2"])
+def test_a_bag_whose_writing_fails_part_way_is_not_left_as_a_shorter_valid_bag(
+    tmp_path, small_frames, name
+):
+    path = tmp_path / name
+    with pytest.raises(RuntimeError, match="disk full"):
+        with BagWriter(path) as bag:
+            for i, frame in enumerate(small_frames):
+                if i == 3:
+                    raise RuntimeError("disk full")
+                bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+    assert not path.exists()

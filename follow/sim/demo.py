@@ -297,12 +297,16 @@ def run_demo(
                     bag.write(frame, result.skeletons, result.robot, wf.robot,
                               {p.person_id: tuple(p.position_m) for p in wf.people})  # fmt: skip
 
+            failed = True
             try:
                 runner.run(frames, pace_hz=DEMO_CAMERA.fps, on_result=on_result)
+                failed = False
             finally:
                 if outputs is not None:
                     outputs.close()
-                if bag is not None:
+                if bag is not None and failed:
+                    bag.abort()
+                elif bag is not None:
                     bag.close()
     summary = {
         **score.summary(),

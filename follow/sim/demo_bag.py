@@ -62,3 +62,7 @@ class DemoBag:
 
     def close(self) -> None:
         self.writer.close()
+
+    def abort(self) -> None:
+        """Remove the bag of a run that failed part-way (see BagWriter.abort)."""
+        self.writer.abort()
