@@ -18,8 +18,9 @@ from dataclasses import dataclass
 # Text keys that take one of a fixed set of values.
 POSE_PROVIDERS = ("auto", "cpu", "cuda", "tensorrt", "openvino")
 POSE_PRECISIONS = ("auto", "fp32", "int8")
-MIRRORED_POSITIVES = ("with_reid", "always", "never")
-LEARN_NEEDS_LEAD_AT_RISK = ("with_reid", "always", "never")
+# A rule of the identifier that may apply only beside a re-id cue
+# (follow.identify.appearance.reid_rule_applies).
+REID_RULE_CHOICES = ("with_reid", "always", "never")
 IDENTIFIERS = ("ccf10", "ccf25", "channels", "reid", "ccf10+reid", "ccf25+reid", "channels+reid")
 AUTOPILOTS = ("ardupilot", "px4")
 # Text keys with free values (a model name is checked by the model registry, a file
@@ -229,8 +230,8 @@ CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
     "pose": {"provider": POSE_PROVIDERS, "precision": POSE_PRECISIONS},
     "identify": {
         "identifier": IDENTIFIERS,
-        "mirrored_positives": MIRRORED_POSITIVES,
-        "learn_needs_lead_at_risk": LEARN_NEEDS_LEAD_AT_RISK,
+        "mirrored_positives": REID_RULE_CHOICES,
+        "learn_needs_lead_at_risk": REID_RULE_CHOICES,
     },
     "mavlink": {"autopilot": AUTOPILOTS},
     "control": {"overlap_stages": ("auto",)},  # or true / false

@@ -174,7 +174,7 @@ class AppearanceModel:
         few seconds of one view otherwise keys on which side a pattern is on. None
         with "never", nor with "with_reid" (the default) where there is no re-id cue."""
         mode = self.config.mirrored_positives
-        if self.extractor is None or mode == "never" or (mode == "with_reid" and self.reid is None):
+        if self.extractor is None or not reid_rule_applies(mode, self.has_reid):
             return []
         return self.extractor.extract_crops([np.ascontiguousarray(crop_bgr[:, ::-1])])
 
@@ -262,6 +262,12 @@ class AppearanceModel:
             weight[known] += w
         fused = np.divide(total, weight, out=np.zeros(n), where=weight > 0.0)
         return np.clip(fused, -1.0, 1.0)
+
+
+def reid_rule_applies(mode: str, has_reid: bool) -> bool:
+    """Whether an identifier rule set to `mode` applies: "always", "never", or
+    "with_reid" (only where a re-id cue is fused with the boosted classifier)."""
+    return mode == "always" or (mode == "with_reid" and has_reid)
 
 
 def recoloured_copies(crop_bgr: np.ndarray, count: int) -> list[np.ndarray]:

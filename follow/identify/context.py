@@ -16,7 +16,7 @@ import numpy as np
 
 from follow.ccf.roi import Roi, covered_fraction, person_boxes, track_rois
 from follow.config import IdentifyConfig
-from follow.identify.appearance import Appearance, AppearanceModel
+from follow.identify.appearance import Appearance, AppearanceModel, reid_rule_applies
 from follow.types import Odometry, TrackState
 
 
@@ -215,8 +215,7 @@ class IdentityContext:
         learning that frame teaches the model the stranger, and the next frames trust
         it. The boosted classifier alone scores others too unsteadily to be outscored
         by them as evidence (docs/identification.md)."""
-        mode = self.config.learn_needs_lead_at_risk
-        if mode == "never" or (mode == "with_reid" and not self.model.has_reid):
+        if not reid_rule_applies(self.config.learn_needs_lead_at_risk, self.model.has_reid):
             return True
         if self.identity_trusted(frame.stamp_s):
             return True
