@@ -274,6 +274,7 @@ def section_errors(name: str, section) -> list[str]:
 
     bounds, choices = BOUNDS.get(name, {}), CHOICES.get(name, {})
     errors = []
+    out_of_range: set[str] = set()  # keys with a bad value: no cross-key check on them
     for f in dataclasses.fields(section):
         value = getattr(section, f.name)
         where = f"[{name}] {f.name}"
@@ -282,6 +283,7 @@ def section_errors(name: str, section) -> list[str]:
         if isinstance(value, str):
             if f.name in choices:
                 if value not in choices[f.name]:
+                    out_of_range.add(f.name)
                     errors.append(
                         f"{where} = {value!r}: must be one of {', '.join(choices[f.name])}"
                     )
@@ -291,18 +293,19 @@ def section_errors(name: str, section) -> list[str]:
         if f.name not in bounds:
             errors.append(f"{where}: no allowed range declared (follow/config_bounds.py)")
         elif not bounds[f.name].contains(value):
+            out_of_range.add(f.name)
             errors.append(f"{where} = {value!r} is out of range: {bounds[f.name].describe()}")
     for sec, small, large in ORDERED:
-        if sec != name or any(f"{key} =" in e for e in errors for key in (small, large)):
+        if sec != name or {small, large} & out_of_range:
             continue  # unordered pairs are only reported when both values are in range
         if getattr(section, small) > getattr(section, large):
             errors.append(
                 f"[{name}] {small} ({getattr(section, small)}) must not exceed "
                 f"{large} ({getattr(section, large)})"
             )
-    keys_ok = not any(f"{key} =" in e for e in errors for key in ("sigma_alpha", "sigma_kappa"))
-    if name == "tracker" and keys_ok and (spread := _sigma_spread_error(section)):
-        errors.append(spread)
+    if name == "tracker" and not {"sigma_alpha", "sigma_kappa"} & out_of_range:
+        if spread := _sigma_spread_error(section):
+            errors.append(spread)
     return errors
 
 
