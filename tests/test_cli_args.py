@@ -63,3 +63,34 @@ def test_a_plot_path_that_cannot_be_written_is_refused_before_the_evaluation(
     err = capsys.readouterr().err
     assert "argument --plot" in err and message in err
     assert plot_path(str(tmp_path / "plot.png")).endswith("plot.png")
+
+
+def test_bench_matrix_runs_the_runtimes_providers_names(monkeypatch, capsys):
+    """`--providers cpu,cuda`: one process per settings x runtime, the table naming the
+    back-end each actually ran on (a GPU runtime that falls back shows as the CPU)."""
+    import json
+    import subprocess
+    import types
+
+    from follow.eval import bench
+
+    commands = []
+
+    def fake_run(command, capture_output, text):
+        commands.append(command)
+        provider = command[command.index("--provider") + 1]
+        row = dict.fromkeys(bench.MATRIX_KEYS, 1.0)
+        row.update(pose_backend=f"onnxruntime:{provider}", pose_model="m.onnx")
+        return types.SimpleNamespace(returncode=0, stdout=json.dumps(row) + "\n", stderr="")
+
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    main(["bench", "--matrix", "--providers", "cpu,cuda,cpu", "--repeats", "2"])
+    cells = [(c[c.index("--settings") + 1], c[c.index("--provider") + 1]) for c in commands]
+    assert sorted(set(cells)) == [("pets", "cpu"), ("pets", "cuda"), ("robot", "cpu"),
+                                  ("robot", "cuda")]  # fmt: skip
+    assert len(cells) == 8  # twice each, the repeated name once
+    assert "onnxruntime:cuda" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_:
+        main(["bench", "--matrix", "--providers", "cpu,gpu"])
+    assert exit_.value.code == 2
+    assert "argument --providers: 'cpu,gpu': give runtimes from" in capsys.readouterr().err

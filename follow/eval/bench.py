@@ -10,8 +10,9 @@ One run measures, in this order and in one process:
    to command latency (median, p95), and end-to-end time per frame over the bare
    inference time (1.0 would be the floor).
 Peak RSS is the process's. `--matrix` runs the robot defaults and the PETS settings
-with onnxruntime and with OpenVINO, each in its own process (so each has its own peak
-RSS), and prints them side by side.
+with onnxruntime and with OpenVINO (or the runtimes `--providers` names: `cpu,cuda` on
+a GPU machine), each in its own process (so each has its own peak RSS), and prints them
+side by side with the back-end that actually ran.
 """
 
 from __future__ import annotations
@@ -29,7 +30,20 @@ from follow.config import Config
 
 PROVIDER_CHOICES = ("auto", "cpu", "openvino", "cuda", "tensorrt")
 SETTINGS_CHOICES = ("robot", "pets")
-MATRIX = (("robot", "cpu"), ("robot", "openvino"), ("pets", "cpu"), ("pets", "openvino"))
+MATRIX_PROVIDERS = ("cpu", "openvino")
+
+
+def provider_list(text: str) -> tuple[str, ...]:
+    """`--providers cpu,cuda`: runtimes from PROVIDER_CHOICES, each once, in order."""
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    unknown = [n for n in names if n not in PROVIDER_CHOICES]
+    if not names or unknown:
+        import argparse
+
+        raise argparse.ArgumentTypeError(
+            f"'{text}': give runtimes from {', '.join(PROVIDER_CHOICES)}, separated by commas"
+        )
+    return names
 
 
 def add_arguments(p) -> None:
@@ -44,7 +58,10 @@ def add_arguments(p) -> None:
                    help="rate the runner's simulated camera delivers frames at (default 30)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration over the chosen settings")
     p.add_argument("--matrix", action="store_true",
-                   help="robot and PETS settings x onnxruntime and OpenVINO, one process each")  # fmt: skip
+                   help="robot and PETS settings x runtimes (--providers), one process each")  # fmt: skip
+    p.add_argument("--providers", type=provider_list, default=MATRIX_PROVIDERS,
+                   help="with --matrix: runtimes to compare (default cpu,openvino; "
+                        "cpu,cuda,tensorrt on a GPU machine)")  # fmt: skip
     p.add_argument("--repeats", type=positive_int, default=1,
                    help="with --matrix: runs per cell; the table shows medians (default 1)")  # fmt: skip
 
@@ -292,8 +309,9 @@ def run_matrix(args) -> dict:
     that a change in the machine's load touches every cell alike."""
     from tqdm import tqdm
 
-    cells: dict[str, list[dict]] = {f"{s}/{p}": [] for s, p in MATRIX}
-    runs = [(s, p) for _ in range(args.repeats) for s, p in MATRIX]
+    matrix = [(s, p) for s in SETTINGS_CHOICES for p in args.providers]
+    cells: dict[str, list[dict]] = {f"{s}/{p}": [] for s, p in matrix}
+    runs = [(s, p) for _ in range(args.repeats) for s, p in matrix]
     for settings, provider in tqdm(runs, desc="bench matrix", unit="run", disable=args.json):
         command = [sys.executable, "-m", "follow.cli", "bench", "--json", "--settings", settings,
                    "--provider", provider, "--frames", str(args.frames), "--warmup",
@@ -314,10 +332,12 @@ def run_matrix(args) -> dict:
     if not args.json:
         print(f"medians of {args.repeats} run(s) per cell, camera {args.camera_fps:g} fps")
         print(f"{'cell':18s} {'inference ms':>12s} {'in turn fps':>11s} {'runner fps':>10s} "
-              f"{'x inference':>11s} {'latency p50':>11s} {'p95':>7s} {'peak RSS MB':>11s}")  # fmt: skip
+              f"{'x inference':>11s} {'latency p50':>11s} {'p95':>7s} {'peak RSS MB':>11s}  "
+              f"ran on")  # fmt: skip
         for name, row in table.items():
             print(f"{name:18s} {row['bare_inference_ms']:12.1f} {row['in_turn_fps']:11.1f} "
                   f"{row['runner_fps']:10.1f} {row['end_to_end_over_inference']:11.2f} "
                   f"{row['capture_to_command_median_ms']:11.1f} "
-                  f"{row['capture_to_command_p95_ms']:7.1f} {row['peak_rss_mb']:11.0f}")  # fmt: skip
+                  f"{row['capture_to_command_p95_ms']:7.1f} {row['peak_rss_mb']:11.0f}  "
+                  f"{row['pose_backend']}")  # fmt: skip
     return {"matrix": table, "repeats": args.repeats, "camera_fps": args.camera_fps}
