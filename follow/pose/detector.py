@@ -21,7 +21,7 @@ from follow.pose.preprocess import (
     prepare_frame,
     prepare_input,
 )
-from follow.pose.runtime import create_backend
+from follow.pose.runtime import create_backend, runs_on_gpu
 from follow.pose.stages import STAGE_CHOICES, initial_stage_file
 from follow.types import Skeleton
 
@@ -80,6 +80,9 @@ def _source_model_file(config: PoseConfig) -> Path:
                 f"[pose] model '{config.model}'; use precision 'fp32' or 'auto' with it"
             )
         config = dataclasses.replace(config, precision="fp32")  # auto: the named model
+    if config.precision == "auto" and runs_on_gpu(config.provider):
+        log.info("pose: precision 'auto' on a GPU: FP32 (the INT8 model is for CPUs)")
+        config = dataclasses.replace(config, precision="fp32")
     if config.precision == "auto":
         from follow.pose.quantize import default_int8_path
 

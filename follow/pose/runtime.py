@@ -211,6 +211,23 @@ def ort_available_providers() -> list[str]:
     return list(ort.get_available_providers())
 
 
+GPU_PROVIDERS = {
+    "cuda": ["CUDAExecutionProvider"],
+    "tensorrt": ["TensorrtExecutionProvider", "CUDAExecutionProvider"],
+}
+
+
+def runs_on_gpu(provider: str) -> bool:
+    """Whether `provider` will put the network on a GPU here: `cuda` or `tensorrt` (or
+    `auto`) with onnxruntime offering that GPU provider. Asked before the model file is
+    chosen, since the INT8 model is for CPUs (docs/pose.md: slower than FP32 on CUDA)."""
+    if provider not in ("auto", *GPU_PROVIDERS):
+        return False
+    available = ort_available_providers()
+    wanted = GPU_PROVIDERS.values() if provider == "auto" else [GPU_PROVIDERS[provider]]
+    return any(names[0] in available for names in wanted)
+
+
 def create_backend(provider: str, model_path: Path, cpu_threads: int = 0) -> PoseBackend:
     """The back-end for `provider`, falling back to onnxruntime CPU with a clear warning.
 
@@ -246,13 +263,9 @@ def _last_line(exc: Exception) -> str:
 def _create_backend(provider: str, model_path: Path, cpu_threads: int) -> PoseBackend:
     is_ir = model_path.suffix == ".xml"
     available = ort_available_providers()
-    wanted = {
-        "cuda": ["CUDAExecutionProvider"],
-        "tensorrt": ["TensorrtExecutionProvider", "CUDAExecutionProvider"],
-    }
     if provider == "auto":
         for gpu in ("tensorrt", "cuda"):
-            if not is_ir and wanted[gpu][0] in available:
+            if not is_ir and GPU_PROVIDERS[gpu][0] in available:
                 provider = gpu
                 break
         else:
@@ -266,11 +279,11 @@ def _create_backend(provider: str, model_path: Path, cpu_threads: int) -> PoseBa
                 model_path, ["OpenVINOExecutionProvider", "CPUExecutionProvider"], cpu_threads
             )
         _fallback_warning(provider, "the openvino package is not installed", available)
-    elif provider in wanted:
-        present = [p for p in wanted[provider] if p in available]
+    elif provider in GPU_PROVIDERS:
+        present = [p for p in GPU_PROVIDERS[provider] if p in available]
         if present and not is_ir:
             return OrtBackend(model_path, present + ["CPUExecutionProvider"], cpu_threads)
-        _fallback_warning(provider, f"onnxruntime here has no {wanted[provider][0]}", available)
+        _fallback_warning(provider, f"onnxruntime here has no {GPU_PROVIDERS[provider][0]}", available)
     if is_ir:
         raise ValueError(
             f"pose model {model_path} is an OpenVINO IR; onnxruntime cannot read it "
