@@ -21,6 +21,7 @@ POSE_PRECISIONS = ("auto", "fp32", "int8")
 # A rule of the identifier that may apply only beside a re-id cue
 # (follow.identify.appearance.reid_rule_applies).
 REID_RULE_CHOICES = ("with_reid", "always", "never")
+REID_PROVIDERS = ("auto", "cpu", "cuda")
 IDENTIFIERS = ("ccf10", "ccf25", "channels", "reid", "ccf10+reid", "ccf25+reid", "channels+reid")
 AUTOPILOTS = ("ardupilot", "px4")
 # Text keys with free values (a model name is checked by the model registry, a file
@@ -232,6 +233,7 @@ CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
         "identifier": IDENTIFIERS,
         "mirrored_positives": REID_RULE_CHOICES,
         "learn_needs_lead_at_risk": REID_RULE_CHOICES,
+        "reid_provider": REID_PROVIDERS,
     },
     "mavlink": {"autopilot": AUTOPILOTS},
     "control": {"overlap_stages": ("auto",)},  # or true / false

@@ -148,3 +148,75 @@ def test_a_snapshot_puts_back_what_was_learnt_after_it():
     model.learn(model.describe_crops([green[0]]), [])  # the copy put back is its own
     model.restore(saved)
     np.testing.assert_allclose(model.confidence(probes), before)
+
+
+@pytest.mark.parametrize(
+    ("provider", "offered", "expected"),
+    [
+        ("auto", ["CUDAExecutionProvider", "CPUExecutionProvider"], "CUDAExecutionProvider"),
+        ("auto", ["CPUExecutionProvider"], "CPUExecutionProvider"),
+        ("cuda", ["CUDAExecutionProvider", "CPUExecutionProvider"], "CUDAExecutionProvider"),
+        ("cpu", ["CUDAExecutionProvider", "CPUExecutionProvider"], "CPUExecutionProvider"),
+    ],
+)
+def test_the_reid_network_goes_to_the_gpu_where_one_is_offered_and_allowed(
+    provider, offered, expected
+):
+    from follow.identify.reid import reid_providers
+
+    chosen = reid_providers(provider, offered)
+    assert chosen[0] == expected and chosen[-1] == "CPUExecutionProvider"
+
+
+def test_reid_on_cuda_without_cuda_runs_on_the_cpu_saying_so(caplog):
+    from follow.identify.reid import reid_providers
+
+    assert reid_providers("cuda", ["CPUExecutionProvider"]) == ["CPUExecutionProvider"]
+    assert "reid_provider 'cuda' is not available" in caplog.text
+    with pytest.raises(ValueError, match="reid_provider 'tpu' unknown"):
+        reid_providers("tpu", ["CPUExecutionProvider"])
+
+
+def test_a_reid_provider_outside_the_choices_is_refused_by_the_configuration(tmp_path):
+    from follow.config import Config
+
+    path = tmp_path / "c.toml"
+    path.write_text('[identify]\nreid_provider = "gpu"\n')
+    with pytest.raises(ConfigError, match="reid_provider"):
+        Config.load(path)
+
+
+@pytest.mark.parametrize(("offered", "warm_runs"), [
+    (["CUDAExecutionProvider", "CPUExecutionProvider"], 1),
+    (["CPUExecutionProvider"], 0),
+])  # fmt: skip
+def test_the_reid_network_on_a_gpu_is_warmed_up_before_the_first_frame(
+    monkeypatch, tmp_path, offered, warm_runs
+):
+    """On CUDA the first run searches convolution algorithms (1.6 s on an H200): paid at
+    start-up, not by the first frame that needs re-id."""
+    import types
+
+    import onnxruntime as ort
+
+    runs = []
+
+    class FakeSession:
+        def __init__(self, model, options, providers):
+            self.providers = providers
+
+        def get_providers(self):
+            return self.providers
+
+        def get_inputs(self):
+            return [types.SimpleNamespace(name="crop", shape=[1, 256, 128, 3])]
+
+        def run(self, outputs, feeds):
+            runs.append(feeds["crop"].shape)
+            return [np.ones((1, 256), np.float32)]
+
+    monkeypatch.setattr(ort, "InferenceSession", FakeSession)
+    monkeypatch.setattr(ort, "get_available_providers", lambda: offered)
+    embedder = ReidEmbedder(tmp_path / "reid.onnx", provider="auto")
+    assert embedder.backend_name == f"onnxruntime:{offered[0]}"
+    assert runs == [(1, 256, 128, 3)] * warm_runs

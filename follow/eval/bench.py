@@ -53,7 +53,8 @@ def add_arguments(p) -> None:
                    help="robot defaults, or the PETS settings (follow/eval/pets2009.toml)")  # fmt: skip
     p.add_argument("--provider", choices=PROVIDER_CHOICES,
                    help="pose runtime: cpu = onnxruntime (the plain install), openvino, "
-                        "cuda, tensorrt (default: the config's)")  # fmt: skip
+                        "cuda, tensorrt (default: the config's); with cpu or openvino the "
+                        "re-id network runs on the CPU too")  # fmt: skip
     p.add_argument("--camera-fps", type=positive_float, default=30.0,
                    help="rate the runner's simulated camera delivers frames at (default 30)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration over the chosen settings")
@@ -85,6 +86,8 @@ def bench_config(args) -> Config:
         config = Config.load(args.config) if args.config else Config()
     if args.provider:
         config = config.replace("pose", provider=args.provider)
+        if args.provider not in ("auto", "cuda", "tensorrt"):  # a CPU cell: all on the CPU
+            config = config.replace("identify", reid_provider="cpu")
     return config
 
 

@@ -48,7 +48,9 @@ def build_extractor(feature_set: str, config: IdentifyConfig) -> FeatureExtracto
 def build_reid(config: IdentifyConfig) -> ReidEmbedder:
     from follow.models import resolve
 
-    return ReidEmbedder(resolve(REID_MODEL), threads=config.reid_threads)
+    return ReidEmbedder(
+        resolve(REID_MODEL), threads=config.reid_threads, provider=config.reid_provider
+    )
 
 
 def _section(config: IdentifyConfig | Config) -> IdentifyConfig:
