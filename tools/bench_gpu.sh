@@ -33,7 +33,22 @@ echo "== robot and PETS settings x cpu, cuda: medians of $repeats runs, camera 3
 follow bench --matrix --providers cpu,cuda --repeats "$repeats" 2>"$out/matrix.stderr" \
     | tee "$out/matrix.txt"
 
-echo "== robot settings, cuda, two CPU cores (taskset -c 0,1)"
+echo "== re-id embeddings of the robot-camera crops, CUDA against CPU"
+"$python" - <<'EOF' 2>&1 | tail -2
+import os, pathlib, cv2, numpy as np
+from follow.identify.reid import ReidEmbedder
+from follow.models import resolve
+crops = [cv2.imread(str(p)) for p in sorted(pathlib.Path(os.environ["FOLLOW_DATA_DIR"], "ccf_crops").glob("*.jpg"))]
+model = resolve("person-reidentification-retail-0248")
+gpu, cpu = ReidEmbedder(model, provider="cuda"), ReidEmbedder(model, provider="cpu")
+cos = np.sum(gpu.embed_crops(crops) * cpu.embed_crops(crops), axis=1)
+print(f"{len(crops)} crops on {gpu.backend_name}: cosine to the CPU's min {cos.min():.6f}")
+EOF
+
+echo "== robot settings, cuda, two CPU cores (taskset -c 0,1): re-id on the GPU, then the CPU"
+printf '[identify]\nreid_provider = "cuda"\n' >"$out/reid_cuda.toml"
+taskset -c 0,1 "$python" -m follow.cli bench --provider cuda --config "$out/reid_cuda.toml" \
+    --json 2>"$out/two_cores_reid_cuda.stderr" | tail -1 | tee "$out/two_cores_reid_cuda.json"
 taskset -c 0,1 "$python" -m follow.cli bench --provider cuda --json 2>"$out/two_cores.stderr" \
     | tail -1 | tee "$out/two_cores.json"
 
