@@ -306,6 +306,10 @@ class ControlConfig:
     max_blind_drive_s: float = 0.5
     # The control loop stops the base when perception has produced no result this long.
     watchdog_timeout_s: float = 0.5
+    # A live camera that delivers no frame this long ends the run with an error: the
+    # watchdog has long stopped the base, but a run that waits forever on a hung camera
+    # says nothing. 0 waits forever.
+    camera_stall_timeout_s: float = 5.0
     # `follow run --target-id N`: warn when track N has not appeared after this long.
     missing_target_warn_s: float = 5.0
     # After a loss, turn toward the last bearing for this long (0 = stop at once).

@@ -203,6 +203,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
         # Driving toward an unseen target, and a stalled perception, are bounded hard.
         "max_blind_drive_s": positive(1.0),
         "watchdog_timeout_s": positive(2.0),
+        "camera_stall_timeout_s": closed(0.0, 600.0),
         "missing_target_warn_s": positive(600.0),
         "search_duration_s": closed(0.0, 10.0),
         "search_yaw_rate_radps": closed(0.0, 3.0),

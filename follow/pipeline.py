@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from follow.capture import LatestSlot
+from follow.capture import LatestSlot, SourceError
 from follow.config import ControlConfig
 from follow.control.odometry import OdometryPolicy
 from follow.control.target import TargetMotion, ViewCone
@@ -350,6 +350,7 @@ class ThreadedRunner:
         self.skipped_without_odometry = 0
         self.capture_error: BaseException | None = None
         self.pose_error: BaseException | None = None
+        self.stall_timeout_s: float | None = None
 
     def _capture(self, source: Iterable[Frame], pace_hz: float | None) -> None:
         start = self.clock()
@@ -370,8 +371,26 @@ class ThreadedRunner:
             self.frames.close()
 
     def _newest_frames(self) -> Iterator[tuple[int, Frame, Odometry]]:
-        """Each newest captured frame with a known robot pose, until the source ends."""
-        for item in self.frames.items(self._stop, poll_s=1.0):
+        """Each newest captured frame with a known robot pose, until the source ends.
+        With `stall_timeout_s`, a source that delivers nothing that long (a camera whose
+        read hangs) raises SourceError: the base is already held at zero by the watchdog,
+        and the run ends saying why instead of waiting forever."""
+        timeout_s = self.stall_timeout_s
+        poll_s = min(1.0, timeout_s / 4.0) if timeout_s else 1.0
+        last_s = self.clock()
+        while not self._stop.is_set():
+            closed = self.frames.closed  # before `get`: an item put just before closing is read
+            item = self.frames.get(timeout_s=poll_s)
+            if item is None:
+                if closed:
+                    return
+                if timeout_s and self.clock() - last_s > timeout_s:
+                    raise SourceError(
+                        f"the camera delivered no frame for {timeout_s:g} s (hung or "
+                        "unplugged?); [control] camera_stall_timeout_s sets the limit"
+                    )
+                continue
+            last_s = self.clock()
             if item[2] is None:  # pose unknown when taken: the control loop stops
                 self.skipped_without_odometry += 1
                 continue
@@ -410,7 +429,11 @@ class ThreadedRunner:
         pace_hz: float | None = None,
         on_result: Callable[[Frame, FrameResult], None] | None = None,
         max_frames: int | None = None,
+        stall_timeout_s: float | None = None,
     ) -> None:
+        """Drive the base from `source` until it ends, `max_frames` are processed or an
+        error; a live source that delivers nothing for `stall_timeout_s` is an error."""
+        self.stall_timeout_s = stall_timeout_s
         capture = threading.Thread(
             target=self._capture, args=(source, pace_hz), name="capture", daemon=True
         )

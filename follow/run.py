@@ -369,7 +369,9 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
 
         try:
             runner.run(frames, pace_hz=None if source.live else source.fps,
-                       on_result=on_result, max_frames=args.max_frames)  # fmt: skip
+                       on_result=on_result, max_frames=args.max_frames,
+                       stall_timeout_s=(config.control.camera_stall_timeout_s
+                                        if source.live else None))  # fmt: skip
         finally:
             summary.dropped_frames = runner.dropped_frames
             summary.capture_to_command_ms = runner.control.latency.summary_ms()

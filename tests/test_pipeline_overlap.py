@@ -300,3 +300,38 @@ def test_the_base_gets_no_moving_command_once_the_run_is_stopping():
     assert any(not c.is_stop for c in base.commands)  # the target was followed
     assert stopping_moves == []
     assert base.commands[-1].is_stop
+
+
+@pytest.mark.parametrize("overlap", [False, True])
+def test_a_camera_that_hangs_ends_the_run_with_an_error_and_the_base_stopped(overlap):
+    """A live camera whose read blocks forever used to hold the base at zero and the run
+    open for ever, saying nothing; after the stall limit the run ends naming it."""
+    from follow.capture import SourceError
+
+    released = threading.Event()
+
+    def hanging_camera():
+        yield from _frames(5)
+        released.wait(30.0)  # the read that never returns
+
+    runner = _runner(_TimedPerception(0.005), overlap=overlap)
+    start = time.monotonic()
+    try:
+        with pytest.raises(SourceError, match="no frame for 0.6 s"):
+            runner.run(hanging_camera(), stall_timeout_s=0.6)
+    finally:
+        released.set()
+    assert time.monotonic() - start < 5.0
+    assert runner.processed >= 1
+    assert runner.base.commands[-1].is_stop
+
+
+def test_without_a_stall_limit_a_pause_in_the_source_is_waited_out():
+    def pausing_file():
+        yield from _frames(3)
+        time.sleep(0.8)
+        yield from _frames(3)
+
+    runner = _runner(_TimedPerception(0.005), overlap=False)
+    runner.run(pausing_file())
+    assert runner.captured == 6

@@ -112,3 +112,32 @@ def test_the_source_is_released_when_the_run_fails_before_it_starts(tmp_path, mo
     with pytest.raises((ValueError, OSError)):
         run_module.main(args)
     assert source.closed
+
+
+def test_a_live_camera_that_hangs_ends_follow_run_after_the_stall_limit():
+    """`[control] camera_stall_timeout_s` reaches the runner for a live source."""
+    import threading
+
+    from follow.capture import SourceError
+
+    released = threading.Event()
+
+    def camera():
+        yield from (Frame(np.zeros((48, 64, 3), np.uint8), k / 10) for k in range(3))
+        released.wait(30.0)
+
+    config = Config().replace("control", camera_stall_timeout_s=0.5)
+    base = _ConnectedBase()
+    started = time.monotonic()
+    try:
+        with pytest.raises(SourceError, match="no frame for 0.5 s"):
+            run_module.run_frames(
+                SimpleNamespace(realtime=False, max_frames=None), config,
+                SimpleNamespace(live=True, fps=30.0), camera(), _Perception(), CAMERA, base,
+                run_module.Outputs({}, 30.0), run_module.RunSummary(),
+                run_module.TargetIdWatch(None, 5.0),
+            )  # fmt: skip
+    finally:
+        released.set()
+    assert time.monotonic() - started < 5.0
+    assert base.commands[-1][1].is_stop
