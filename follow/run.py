@@ -217,11 +217,14 @@ class TargetIdWatch:
                         self.target_id, self.warn_after_s)  # fmt: skip
 
 
-def checked_frames(first: Frame, rest, source_name: str):
+def checked_frames(first: Frame, rest, source_name: str, yield_first: bool = True):
     """The frames of a stream, refusing one whose size differs from the first's (the
-    camera model and the tracks belong to one image size)."""
+    camera model and the tracks belong to one image size). A live camera's first frame
+    is left out (`yield_first` false): it was read to learn the size before the models
+    loaded, seconds before the run, and would be stamped as new when it is not."""
     size = first.image.shape[:2]
-    yield first
+    if yield_first:
+        yield first
     for index, frame in enumerate(rest, start=1):
         if frame.image.shape[:2] != size:
             h, w = frame.image.shape[:2]
@@ -311,7 +314,8 @@ def _run_source(args, config: Config, source) -> dict:
         try:
             base = open_base(config)
             signals.base = base
-            run_frames(args, config, source, checked_frames(first, frames, args.source),
+            frames = checked_frames(first, frames, args.source, yield_first=not source.live)
+            run_frames(args, config, source, frames,
                        perception, camera, base, outputs, summary, watch,
                        bag_odometry)  # fmt: skip
         except KeyboardInterrupt:

@@ -141,3 +141,38 @@ def test_a_live_camera_that_hangs_ends_follow_run_after_the_stall_limit():
         released.set()
     assert time.monotonic() - started < 5.0
     assert base.commands[-1][1].is_stop
+
+
+def test_a_live_cameras_size_probe_frame_is_not_run(tmp_path, monkeypatch):
+    """The first frame of a live camera is read to learn its size before the models load
+    (seconds): it is not fed to the run, where it would be stamped as just captured."""
+    seen = []
+
+    class Recording(_Perception):
+        def detect_people(self, frame):
+            seen.append(int(frame.image[0, 0, 0]))
+            return super().detect_people(frame)
+
+    class LiveSource:
+        fps, live = 30.0, True
+
+        def __iter__(self):
+            for k in range(4):
+                if k:
+                    time.sleep(0.1)  # a camera's pace: each frame is taken by the run
+                yield Frame(np.full((48, 64, 3), k, np.uint8), float(k))
+
+        def close(self):
+            pass
+
+    CAMERA.save(tmp_path / "camera.yaml")
+    monkeypatch.setattr(run_module, "open_source", lambda *a, **k: LiveSource())
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recording())
+    args = SimpleNamespace(
+        max_frames=None, config=None, mavlink=None, replay=None, source="0",
+        image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
+        realtime=False, camera=str(tmp_path / "camera.yaml"), output_video=None, log=None,
+        frames_dir=None, target_id=None, json=True,
+    )  # fmt: skip
+    run_module.main(args)
+    assert seen == [1, 2, 3]
