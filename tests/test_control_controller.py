@@ -194,3 +194,20 @@ def test_null_base_records_and_stops_on_close():
     assert base.last_command.is_stop and not base.healthy()
     with pytest.raises(RuntimeError, match="after close"):
         base.send(VelocityCommand(0.5, 0.1, 2.0))
+
+
+def test_a_starved_control_step_speeds_up_by_two_periods_at_most_but_brakes_in_full():
+    """A control thread that runs again 1 s late (a loaded CPU) jumped a second's
+    acceleration in one command (0.3 -> 1.5 m/s); the base spent that second at the old
+    speed. Speeding up now counts two periods at most; braking keeps the whole step."""
+    c = FollowingController()
+    c.update(target(4.0, 0.0, stamp=0.0), 0.0)
+    start = c.update(target(4.0, 0.0, stamp=PERIOD), PERIOD).forward_mps
+    late = c.update(target(4.0, 0.0, stamp=1.0 + PERIOD), 1.0 + PERIOD).forward_mps
+    assert late - start == pytest.approx(2 * PERIOD * CFG.max_forward_accel_mps2)
+    # braking from full speed toward a target at the set distance, after a late step
+    assert slew(1.5, 0.0, 1.5, 2.0, 1.0, rise_dt_s=2 * PERIOD) == 0.0
+    # a sign change: braking takes its time from the whole step, the rise after it is capped
+    assert slew(0.2, -1.0, 1.5, 2.0, 1.0, rise_dt_s=2 * PERIOD) == pytest.approx(
+        -1.5 * 2 * PERIOD
+    )

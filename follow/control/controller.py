@@ -64,19 +64,28 @@ def check_control_config(config: ControlConfig) -> None:
         )
 
 
-def slew(previous: float, wanted: float, rise_per_s: float, fall_per_s: float, dt_s: float):
+# Speeding up counts at most this many control periods since the last command: a
+# control thread starved for a second would otherwise jump a second's acceleration in
+# one command (0.3 -> 1.5 m/s), though the base spent that second at the old speed.
+MAX_RISE_PERIODS = 2.0
+
+
+def slew(previous: float, wanted: float, rise_per_s: float, fall_per_s: float, dt_s: float,
+         rise_dt_s: float | None = None):  # fmt: skip
     """`wanted`, reached from `previous` within dt at most at `rise_per_s` while moving
     away from zero and at most at `fall_per_s` while moving toward it (a sign change is
-    braking to zero first, then speeding up the other way)."""
+    braking to zero first, then speeding up the other way). Speeding up counts
+    `rise_dt_s` of the step where given (braking always counts all of it)."""
+    rise_dt_s = dt_s if rise_dt_s is None else min(dt_s, rise_dt_s)
     if previous == 0.0 or (wanted * previous > 0 and abs(wanted) >= abs(previous)):
-        step = rise_per_s * dt_s  # speeding up
+        step = rise_per_s * rise_dt_s  # speeding up
         return previous + float(np.clip(wanted - previous, -step, step))
     toward_zero = wanted if wanted * previous > 0 else 0.0
     braking = fall_per_s * dt_s
     reached = previous + float(np.clip(toward_zero - previous, -braking, braking))
     if reached != 0.0 or wanted == 0.0:
         return reached
-    left_s = dt_s - abs(previous) / fall_per_s  # time left after stopping
+    left_s = min(dt_s - abs(previous) / fall_per_s, rise_dt_s)  # time left after stopping
     return float(np.clip(wanted, -rise_per_s * left_s, rise_per_s * left_s))
 
 
@@ -99,6 +108,10 @@ class FollowingController:
     @property
     def period_s(self) -> float:
         return 1.0 / self.config.control_rate_hz
+
+    @property
+    def _rise_dt_s(self) -> float:
+        return MAX_RISE_PERIODS * self.period_s
 
     def reset(self) -> None:
         """Forget the previous command and the last seen bearing."""
@@ -156,7 +169,8 @@ class FollowingController:
             return VelocityCommand.stop(stamp_s)
         previous_yaw = self._last.yaw_rate_radps if self._last is not None else 0.0
         wanted = math.copysign(cfg.search_yaw_rate_radps, self._last_bearing_rad)
-        yaw = slew(previous_yaw, wanted, cfg.max_yaw_accel_radps2, cfg.max_yaw_accel_radps2, dt_s)
+        yaw = slew(previous_yaw, wanted, cfg.max_yaw_accel_radps2, cfg.max_yaw_accel_radps2,
+                   dt_s, self._rise_dt_s)  # fmt: skip
         return VelocityCommand(0.0, yaw, stamp_s)
 
     def _follow(self, target: TargetMotion, stamp_s: float, dt_s: float) -> VelocityCommand:
@@ -186,11 +200,12 @@ class FollowingController:
         previous = self._last or VelocityCommand.stop(stamp_s)
         forward = slew(
             previous.forward_mps, forward, cfg.max_forward_accel_mps2,
-            cfg.max_forward_decel_mps2, dt_s,
+            cfg.max_forward_decel_mps2, dt_s, self._rise_dt_s,
         )  # fmt: skip
         yaw = slew(
-            previous.yaw_rate_radps, yaw, cfg.max_yaw_accel_radps2, cfg.max_yaw_accel_radps2, dt_s
-        )
+            previous.yaw_rate_radps, yaw, cfg.max_yaw_accel_radps2, cfg.max_yaw_accel_radps2,
+            dt_s, self._rise_dt_s,
+        )  # fmt: skip
         if not target.observed:  # blind: forward bounded in time, turning bounded in rate
             yaw = float(np.clip(yaw, -cfg.search_yaw_rate_radps, cfg.search_yaw_rate_radps))
             forward = min(forward, self.blind_forward_limit_mps(stamp_s - target.stamp_s))
