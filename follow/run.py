@@ -304,7 +304,7 @@ def _run_source(args, config: Config, source) -> dict:
     if args.target_id is not None:
         perception.identifier.select_target(args.target_id)
     header = {"source": args.source, "camera": str(args.camera), "config": args.config,
-              "image_size": [width, height]}  # fmt: skip
+              "image_size": [width, height], "target_id": args.target_id}  # fmt: skip
     summary = RunSummary()
     watch = TargetIdWatch(args.target_id, config.control.missing_target_warn_s)
     started = time.perf_counter()
@@ -408,11 +408,26 @@ def check_replay_source(header: dict, log_path: str, source: str) -> None:
         raise ValueError(f"--replay {log_path}: the log is of source {logged}, not {source}")
 
 
+def replay_target_id(header: dict, log_path: str, asked: int | None) -> int | None:
+    """The track the replay selects: the run's own `--target-id` (in the log's header),
+    which a replay without one used to leave out, so its targets disagreed with the
+    run's from the first frame; `--target-id` given here must be the same."""
+    logged = header.get("target_id")
+    if logged is not None and (isinstance(logged, bool) or not isinstance(logged, int)):
+        raise ValueError(f"--replay {log_path}: the header's target_id {logged!r} is no track id")
+    if asked is not None and logged is not None and asked != logged:
+        raise ValueError(
+            f"--replay {log_path}: the run selected track {logged}, not --target-id {asked}"
+        )
+    return asked if asked is not None else logged
+
+
 def replay(args, config: Config) -> dict:
     """Tracking and identification again on a log's skeletons and the same frames."""
     header, records = read_run_log(args.replay)
     records = list(records)
     check_replay_source(header, args.replay, args.source)
+    target_id = replay_target_id(header, args.replay, args.target_id)
     by_index = {r.frame_index: r for r in records}
     source = FrameSource(args.source)
     camera = None
@@ -434,8 +449,8 @@ def replay(args, config: Config) -> dict:
                     )
                 camera = camera_for_frames(CameraModel.load(args.camera), w, h)
                 perception = build_perception(config, camera, detect=lambda f: current[0])
-                if args.target_id is not None:
-                    perception.identifier.select_target(args.target_id)
+                if target_id is not None:
+                    perception.identifier.select_target(target_id)
             current[0] = record.skeletons
             robot = record.robot or Odometry.origin(record.stamp_s)
             result = perception.process(Frame(frame.image, record.stamp_s), robot, index)

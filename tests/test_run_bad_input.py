@@ -132,3 +132,17 @@ def test_serial_link_needs_no_missing_module():
 
     with pytest.raises(MavlinkError, match="'/dev/ttyNONE0,115200'.*could not open port"):
         MavlinkBase(MavlinkConfig(connection="/dev/ttyNONE0,115200"))
+
+
+def test_a_replay_takes_the_runs_target_id_and_refuses_another_or_a_malformed_one():
+    from follow.run import replay_target_id
+
+    assert replay_target_id({"target_id": 3}, "run.jsonl", None) == 3
+    assert replay_target_id({"target_id": 3}, "run.jsonl", 3) == 3
+    assert replay_target_id({}, "run.jsonl", 4) == 4  # a log from before the header had it
+    assert replay_target_id({"target_id": None}, "run.jsonl", None) is None
+    with pytest.raises(ValueError, match="the run selected track 3, not --target-id 4"):
+        replay_target_id({"target_id": 3}, "run.jsonl", 4)
+    for bad in ("3", 2.5, True):
+        with pytest.raises(ValueError, match="run.jsonl: the header's target_id .* is no track"):
+            replay_target_id({"target_id": bad}, "run.jsonl", None)

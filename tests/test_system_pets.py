@@ -74,3 +74,19 @@ def test_replay_reproduces_the_targets(pets_run, capsys):
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["frames"] == FRAMES
     assert summary["target_agreement"] == 1.0
+
+
+def test_replay_selects_the_runs_target_without_being_told(pets_run, capsys):
+    """The run's --target-id is in the log's header: a replay without it used to select
+    nobody, and its targets disagreed with the run's."""
+    root, out, args = pets_run
+    header, _ = read_run_log(out / "run.jsonl")
+    assert header["target_id"] == 1
+    capsys.readouterr()
+    replay = args[:4] + ["--config", str(out / "config.toml"), "--replay",
+                         str(out / "run.jsonl"), "--json"]  # fmt: skip
+    assert cli.main(replay) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["target_agreement"] == 1.0
+    assert cli.main(replay[:-1] + ["--target-id", "2", "--json"]) != 0
+    assert "the run selected track 1, not --target-id 2" in capsys.readouterr().err
