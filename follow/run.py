@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from follow.camera import CameraModel
-from follow.capture import FrameSource, open_source
+from follow.capture import open_source
 from follow.cli_args import non_negative_int
 from follow.config import Config
 from follow.pipeline import FrameResult, Perception, build_runner, run_offline
@@ -281,6 +281,17 @@ def main(args) -> dict:
         source.close()
 
 
+def source_camera(camera_file, source, width: int, height: int) -> CameraModel:
+    """The camera model of a run: the camera file, with a bag's CameraInfo over it where
+    the bag has one, scaled to the frames' size."""
+    camera = CameraModel.load(camera_file)
+    if getattr(source, "camera_info", None) is not None:
+        from follow.rosmsg import camera_from_info
+
+        camera = camera_from_info(source.camera_info, camera)
+    return camera_for_frames(camera, width, height)
+
+
 def _run_source(args, config: Config, source) -> dict:
     """`main` on an opened source, which the caller closes."""
     bag_odometry = source.odometry_at if getattr(source, "odometry", None) is not None else None
@@ -293,12 +304,7 @@ def _run_source(args, config: Config, source) -> dict:
     if first is None:
         raise ValueError(f"source {args.source}: no frames")
     height, width = first.image.shape[:2]
-    camera = CameraModel.load(args.camera)
-    if getattr(source, "camera_info", None) is not None:
-        from follow.rosmsg import camera_from_info
-
-        camera = camera_from_info(source.camera_info, camera)
-    camera = camera_for_frames(camera, width, height)
+    camera = source_camera(args.camera, source, width, height)
     detect = source.recorded_skeletons if args.skeletons_topic else None
     perception = build_perception(config, camera, detect)
     if args.target_id is not None:
@@ -429,7 +435,8 @@ def replay(args, config: Config) -> dict:
     check_replay_source(header, args.replay, args.source)
     target_id = replay_target_id(header, args.replay, args.target_id)
     by_index = {r.frame_index: r for r in records}
-    source = FrameSource(args.source)
+    source = open_source(args.source, args.image_topic, None, args.camera_info_topic,
+                         config.ros.max_odometry_age_s)  # the log holds the robot's poses
     camera = None
     perception = None
     agree = total = 0
@@ -447,7 +454,7 @@ def replay(args, config: Config) -> dict:
                         f"--replay {args.replay}: the log is of {logged[0]}x{logged[1]} "
                         f"frames, but {args.source} has {w}x{h} frames"
                     )
-                camera = camera_for_frames(CameraModel.load(args.camera), w, h)
+                camera = source_camera(args.camera, source, w, h)
                 perception = build_perception(config, camera, detect=lambda f: current[0])
                 if target_id is not None:
                     perception.identifier.select_target(target_id)

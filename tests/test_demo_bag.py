@@ -47,6 +47,15 @@ def test_follow_run_replays_the_demo_bag_to_the_same_targets(tmp_path, capsys):
             np.testing.assert_allclose(a["mean"], b["mean"], atol=2e-3)
     assert sum(r.target_status == "tracking" for r in replay) > 30
 
+    # The bag run's own log replays on the bag (`--replay` opened only video files).
+    capsys.readouterr()
+    again = ["run", str(bag), "--camera", str(camera_file), "--config", str(config_file),
+             "--image-topic", IMAGE_TOPIC, "--camera-info-topic", CAMERA_INFO_TOPIC,
+             "--replay", str(tmp_path / "replay.jsonl"), "--json"]  # fmt: skip
+    assert cli.main(again) == 0
+    replayed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert replayed == {"frames": len(replay), "target_agreement": 1.0}
+
     # The ground truth in the bag: the followed track lies on the true target.
     with AnyReader([bag]) as reader:
         (people,) = [c for c in reader.connections if c.topic == TRUE_PEOPLE_TOPIC]
