@@ -24,6 +24,7 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("eval", "pose-near"): ("follow.eval.pose_near", "skeleton detector on people seen large (real crops, robot scale)"),
     ("eval", "crops"): ("follow.eval.crops", "target identification on real person crops"),
     ("eval", "ankle-height"): ("follow.eval.ankle_height", "ankle keypoint height over the annotated ground point (PETS 2009)"),
+    ("eval", "walking-accel"): ("follow.eval.walking_accel", "how steadily the annotated people walk: the tracker's acceleration noise (PETS 2009)"),
     ("eval", "tracking"): ("follow.eval.tracking", "CLEAR MOT / IDF1 on PETS 2009 against other trackers"),
     ("eval", "following"): ("follow.eval.following", "closed-loop following over the simulated MAVLink rover"),
     ("eval", "safety"): ("follow.eval.safety", "every fault against the simulated rover: time to standstill, distance driven"),
