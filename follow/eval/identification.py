@@ -82,22 +82,38 @@ def add_arguments(p) -> None:
 
 
 class _CachedDescribe:
-    """Memoises an appearance model's `describe` per (frame, ROI): the cues of a person
-    in a frame do not depend on which target is being learnt. Every ROI gets its re-id
-    embedding (`embed` is ignored): computed once, it serves all the targets, and the
-    identifier's decisions are the same as with embeddings only where they decide."""
+    """Memoises an appearance model's `describe` and `complete` per (frame, ROI): the
+    cues of a person in a frame do not depend on which target is being learnt. Each
+    ROI's re-id embedding is computed once for all the targets, but handed to the
+    identifier only where it asks for one (`describe`'s `embed`, then `complete`), as on
+    a robot: there, while the target is tracked, the other people are scored by the
+    classifier alone. (Handing every embedding over scored them with both cues, so the
+    rules that compare the target with the others decided otherwise than live.)"""
 
-    def __init__(self, describe):
-        self.describe = describe
+    def __init__(self, model):
+        self.model = model
+        self._describe = model.describe
         self.frame_index = -1
         self.cache: dict = {}
 
-    def __call__(self, image_bgr, rois, embed=None):
+    def _cues(self, image_bgr, rois) -> list:
         missing = [r for r in rois if (self.frame_index, tuple(r)) not in self.cache]
         if missing:
-            for roi, cue in zip(missing, self.describe(image_bgr, missing), strict=True):
+            for roi, cue in zip(missing, self._describe(image_bgr, missing), strict=True):
                 self.cache[(self.frame_index, tuple(roi))] = cue
         return [self.cache[(self.frame_index, tuple(r))] for r in rois]
+
+    def describe(self, image_bgr, rois, embed=None) -> list:
+        cues = self._cues(image_bgr, rois)
+        if embed is None:
+            return cues
+        return [c if wanted else dataclasses.replace(c, embedding=None)
+                for c, wanted in zip(cues, embed, strict=True)]  # fmt: skip
+
+    def complete(self, image_bgr, rois, appearances) -> list:
+        cues = self._cues(image_bgr, rois)
+        return [dataclasses.replace(a, embedding=c.embedding) if self.model.lacks_embedding(a)
+                else a for a, c in zip(appearances, cues, strict=True)]  # fmt: skip
 
 
 def _nearest(candidates, position_m, max_distance_m: float):
@@ -126,8 +142,9 @@ def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame
     for target in target_ids:
         identifier = build_identifier(section)
         if cache is None:
-            cache = _CachedDescribe(identifier.model.describe)
-        identifier.model.describe = cache
+            cache = _CachedDescribe(identifier.model)
+        identifier.model.describe = cache.describe
+        identifier.model.complete = cache.complete
         tally = OutcomeTally()
         maybe_target = undecided.get(target, frozenset())
         picker = TargetPicker(round(PICK_STEADY_S * PETS_FPS))
