@@ -41,6 +41,7 @@ def test_the_pose_model_name_is_checked_whatever_the_precision(tmp_path, monkeyp
     [
         ("cuda", ["CUDAExecutionProvider", "CPUExecutionProvider"], "fp32"),
         ("tensorrt", ["TensorrtExecutionProvider", "CUDAExecutionProvider"], "fp32"),
+        ("tensorrt", ["CUDAExecutionProvider", "CPUExecutionProvider"], "fp32"),  # on CUDA
         ("auto", ["CUDAExecutionProvider", "CPUExecutionProvider"], "fp32"),
         ("cuda", ["CPUExecutionProvider"], "int8"),  # falls back to the CPU: INT8 is right
         ("auto", ["CPUExecutionProvider"], "int8"),

@@ -217,15 +217,23 @@ GPU_PROVIDERS = {
 }
 
 
+def _auto_gpu(available: list[str], is_ir: bool) -> str | None:
+    """The GPU provider `auto` chooses here (TensorRT, else CUDA), or None."""
+    for gpu in ("tensorrt", "cuda"):
+        if not is_ir and GPU_PROVIDERS[gpu][0] in available:
+            return gpu
+    return None
+
+
 def runs_on_gpu(provider: str) -> bool:
-    """Whether `provider` will put the network on a GPU here: `cuda` or `tensorrt` (or
-    `auto`) with onnxruntime offering that GPU provider. Asked before the model file is
+    """Whether `provider` will put the network on a GPU here, as `create_backend` does:
+    `auto` with a GPU provider offered, or `cuda` / `tensorrt` with any of theirs
+    offered (TensorRT missing, its request runs on CUDA). Asked before the model file is
     chosen, since the INT8 model is for CPUs (docs/pose.md: slower than FP32 on CUDA)."""
-    if provider not in ("auto", *GPU_PROVIDERS):
-        return False
     available = ort_available_providers()
-    wanted = GPU_PROVIDERS.values() if provider == "auto" else [GPU_PROVIDERS[provider]]
-    return any(names[0] in available for names in wanted)
+    if provider == "auto":
+        return _auto_gpu(available, is_ir=False) is not None
+    return any(p in available for p in GPU_PROVIDERS.get(provider, ()))
 
 
 def create_backend(provider: str, model_path: Path, cpu_threads: int = 0) -> PoseBackend:
@@ -264,12 +272,7 @@ def _create_backend(provider: str, model_path: Path, cpu_threads: int) -> PoseBa
     is_ir = model_path.suffix == ".xml"
     available = ort_available_providers()
     if provider == "auto":
-        for gpu in ("tensorrt", "cuda"):
-            if not is_ir and GPU_PROVIDERS[gpu][0] in available:
-                provider = gpu
-                break
-        else:
-            provider = "openvino" if openvino_installed() else "cpu"
+        provider = _auto_gpu(available, is_ir) or ("openvino" if openvino_installed() else "cpu")
         log.info("pose: provider 'auto' chose '%s'", provider)
     if provider == "openvino":
         if openvino_installed():
