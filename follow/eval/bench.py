@@ -27,6 +27,7 @@ import numpy as np
 
 from follow.cli_args import non_negative_int, positive_float, positive_int
 from follow.config import Config
+from follow.pose.runtime import GPU_PROVIDERS
 
 PROVIDER_CHOICES = ("auto", "cpu", "openvino", "cuda", "tensorrt")
 SETTINGS_CHOICES = ("robot", "pets")
@@ -86,7 +87,7 @@ def bench_config(args) -> Config:
         config = Config.load(args.config) if args.config else Config()
     if args.provider:
         config = config.replace("pose", provider=args.provider)
-        if args.provider not in ("auto", "cuda", "tensorrt"):  # a CPU cell: all on the CPU
+        if args.provider not in ("auto", *GPU_PROVIDERS):  # a CPU cell: all on the CPU
             config = config.replace("identify", reid_provider="cpu")
     return config
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from follow.ccf.features import Roi, cut_crops, resize_crops
 from follow.config import IdentifyConfig
+from follow.config_bounds import REID_PROVIDERS
 from follow.identify.gallery import add_keeping_diverse
 
 log = logging.getLogger(__name__)
@@ -28,8 +29,10 @@ EMBEDDING_SIZE = 256
 def reid_providers(provider: str, available: Sequence[str]) -> list[str]:
     """onnxruntime providers for `provider` (auto | cpu | cuda): CUDA first where asked
     for (or, with auto, offered), the CPU always behind it."""
-    if provider not in ("auto", "cpu", "cuda"):
-        raise ValueError(f"reid_provider '{provider}' unknown; choose auto, cpu or cuda")
+    if provider not in REID_PROVIDERS:
+        raise ValueError(
+            f"reid_provider '{provider}' unknown; choose one of {', '.join(REID_PROVIDERS)}"
+        )
     if provider == "cuda" and "CUDAExecutionProvider" not in available:
         log.warning(
             "re-id: reid_provider 'cuda' is not available (onnxruntime offers %s); "
