@@ -33,16 +33,22 @@ class Mailbox:
     def get(self, timeout_s: float | None = None):
         raise NotImplementedError
 
-    def items(self, stop: threading.Event | None = None, poll_s: float = POLL_S) -> Iterator:
+    def items(self, stop: threading.Event | None = None, poll_s: float = POLL_S,
+              max_wait_s: float | None = None) -> Iterator:  # fmt: skip
         """Each item as it comes, until the mailbox is closed and empty or `stop` is set
-        (looked at every `poll_s` seconds while nothing comes)."""
+        (looked at every `poll_s` seconds while nothing comes); with `max_wait_s`,
+        TimeoutError once nothing has come for that long (the giver hangs)."""
+        last_s = time.monotonic()
         while stop is None or not stop.is_set():
             closed = self._closed  # before `get`: an item put just before closing is read
             item = self.get(timeout_s=poll_s)
             if item is None:
                 if closed:
                     return
+                if max_wait_s and time.monotonic() - last_s > max_wait_s:
+                    raise TimeoutError(f"nothing came for {max_wait_s:g} s")
                 continue
+            last_s = time.monotonic()
             yield item
 
     def close(self) -> None:

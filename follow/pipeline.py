@@ -350,7 +350,6 @@ class ThreadedRunner:
         self.skipped_without_odometry = 0
         self.capture_error: BaseException | None = None
         self.pose_error: BaseException | None = None
-        self.stall_timeout_s: float | None = None
 
     def _capture(self, source: Iterable[Frame], pace_hz: float | None) -> None:
         start = self.clock()
@@ -370,43 +369,37 @@ class ThreadedRunner:
         finally:
             self.frames.close()
 
-    def _newest_frames(self) -> Iterator[tuple[int, Frame, Odometry]]:
+    def _newest_frames(self, stall_timeout_s: float | None) -> Iterator[tuple[int, Frame, Odometry]]:
         """Each newest captured frame with a known robot pose, until the source ends.
         With `stall_timeout_s`, a source that delivers nothing that long (a camera whose
         read hangs) raises SourceError: the base is already held at zero by the watchdog,
         and the run ends saying why instead of waiting forever."""
-        timeout_s = self.stall_timeout_s
-        poll_s = min(1.0, timeout_s / 4.0) if timeout_s else 1.0
-        last_s = self.clock()
-        while not self._stop.is_set():
-            closed = self.frames.closed  # before `get`: an item put just before closing is read
-            item = self.frames.get(timeout_s=poll_s)
-            if item is None:
-                if closed:
-                    return
-                if timeout_s and self.clock() - last_s > timeout_s:
-                    raise SourceError(
-                        f"the camera delivered no frame for {timeout_s:g} s (hung or "
-                        "unplugged?); [control] camera_stall_timeout_s sets the limit"
-                    )
-                continue
-            last_s = self.clock()
-            if item[2] is None:  # pose unknown when taken: the control loop stops
-                self.skipped_without_odometry += 1
-                continue
-            yield item
+        poll_s = min(1.0, stall_timeout_s / 4.0) if stall_timeout_s else 1.0
+        try:
+            for item in self.frames.items(self._stop, poll_s, max_wait_s=stall_timeout_s):
+                if item[2] is None:  # pose unknown when taken: the control loop stops
+                    self.skipped_without_odometry += 1
+                    continue
+                yield item
+        except TimeoutError:
+            raise SourceError(
+                f"the camera delivered no frame for {stall_timeout_s:g} s (hung or "
+                "unplugged?); [control] camera_stall_timeout_s sets the limit"
+            ) from None
 
-    def _detected_in_turn(self) -> Iterator[tuple[int, Frame, Odometry, Detections]]:
-        for index, frame, robot in self._newest_frames():
+    def _detected_in_turn(self, stall_timeout_s: float | None
+                          ) -> Iterator[tuple[int, Frame, Odometry, Detections]]:  # fmt: skip
+        for index, frame, robot in self._newest_frames(stall_timeout_s):
             yield index, frame, robot, self.perception.detect_people(frame)
 
-    def _detected_ahead(self) -> Iterator[tuple[int, Frame, Odometry, Detections]]:
+    def _detected_ahead(self, stall_timeout_s: float | None
+                        ) -> Iterator[tuple[int, Frame, Odometry, Detections]]:  # fmt: skip
         """Pose inference on its own thread, one frame ahead of the caller."""
         handoff = Handoff()
 
         def infer() -> None:
             try:
-                for index, frame, robot in self._newest_frames():
+                for index, frame, robot in self._newest_frames(stall_timeout_s):
                     item = (index, frame, robot, self.perception.detect_people(frame))
                     if not handoff.give(item, self._stop):
                         return
@@ -433,14 +426,16 @@ class ThreadedRunner:
     ) -> None:
         """Drive the base from `source` until it ends, `max_frames` are processed or an
         error; a live source that delivers nothing for `stall_timeout_s` is an error."""
-        self.stall_timeout_s = stall_timeout_s
         capture = threading.Thread(
             target=self._capture, args=(source, pace_hz), name="capture", daemon=True
         )
         capture.start()
         self.control.start()
         outputs = OrderedWorker(on_result) if on_result is not None else None
-        detected = self._detected_ahead() if self.overlap_stages else self._detected_in_turn()
+        if self.overlap_stages:
+            detected = self._detected_ahead(stall_timeout_s)
+        else:
+            detected = self._detected_in_turn(stall_timeout_s)
         try:
             for index, frame, robot, detections in detected:
                 result = self.perception.conclude(frame, robot, index, detections)
