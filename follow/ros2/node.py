@@ -429,13 +429,13 @@ class FollowNode(Node):
 
     # ------------------------------------------------------------------ shutdown
     def shutdown(self) -> dict:
-        """Stop perception and control; the base's last command is zero."""
+        """Stop control, then perception; the base's last command is zero."""
+        if self.control is not None:
+            self.control.stop()  # first: waiting for the pose thread must not drive on
         self._stopping.set()
         self._images.close()
         for worker in self._workers:
             worker.join(timeout=10.0)
-        if self.control is not None:
-            self.control.stop()  # sends zero through the gate
         if self.config.ros.publish_cmd_vel:
             self._publish_twist(VelocityCommand.stop(self.now_s()))
         return {
