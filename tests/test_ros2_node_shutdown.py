@@ -127,3 +127,18 @@ def test_shutdown_stops_the_base_before_waiting_for_the_pose_network():
         node.destroy_node()
     assert not _moving(last), f"still driving at {last.linear.x} m/s during shutdown"
     assert not driving, "the control loop still ran while shutdown waited for the network"
+
+
+def test_destroying_the_node_stops_the_base_first():
+    """A process that hosts the node may destroy it without `shutdown`: its publishers
+    go, and a control loop left running can no longer send the zero."""
+    node, twists, done = _driving_node(lambda frame: [])
+    try:
+        node.results.put(_result(node.now_s()))
+        node.control.notify()
+        assert _wait(lambda: bool(twists) and _moving(twists[-1])), "the base never drove"
+    finally:
+        done.set()
+        node.destroy_node()
+    assert twists and not _moving(twists[-1])
+    assert not node.control._thread.is_alive() and node.control.error is None

@@ -447,6 +447,14 @@ class FollowNode(Node):
             "cmd_vel_blocked": self.gate.blocked if self.gate is not None else 0,
         }
 
+    def destroy_node(self) -> None:
+        """`shutdown` first, unless done: a process hosting the node may destroy it
+        without, and once the publishers are gone the control loop cannot send zero."""
+        stopping = getattr(self, "_stopping", None)  # None: __init__ failed before threads
+        if stopping is not None and not stopping.is_set():
+            self.shutdown()
+        super().destroy_node()
+
 
 def run(config: Config, camera: CameraModel, ros_args: list[str]) -> dict:
     """Spin the node until SIGINT, SIGTERM or SIGHUP, then stop the base and shut down."""
