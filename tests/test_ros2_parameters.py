@@ -43,6 +43,26 @@ def test_a_misspelt_parameter_is_refused_with_the_nearest_name():
         _parameters("control.max_forwrd_speed_mps:=1.0")
 
 
+def test_a_change_at_run_time_is_refused_by_name():
+    """The configuration is read once, at start-up: `ros2 param set` must not report a
+    change (say, `ros.publish_cmd_vel` off) that the node does not make."""
+    from rclpy.parameter import Parameter
+
+    context = rclpy.Context()
+    rclpy.init(args=["follow"], context=context)
+    node = Node("follow_parameters_test", context=context)
+    try:
+        parameters_over(node, Config())
+        results = node.set_parameters([Parameter("ros.publish_cmd_vel", value=False),
+                                       Parameter("control.max_forward_speed_mps", value=9.0)])
+        assert [r.successful for r in results] == [False, False]
+        assert "ros.publish_cmd_vel" in results[0].reason and "restart" in results[0].reason
+        assert node.get_parameter("control.max_forward_speed_mps").value == 1.5
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
 def test_a_failed_control_loop_is_an_error_in_the_diagnostics():
     from diagnostic_msgs.msg import DiagnosticStatus
 

@@ -79,6 +79,7 @@ def parameters_over(node: Node, config: Config) -> Config:
             if value != default:
                 changed.setdefault(section.name, {})[field.name] = value
     _refuse_unknown_parameters(node, declared)
+    _refuse_changes(node, declared)
     return Config.from_dict(changed, source="ROS parameters", base=config)
 
 
@@ -94,6 +95,25 @@ def _refuse_unknown_parameters(node: Node, declared: list[str]) -> None:
         hints = [f"{name} (did you mean {close[0]}?)" if close else name for name in unknown
                  for close in [difflib.get_close_matches(name, declared, n=1)]]  # fmt: skip
         raise ConfigError(f"unknown ROS parameter(s): {', '.join(hints)}")
+
+
+def _refuse_changes(node: Node, declared: list[str]) -> None:
+    """The configuration is read once, at start-up: a `ros2 param set` of one of its
+    keys would report success (unchecked, e.g. out of range) and change nothing, say
+    `ros.publish_cmd_vel` turned off while the node drives on."""
+    from rcl_interfaces.msg import SetParametersResult
+
+    names = set(declared)
+
+    def refuse(parameters) -> SetParametersResult:
+        fixed = [p.name for p in parameters if p.name in names]
+        if not fixed:
+            return SetParametersResult(successful=True)
+        return SetParametersResult(successful=False, reason=(
+            f"{', '.join(fixed)}: read at start-up only; restart the node with "
+            "-p section.key:=value"))  # fmt: skip
+
+    node.add_on_set_parameters_callback(refuse)
 
 
 def _describe(key: tuple | None) -> str:
