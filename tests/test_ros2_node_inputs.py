@@ -88,6 +88,16 @@ def test_odometry_in_another_frame_than_ros_odom_frame_is_not_used(node):
     assert node.gate.healthy()
 
 
+def test_odometry_stamped_ahead_of_the_clock_is_dropped_and_counted(node):
+    """A base driver whose clock runs ahead: its poses are not fresh (no cmd_vel), and
+    the node says why instead of keeping them where images look for their pose."""
+    now = node.now_s()
+    node._on_odometry(_odometry(now + 3.0))
+    assert node.odometry_dropped == 1 and len(node.odometry) == 0 and not node.gate.healthy()
+    node._on_odometry(_odometry(now + 0.01))
+    assert node.odometry_dropped == 1 and node.gate.healthy()
+
+
 def test_an_image_of_another_size_mid_run_is_refused():
     config = Config().replace("identify", identifier="channels")
     node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,

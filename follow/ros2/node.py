@@ -37,6 +37,7 @@ from visualization_msgs.msg import MarkerArray
 from follow.camera import CameraModel
 from follow.capture import LatestSlot
 from follow.config import Config, ConfigError
+from follow.freshness import is_ahead
 from follow.handoff import Handoff
 from follow.odometry_buffer import OdometryBuffer
 from follow.pipeline import ControlLoop, FrameResult, overlaps_stages
@@ -240,8 +241,9 @@ class FollowNode(Node):
 
     def _on_odometry(self, msg) -> None:
         """A pose in `ros.odom_frame` (the frame tracks are kept and published in); one in
-        another frame, or unusable (NaN, no orientation), is dropped with a warning: the
-        odometry then goes stale and the base stops, but the node lives on."""
+        another frame, unusable (NaN, no orientation) or stamped ahead of the node's
+        clock (never fresh, `follow.freshness`) is dropped with a warning: the odometry
+        then goes stale and the base stops, but the node lives on."""
         odom_frame = self.config.ros.odom_frame
         frame_id = str(msg.header.frame_id)
         if frame_id and frame_id.lstrip("/") != odom_frame.lstrip("/"):
@@ -256,6 +258,15 @@ class FollowNode(Node):
         except InvalidInput as exc:
             self.odometry_dropped += 1
             self.get_logger().warning(f"odometry dropped: {exc}", throttle_duration_sec=5.0)
+            return
+        now = self.now_s()
+        if is_ahead(now, pose.stamp_s):
+            self.odometry_dropped += 1
+            self.get_logger().warning(
+                f"odometry dropped: stamped {pose.stamp_s - now:.2f} s ahead of the node's "
+                "clock (the base driver's clock disagrees: synchronise the clocks)",
+                throttle_duration_sec=5.0,
+            )  # fmt: skip
             return
         self.odometry.add(pose)
         if self.gate is not None:
