@@ -161,7 +161,7 @@ class FollowNode(Node):
         self.frames_without_odometry = 0
         self.odometry_dropped = 0  # odometry messages in another frame or unusable
         self._camera_key: tuple | None = None  # the image size and camera_info perceived with
-        self.stale_frames = 0  # images not newer than the last one processed
+        self.stale_frames = 0  # images not newer than the last one processed, or ahead
         self.errors = 0
         self._last_stamp: float | None = None
         self._recent: deque = deque(maxlen=300)  # (wall time, timing_ms) per frame
@@ -356,10 +356,18 @@ class FollowNode(Node):
 
     def _detect_in(self, msg):
         """(frame, robot pose, detections, the image's header) of an image message, or None
-        for an image that is dropped (out of order, unreadable, without odometry, or
-        before the camera is known)."""
+        for an image that is dropped (out of order or stamped ahead of the clock,
+        unreadable, without odometry, or before the camera is known)."""
         ros = self.config.ros
         stamp = stamp_s(msg.header)
+        now = self.now_s()
+        if is_ahead(now, stamp):  # as the last one processed, it would block later images
+            self.stale_frames += 1
+            self.get_logger().warning(
+                f"image dropped: stamped {stamp - now:.2f} s ahead of the node's clock (the "
+                "camera's clock disagrees: synchronise the clocks)", throttle_duration_sec=5.0,
+            )  # fmt: skip
+            return None
         if self._last_stamp is not None and stamp <= self._last_stamp:
             self.stale_frames += 1
             if self._last_stamp - stamp > CLOCK_STEP_S:
