@@ -37,6 +37,13 @@ def test_a_parameter_overrides_its_key():
     assert _parameters("control.target_timeout_s:=0.4").control.target_timeout_s == 0.4
 
 
+def test_a_key_of_two_types_takes_either():
+    """`[control] overlap_stages` is "auto", true or false: the parameter declared with
+    the default's type would refuse the other."""
+    assert _parameters("control.overlap_stages:=false").control.overlap_stages is False
+    assert _parameters("control.overlap_stages:=auto").control.overlap_stages == "auto"
+
+
 def test_a_misspelt_parameter_is_refused_with_the_nearest_name():
     with pytest.raises(ConfigError, match=r"control\.max_forwrd_speed_mps \(did you mean "
                        r"control\.max_forward_speed_mps\?\)"):  # fmt: skip

@@ -64,6 +64,7 @@ CLOCK_STEP_S = 1.0  # an image this much older than the last one: a clock went b
 def parameters_over(node: Node, config: Config) -> Config:
     """Every config key declared as a ROS parameter `section.key` (default: the TOML's
     value); the values the node was started with override the TOML."""
+    from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.exceptions import ParameterException
 
     changed: dict[str, dict] = {}
@@ -73,8 +74,10 @@ def parameters_over(node: Node, config: Config) -> Config:
         for field in dataclasses.fields(values):
             default, name = getattr(values, field.name), f"{section.name}.{field.name}"
             declared.append(name)
+            # a key of two types (`overlap_stages`: "auto", true or false) takes either
+            either = ParameterDescriptor(dynamic_typing="|" in str(field.type))
             try:
-                value = node.declare_parameter(name, default).value
+                value = node.declare_parameter(name, default, either).value
             except ParameterException as exc:
                 raise ConfigError(f"ROS parameter {name}: {exc}") from None
             if value != default:
