@@ -187,7 +187,10 @@ def test_target_and_tracks_match_the_stack_of_follow_run(ros_run):
         state = at_stamp(states, stamp, lambda d: d["stamp_s"])
         assert (state["status"], state["target_id"]) == (
             expected.target.status.value, expected.target.target_id)  # fmt: skip
-        if expected.target.status == TargetStatus.TRACKING and index < len(ros_run["frames"]) - 1:
+        seen = expected.target_track is not None and (
+            stamp - expected.target_track.last_seen_s <= config.control.target_timeout_s)  # fmt: skip
+        if (expected.target.status == TargetStatus.TRACKING and seen
+                and index < len(ros_run["frames"]) - 1):  # fmt: skip
             tracked += 1
             target = at_stamp(received["target"], stamp, lambda m: stamp_s(m.header)).pose.position
             np.testing.assert_allclose(

@@ -172,3 +172,32 @@ def test_what_the_node_publishes_about_an_image_carries_its_stamp_to_the_nanosec
     finally:
         node.shutdown()
         node.destroy_node()
+
+
+def test_a_target_unseen_longer_than_the_target_timeout_is_not_published_for_nav2():
+    """The tracker predicts a hidden target on for up to `tracker.max_unseen_s`; stamped
+    with each new image, that pose would lead the following server after a phantom
+    long after the controller took the target for lost."""
+    from follow.pipeline import FrameResult
+    from follow.types import Odometry, TargetEstimate, TargetStatus, TrackState
+
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
+                                     camera_info_topic=""),
+                      CAMERA, detect=lambda frame: [])  # fmt: skip
+    published = []
+    node.pub_target.publish = published.append
+    timeout_s = node.config.control.target_timeout_s
+    try:
+        msg = _image(node.now_s(), 320, 240)
+        frame, *_ = node._detect_in(msg)
+        for unseen_s in (0.0, timeout_s + 0.5):
+            track = TrackState(3, np.array([3.0, 0.0, 1.0, 0.0, 1.5]), np.eye(5) * 0.01, True,
+                               frame.stamp_s - unseen_s)  # fmt: skip
+            result = FrameResult(0, frame.stamp_s, Odometry.origin(frame.stamp_s), [], [track],
+                                 TargetEstimate(TargetStatus.TRACKING, 3, {3: 0.9}, frame.stamp_s))  # fmt: skip
+            node._publish(result, frame.image, True, msg.header)
+            assert len(published) == 1, f"unseen for {unseen_s} s"
+    finally:
+        node.shutdown()
+        node.destroy_node()

@@ -54,9 +54,13 @@ def target_track(result: FrameResult) -> TrackState | None:
     return result.target_track
 
 
-def target_pose(result: FrameResult, frame_id: str, stamp: Time | None = None) -> PoseStamped | None:
+def target_pose(result: FrameResult, frame_id: str, stamp: Time | None = None,
+                max_unseen_s: float = math.inf) -> PoseStamped | None:  # fmt: skip
+    """The target's pose, or None when not tracked or last observed more than
+    `max_unseen_s` before the frame: lost, as the controller takes it (the tracker
+    predicts a hidden track on, and each new stamp would make that pose look fresh)."""
     track = target_track(result)
-    if track is None:
+    if track is None or result.stamp_s - track.last_seen_s > max_unseen_s:
         return None
     return PoseStamped(header=_result_header(result, frame_id, stamp), pose=track_pose(track))
 

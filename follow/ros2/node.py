@@ -428,7 +428,8 @@ class FollowNode(Node):
         self.pub_markers.publish(messages.track_markers(result, frame_id, stamp))
         name = getattr(self.perception.identifier, "name", "identifier")
         self.pub_state.publish(messages.target_state(result, str(name), following))
-        target = messages.target_pose(result, frame_id, stamp)
+        target = messages.target_pose(result, frame_id, stamp,
+                                      self.config.control.target_timeout_s)  # fmt: skip
         if target is not None and following:
             self.pub_target.publish(target)
         if self.pub_image is not None:
