@@ -131,6 +131,22 @@ def test_one_image_stamped_ahead_of_the_clock_does_not_block_the_images_after_it
         node.destroy_node()
 
 
+def test_images_without_a_stamp_are_refused_by_name():
+    """A driver that leaves header.stamp at zero: taken, the first such image would be
+    the last one processed, and every later one dropped as out of order in silence."""
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
+                                     camera_info_topic=""),
+                      CAMERA, detect=lambda frame: [])  # fmt: skip
+    try:
+        assert node._detect_in(_image(0.0, 320, 240)) is None
+        assert node.stale_frames == 1 and node._last_stamp is None
+        assert node._detect_in(_image(node.now_s(), 320, 240)) is not None
+    finally:
+        node.shutdown()
+        node.destroy_node()
+
+
 def test_a_camera_info_that_changes_mid_run_is_refused():
     config = Config().replace("identify", identifier="channels")
     node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,

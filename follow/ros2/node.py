@@ -164,7 +164,7 @@ class FollowNode(Node):
         self.frames_without_odometry = 0
         self.odometry_dropped = 0  # odometry messages in another frame or unusable
         self._camera_key: tuple | None = None  # the image size and camera_info perceived with
-        self.stale_frames = 0  # images not newer than the last one processed, or ahead
+        self.stale_frames = 0  # images unstamped, not newer than the last processed, or ahead
         self.errors = 0
         self._last_stamp: float | None = None
         self._recent: deque = deque(maxlen=300)  # (wall time, timing_ms) per frame
@@ -359,10 +359,17 @@ class FollowNode(Node):
 
     def _detect_in(self, msg):
         """(frame, robot pose, detections, the image's header) of an image message, or None
-        for an image that is dropped (out of order or stamped ahead of the clock,
-        unreadable, without odometry, or before the camera is known)."""
+        for an image that is dropped (unstamped, out of order or stamped ahead of the
+        clock, unreadable, without odometry, or before the camera is known)."""
         ros = self.config.ros
         stamp = stamp_s(msg.header)
+        if msg.header.stamp.sec == 0 and msg.header.stamp.nanosec == 0:
+            self.stale_frames += 1  # taken, it would make every later image out of order
+            self.get_logger().warning(
+                "image dropped: its header has no stamp (zero): the camera driver must "
+                "stamp each image with its capture time", throttle_duration_sec=5.0,
+            )  # fmt: skip
+            return None
         now = self.now_s()
         if is_ahead(now, stamp):  # as the last one processed, it would block later images
             self.stale_frames += 1
