@@ -79,6 +79,20 @@ def test_unusable_odometry_is_dropped_and_the_node_lives_on(node, bad):
     assert node.gate.healthy()
 
 
+def test_the_controller_knows_the_field_of_view_as_in_follow_run(node):
+    """Without it a target predicted outside the image is driven towards blind, where
+    `follow run` only turns (`ViewCone`)."""
+    from follow.control.target import ViewCone
+
+    now = node.now_s()
+    node._on_odometry(_odometry(now))
+    node._on_camera_info(CameraInfo(header=_header(now, "camera"), **camera_info_fields(CAMERA)))
+    assert node._detect_in(_image(now - 0.05, 320, 240)) is not None
+    view = node.control.controller.view
+    assert view is not None and view == ViewCone.from_camera(node.perception.tracker.camera)
+    assert not view.contains(np.array([3.0, 2.3]))  # 37 degrees left, the image's edge at 35
+
+
 def test_odometry_in_another_frame_than_ros_odom_frame_is_not_used(node):
     now = node.now_s()
     node._on_odometry(_odometry(now, frame_id="map"))

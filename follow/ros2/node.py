@@ -350,6 +350,10 @@ class FollowNode(Node):
                 return None
             camera = camera_from_info(self.camera_info, self.mounted)
         camera = camera_for_frames(camera, width, height)
+        if self.control is not None:  # as in follow run: no blind drive out of the view
+            from follow.control.target import ViewCone
+
+            self.control.controller.view = ViewCone.from_camera(camera)
         self.perception = build_perception(self.config, camera, detect=self._detect,
                                            pose_backend=self._pose_backend)  # fmt: skip
         self._camera_key = key
