@@ -5,8 +5,8 @@ consecutive frames in which the candidate is seen; probation needs the candidate
 and doubts it from the start; the target's stature comes only from frames that vouched
 for it; nothing is learnt while someone, seen or half out of view, covers the target's
 crop or the target covers theirs; a selected track must be confirmed; "the nearest
-person" forgets an earlier selection; a frame stamped before the last is ignored; a tie
-is no lead."""
+person" forgets an earlier selection; a frame stamped before the last, or as the last,
+is ignored; a tie is no lead."""
 
 from __future__ import annotations
 
@@ -258,5 +258,20 @@ def test_a_frame_stamped_before_the_last_is_ignored(identifier):
     last = identifier.last_stamp_s
     estimate = identifier.update(*scene([target], rng, last), last - 0.6)
     assert estimate.stamp_s == last  # the newest frame's estimate, unchanged
+    assert identifier.context.observed_frames[1] == seen
+    assert identifier.model.classifier.num_updates == updates
+
+
+def test_a_frame_stamped_the_same_as_the_last_is_ignored(identifier):
+    """The tracker takes it for the last frame again and hands on the same tracks, with
+    their observations: counting or learning them twice turns one sighting into two."""
+    rng = np.random.default_rng(0)
+    target = Person(1, 2.0, 180, RED)
+    run(identifier, [target], 12, rng)
+    updates = identifier.model.classifier.num_updates
+    seen = identifier.context.observed_frames[1]
+    last = identifier.last_stamp_s
+    estimate = identifier.update(*scene([target], rng, last), last)
+    assert estimate.stamp_s == last
     assert identifier.context.observed_frames[1] == seen
     assert identifier.model.classifier.num_updates == updates

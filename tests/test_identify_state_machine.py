@@ -54,7 +54,7 @@ def frame(people, rng, stamp_s=0.0):
 
 def run(identifier, people, n, rng, t0=None):
     """n frames 0.1 s apart from t0, by default just after the identifier's last frame
-    (it ignores a frame stamped before the last)."""
+    (it ignores a frame not stamped after the last)."""
     if t0 is None:
         t0 = 0.0 if identifier.last_stamp_s is None else identifier.last_stamp_s + 0.1
     out = []

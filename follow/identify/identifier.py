@@ -70,7 +70,7 @@ class TargetIdentifier:
 
     @property
     def last_stamp_s(self) -> float | None:
-        """The stamp of the newest frame taken (an older one is ignored)."""
+        """The stamp of the newest frame taken (one not newer is ignored)."""
         return None if self._last is None else self._last.stamp_s
 
     def reset(self) -> None:
@@ -111,10 +111,11 @@ class TargetIdentifier:
         by_id = {t.track_id: t for t in tracks}
         if len(by_id) != len(tracks):
             raise InvalidInput("identifier: duplicate track ids in one frame")
-        if self._last is not None and stamp_s < self._last.stamp_s:
-            # The tracker ignores such a frame and hands on its previous tracks, with their
-            # observations: counting or learning them again, cut from this image, is wrong.
-            log.warning("identifier: ignoring a frame stamped %.3f s, before the last "
+        if self._last is not None and stamp_s <= self._last.stamp_s:
+            # The tracker ignores such a frame (one stamped as the last is that frame again)
+            # and hands on its previous tracks, with their observations: counting or
+            # learning them again, cut from this image, is wrong.
+            log.warning("identifier: ignoring a frame stamped %.3f s, not after the last "
                         "(%.3f s)", stamp_s, self._last.stamp_s)  # fmt: skip
             return self._last
         self.context.count_observations(by_id)
