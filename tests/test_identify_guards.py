@@ -2,9 +2,9 @@
 real states with scripted frames (tests/test_identify_states.py) or the real identifier:
 a failed probation leaves no trace in the frame it ends in; evidence counts only in
 consecutive frames in which the candidate is seen; probation needs the candidate seen,
-and doubts it from the start; the target's stature comes only from frames that vouched
-for it; nothing is learnt while someone, seen or half out of view, covers the target's
-crop or the target covers theirs; a selected track must be confirmed; "the nearest
+and doubts it from its start to its end; the target's stature comes only from frames
+that vouched for it; nothing is learnt while someone, seen or half out of view, covers
+the target's crop or the target covers theirs; a selected track must be confirmed; "the nearest
 person" forgets an earlier selection; a frame stamped before the last, or as the last,
 is ignored; a tie is no lead."""
 
@@ -158,6 +158,23 @@ def test_a_candidate_on_probation_is_doubted_from_the_start():
     state = Probation(7, since_s=30.0)
     state = state.update(ctx, frame([person(7, 2.5, last_seen_s=30.1)], 30.1, {7: low}, {7: 0.0}))
     assert isinstance(state, Reidentification)
+
+
+def test_a_candidate_on_probation_is_doubted_to_its_end():
+    """Seen alone and liked for longer than `identity_trust_s`, the candidate's low
+    confidence before its probation ends is still not excused as a turn."""
+    assert CFG.identity_trust_s < CFG.reid_probation_s
+    low = CFG.id_switch_confidence - 0.3
+    ctx = tracked_context(stamp_s=10.0, observed={7: 50})
+    state, t = Probation(7, since_s=10.5), 10.5
+    while t < 10.5 + CFG.identity_trust_s + 0.1:
+        t += 0.1
+        state = state.update(ctx, frame([person(7, 2.5, last_seen_s=t)], t, {7: 0.9}, {7: 0.9}))
+    assert type(state) is Probation and ctx.identity_trusted(t)
+    t += 0.1
+    state = state.update(ctx, frame([person(7, 2.5, last_seen_s=t)], t, {7: low}, {7: 0.0}))
+    assert isinstance(state, Reidentification)
+    assert ctx.model.learnt == [] and ctx.last_target_s == 10.0  # undone
 
 
 def test_the_targets_stature_comes_only_from_frames_that_vouched_for_it():

@@ -144,7 +144,7 @@ class Tracking(State):
             if context.may_learn(self.target_id, frame, confidence):
                 context.learn(self.target_id, frame)
             return True
-        if context.identity_trusted(frame.stamp_s):
+        if self._excused_as_turn(context, frame.stamp_s):
             log.debug(
                 "target track %d confidence %.2f is low, but nobody came near it: not learnt",
                 self.target_id, confidence,
@@ -161,6 +161,11 @@ class Tracking(State):
             self.target_id, confidence, threshold,
         )  # fmt: skip
         return False
+
+    def _excused_as_turn(self, context: IdentityContext, stamp_s: float) -> bool:
+        """Whether a low confidence is taken for the target turning round: nobody could
+        have swapped its track for `identity_trust_s`."""
+        return context.identity_trusted(stamp_s)
 
 
 class Reidentification(State):
@@ -276,8 +281,8 @@ class Probation(Tracking):
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self.before is None:
             self.before = (context.model.snapshot(), context.whereabouts())
-            # A handover is itself a moment the identity may be wrong: a low confidence
-            # during probation is never excused as the target turning round.
+            # A handover is itself a moment the identity may be wrong: learning needs a
+            # lead as after a crossing (and `_excused_as_turn` never excuses it).
             context.identity_risk_s = self.since_s
         track = frame.by_id.get(self.target_id)
         if track is not None and not context.same_height(track):
@@ -294,6 +299,11 @@ class Probation(Tracking):
             log.info("re-identified track %d kept its stature: tracking", self.target_id)
             return Tracking(self.target_id, reidentified=True)
         return self
+
+    def _excused_as_turn(self, context: IdentityContext, stamp_s: float) -> bool:
+        """Never: the handover is an identity risk for the whole probation, which lasts
+        longer than `identity_trust_s` (and longer still while the candidate is unseen)."""
+        return False
 
     def _undo(self, context: IdentityContext, frame: FrameTracks) -> State:
         model, whereabouts = self.before
