@@ -292,3 +292,15 @@ def test_a_frame_stamped_the_same_as_the_last_is_ignored(identifier):
     assert estimate.stamp_s == last
     assert identifier.context.observed_frames[1] == seen
     assert identifier.model.classifier.num_updates == updates
+
+
+def test_a_frame_ignored_after_a_new_selection_names_no_earlier_target(identifier):
+    rng = np.random.default_rng(0)
+    target = Person(1, 2.0, 180, RED)
+    run(identifier, [target], 12, rng)
+    assert identifier.status == TargetStatus.TRACKING
+    last = identifier.last_stamp_s
+    identifier.select_target(5)
+    estimate = identifier.update(*scene([target], rng, last), last - 0.1)
+    assert (estimate.status, estimate.target_id) == (TargetStatus.INITIAL, None)
+    assert estimate.stamp_s == last and identifier.last_stamp_s == last  # still ignored

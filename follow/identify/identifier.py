@@ -74,10 +74,14 @@ class TargetIdentifier:
         return None if self._last is None else self._last.stamp_s
 
     def reset(self) -> None:
-        """Forget the target and everything learnt; a selected id stays requested."""
+        """Forget the target and everything learnt; a selected id stays requested. The
+        newest frame's stamp stays (an older frame is still ignored), but its estimate
+        names no target: it is what an ignored frame reports."""
         self.context.forget()
         self.context.observed_frames = {}
         self.state: State = Initial()
+        if self._last is not None:
+            self._last = TargetEstimate(self.state.status, None, {}, self._last.stamp_s)
 
     def select_target(self, track_id: int) -> None:
         """Follow this track id: learning starts afresh on the next frame it is present."""
