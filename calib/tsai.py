@@ -227,7 +227,10 @@ class TsaiCamera:
         )  # fmt: skip
 
     def image_grid(self, step_px: float = _FIT_GRID_STEP_PX) -> np.ndarray:
-        """Pixels (N, 2) covering the whole image, corners included."""
+        """Pixels (N, 2) covering the whole image, corners included. A step that is not
+        positive is refused: it would leave one pixel to fit and to check the model at."""
+        if not (math.isfinite(step_px) and step_px > 0):
+            raise ValueError(f"grid step must be a positive number of pixels, got {step_px}")
         w, h = self.image_size
         us = np.unique(np.append(np.arange(0.0, w - 1, step_px), w - 1.0))
         vs = np.unique(np.append(np.arange(0.0, h - 1, step_px), h - 1.0))

@@ -9,6 +9,7 @@ from pathlib import Path
 from calib.camera_file import write_camera_file
 from calib.gt_boxes import motion_figures, read_boxes
 from calib.tsai import TsaiCamera
+from follow.cli_args import positive_float
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="camera file to write (.yaml/.yml or .json; default camera.yaml)",
     )  # fmt: skip
     parser.add_argument(
-        "--grid-step-px", type=float, default=8.0,
+        "--grid-step-px", type=positive_float, default=8.0,
         help="pixel spacing of the grid the distortion is fitted on (default 8)",
     )  # fmt: skip
     parser.add_argument(

@@ -141,3 +141,20 @@ def test_box_file_errors_name_the_place(tmp_path):
                           '<box xc="1" yc="x" w="1" h="1"/></object></objectlist></frame></dataset>')  # fmt: skip
     with pytest.raises(BoxFileError, match="frame 3"):
         read_boxes(bad)
+
+
+@pytest.mark.parametrize("step", ["0", "-8", "nan"])
+def test_a_grid_step_that_is_not_positive_is_refused_before_anything_is_written(
+    tmp_path, capsys, step
+):
+    # A step of 0 ended in a traceback; a negative one fitted the distortion to one pixel
+    # and reported a discrepancy of 0 px over that one pixel.
+    xml = write(tmp_path, VALID_XML.format(kappa1=0.01, rx=-1.95))
+    out = tmp_path / "c.yaml"
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["import-tsai", str(xml), "-o", str(out), "--grid-step-px", step])
+    assert exit_.value.code == 2
+    assert "argument --grid-step-px" in capsys.readouterr().err
+    assert not out.exists()
+    with pytest.raises(ValueError, match="grid step"):
+        TsaiCamera.from_xml(xml).to_camera_model(step_px=-8.0)
