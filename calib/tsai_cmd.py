@@ -28,12 +28,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "speed and stature it implies through the converted camera, as a sanity check",
     )  # fmt: skip
     parser.add_argument(
-        "--fps", type=float, default=7.0, help="frame rate of the annotation (default 7)"
+        "--fps", type=positive_float, default=7.0, help="frame rate of the annotation (default 7)"
     )
 
 
 def main(args: argparse.Namespace) -> dict:
     tsai = TsaiCamera.from_xml(args.tsai_xml)
+    # Read before the camera file is written: a bad box file must not cost the old one.
+    boxes = read_boxes(args.boxes) if args.boxes is not None else None
     model, discrepancy_px = tsai.to_camera_model(step_px=args.grid_step_px)
     notes = {
         "intrinsics": f"follow-calib import-tsai {args.tsai_xml.name}",
@@ -59,8 +61,7 @@ def main(args: argparse.Namespace) -> dict:
         "y_m": p.y_m,
         "max_discrepancy_px": discrepancy_px,
     }
-    if args.boxes is not None:
-        boxes = read_boxes(args.boxes)
+    if boxes is not None:
         result["tsai"] = motion_figures(tsai, boxes, args.fps)
         result["converted"] = motion_figures(model, boxes, args.fps)
     if not args.json:
@@ -76,7 +77,7 @@ def main(args: argparse.Namespace) -> dict:
         )
         print(f"  largest discrepancy between the two models over the image: "
               f"{discrepancy_px:.4f} px")  # fmt: skip
-        if args.boxes is not None:
+        if boxes is not None:
             for name in ("tsai", "converted"):
                 f = result[name]
                 print(

@@ -158,3 +158,24 @@ def test_a_grid_step_that_is_not_positive_is_refused_before_anything_is_written(
     assert not out.exists()
     with pytest.raises(ValueError, match="grid step"):
         TsaiCamera.from_xml(xml).to_camera_model(step_px=-8.0)
+
+
+def test_a_bad_box_file_or_frame_rate_leaves_the_camera_file_alone(tmp_path, capsys):
+    # The camera file was written before the boxes were read: the command failed, yet
+    # the file at -o had been replaced.
+    xml = write(tmp_path, VALID_XML.format(kappa1=0.01, rx=-1.95))
+    boxes = write(tmp_path, '<dataset><frame number="1"><objectlist><object id="1">'
+                            '<box xc="300" yc="300" w="20" h="60"/></object></objectlist>'
+                            "</frame></dataset>", "boxes.xml")  # fmt: skip
+    out = tmp_path / "c.yaml"
+    out.write_text("the camera of yesterday")
+    argv = ["import-tsai", str(xml), "-o", str(out)]
+    assert cli.main([*argv, "--boxes", str(tmp_path / "absent.xml")]) == 2
+    assert "absent.xml: cannot read" in capsys.readouterr().err
+    for fps in ("0", "nan"):
+        with pytest.raises(SystemExit):
+            cli.main([*argv, "--boxes", str(boxes), "--fps", fps])
+        assert "argument --fps" in capsys.readouterr().err
+    assert out.read_text() == "the camera of yesterday"
+    assert cli.main([*argv, "--boxes", str(boxes)]) == 0
+    assert CameraModel.load(out).image_size == (640, 480)
