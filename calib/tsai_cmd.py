@@ -11,6 +11,10 @@ from calib.gt_boxes import motion_figures, read_boxes
 from calib.tsai import TsaiCamera
 from follow.cli_args import positive_float
 
+# A converted camera further than this from the Tsai model anywhere in the image is not
+# written: OpenCV's k1, k2, k3 cannot follow that lens (PETS 2009 view 1: 0.0015 px).
+MAX_DISCREPANCY_PX = 1.0
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("tsai_xml", type=Path, help="Tsai calibration XML (world units mm)")
@@ -37,6 +41,13 @@ def main(args: argparse.Namespace) -> dict:
     # Read before the camera file is written: a bad box file must not cost the old one.
     boxes = read_boxes(args.boxes) if args.boxes is not None else None
     model, discrepancy_px = tsai.to_camera_model(step_px=args.grid_step_px)
+    if not discrepancy_px <= MAX_DISCREPANCY_PX:  # NaN too
+        raise ValueError(
+            f"Tsai file {args.tsai_xml}: the converted camera is {discrepancy_px:.3g} px off "
+            f"the Tsai model in places (more than {MAX_DISCREPANCY_PX:g} px): OpenCV's radial "
+            f"distortion cannot follow kappa1 = {tsai.kappa1_per_mm2:g} over the whole image; "
+            "no camera file written"
+        )
     notes = {
         "intrinsics": f"follow-calib import-tsai {args.tsai_xml.name}",
         "pose": f"follow-calib import-tsai {args.tsai_xml.name}",

@@ -179,3 +179,17 @@ def test_a_bad_box_file_or_frame_rate_leaves_the_camera_file_alone(tmp_path, cap
     assert out.read_text() == "the camera of yesterday"
     assert cli.main([*argv, "--boxes", str(boxes)]) == 0
     assert CameraModel.load(out).image_size == (640, 480)
+
+
+def test_a_conversion_far_off_the_tsai_model_is_refused_not_written(tmp_path, capsys):
+    # kappa1 = 0.1: OpenCV's k1, k2, k3 cannot follow it over the image; the converted
+    # camera, tens of pixels off, was written with exit status 0.
+    xml = write(tmp_path, VALID_XML.format(kappa1=0.1, rx=-1.95))
+    _, discrepancy_px = TsaiCamera.from_xml(xml).to_camera_model()
+    assert discrepancy_px > 10.0
+    out = tmp_path / "c.yaml"
+    assert cli.main(["import-tsai", str(xml), "-o", str(out), "--json"]) == 2
+    captured = capsys.readouterr()
+    assert "px off the Tsai model" in captured.err
+    assert "px off the Tsai model" in json.loads(captured.out.strip().splitlines()[-1])["error"]
+    assert not out.exists()
