@@ -35,6 +35,9 @@ _REQUIRED = {
 _NEWTON_ITERATIONS = 30
 _FIT_GRID_STEP_PX = 8.0
 _CHECK_DEPTH_M = 10.0
+# A camera centre lower than this over the ground z = 0 is a world in other units than mm
+# (in metres a camera sits 1000 times too low: PETS's 7 m mast at 7 mm) or with z down.
+MIN_CAMERA_HEIGHT_M = 0.05
 
 
 class TsaiFileError(ValueError):
@@ -113,7 +116,7 @@ class TsaiCamera:
                 values[tag][attribute] = number
         g, i, e = values["Geometry"], values["Intrinsic"], values["Extrinsic"]
         try:
-            return cls(
+            camera = cls(
                 image_size=(int(round(g["width"])), int(round(g["height"]))),
                 focal_mm=i["focal"],
                 kappa1_per_mm2=i["kappa1"],
@@ -127,6 +130,14 @@ class TsaiCamera:
             )
         except ValueError as exc:
             raise TsaiFileError(f"Tsai file {path}: {exc}") from None
+        height_m = float(camera.position_world_m[2])
+        if not height_m >= MIN_CAMERA_HEIGHT_M:
+            raise TsaiFileError(
+                f"Tsai file {path}: the camera centre is at z = {height_m:.4g} m, not "
+                f"{MIN_CAMERA_HEIGHT_M:g} m or more over the ground z = 0: the world units must "
+                "be mm (in metres the camera sits 1000 times too low) and z must point up"
+            )
+        return camera
 
     # ------------------------------------------------------------------ geometry
     @property

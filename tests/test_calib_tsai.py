@@ -193,3 +193,15 @@ def test_a_conversion_far_off_the_tsai_model_is_refused_not_written(tmp_path, ca
     assert "px off the Tsai model" in captured.err
     assert "px off the Tsai model" in json.loads(captured.out.strip().splitlines()[-1])["error"]
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "extrinsic", ['tx="-0.3" ty="0.4" tz="9.0"', 'tx="-300" ty="400" tz="-9000"']
+)
+def test_a_world_in_metres_or_upside_down_is_refused_by_name(tmp_path, extrinsic):
+    # In metres the camera came out 3 mm over the floor, and was written.
+    text = VALID_XML.format(kappa1=0.01, rx=-1.95).replace(
+        'tx="-300" ty="400" tz="9000"', extrinsic
+    )
+    with pytest.raises(TsaiFileError, match="world units must be mm"):
+        TsaiCamera.from_xml(write(tmp_path, text))
