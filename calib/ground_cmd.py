@@ -13,6 +13,7 @@ from calib.cmd_common import add_board_arguments, image_path, read_grey_frames
 from calib.ground import average_frames, estimate_ground_pose
 from calib.overlay import calibration_overlay
 from follow.camera import CameraModel
+from follow.cli_args import finite_float
 from follow.frames import rotation_2d
 
 log = logging.getLogger(__name__)
@@ -45,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--frames", type=int, default=10, help="video frames to average (default 10)"
     )
     parser.add_argument(
-        "--board-in-base", type=float, nargs=3, metavar=("X_M", "Y_M", "YAW_DEG"),
+        "--board-in-base", type=finite_float, nargs=3, metavar=("X_M", "Y_M", "YAW_DEG"),
         help="where the board lies in `base`: its inner-corner centre and the direction of its "
         "rows (the side with COLS corners; either way along it): also sets the camera's yaw "
         "(the one nearest the file's) and x/y offsets",

@@ -32,6 +32,11 @@ def _at_least(kind: type, lowest, strict: bool, expected: str):
     return parse
 
 
+def finite_float(text: str) -> float:
+    """An argparse type: any number but NaN and the infinities."""
+    return _number(text, float)
+
+
 positive_int = _at_least(int, 1, False, "an integer >= 1")
 non_negative_int = _at_least(int, 0, False, "an integer >= 0")
 positive_float = _at_least(float, 0.0, True, "a positive number")

@@ -306,3 +306,16 @@ def test_check_keeps_the_old_overlay_when_the_new_one_cannot_be_written(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cam.yaml", "check.png", "frame.png"]
     monkeypatch.undo()
     assert cli.main(args) == 0 and cv2.imread(str(out_png)).shape == (480, 640, 3)
+
+
+@pytest.mark.parametrize("values", [("1", "0", "inf"), ("1", "0", "nan"), ("nan", "0", "0")])
+def test_board_in_base_must_be_finite_numbers(board_scene, capsys, values):
+    # An infinite yaw ended in an OverflowError traceback; a NaN one in "cannot convert
+    # float NaN to integer", naming no option.
+    _, folder = board_scene
+    before = (folder / "cam.yaml").read_text()
+    with pytest.raises(SystemExit) as exit_:
+        ground_command(folder / "board0.png", folder, "--board-in-base", *values)
+    assert exit_.value.code == 2
+    assert "argument --board-in-base: expected a finite number" in capsys.readouterr().err
+    assert (folder / "cam.yaml").read_text() == before
