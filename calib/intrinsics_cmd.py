@@ -13,6 +13,7 @@ from calib.camera_file import write_camera_file
 from calib.chessboard import ImageInputError, iter_video_frames, list_inputs, read_image
 from calib.cmd_common import add_board_arguments, refuse_videos_among_images, video_source
 from follow.camera import CameraFileError, CameraModel, CameraPose
+from follow.cli_args import non_negative_float, positive_float
 
 log = logging.getLogger(__name__)
 
@@ -38,12 +39,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="at most this many screened views go into the calibration (default 60)",
     )  # fmt: skip
     parser.add_argument(
-        "--max-edge-width-px", type=float, default=intr.MAX_EDGE_WIDTH_PX,
+        "--max-edge-width-px", type=positive_float, default=intr.MAX_EDGE_WIDTH_PX,
         help="reject views whose board edges are wider (blurred) than this "
         f"(default {intr.MAX_EDGE_WIDTH_PX})",
     )  # fmt: skip
     parser.add_argument(
-        "--duplicate-fraction", type=float, default=intr.DUPLICATE_FRACTION,
+        "--duplicate-fraction", type=non_negative_float, default=intr.DUPLICATE_FRACTION,
         help="reject a view whose corners moved less than this fraction of the image diagonal "
         f"from a kept view (default {intr.DUPLICATE_FRACTION})",
     )  # fmt: skip

@@ -243,3 +243,25 @@ def test_a_view_tilted_where_a_flat_one_was_is_no_duplicate():
     again = calibrate_intrinsics([*flat, *tilted, ("still", still)], BOARD.pattern_size,
                                  BOARD.square_size_m, progress=False)  # fmt: skip
     assert dict(again.rejected)["still"] == f"near-duplicate of {flat[0][0]}"
+
+
+@pytest.mark.parametrize(
+    "option, value",
+    [
+        ("--max-edge-width-px", "nan"),
+        ("--max-edge-width-px", "-1"),
+        ("--duplicate-fraction", "nan"),
+        ("--duplicate-fraction", "-0.1"),
+        ("--duplicate-fraction", "inf"),
+    ],
+)
+def test_screening_limits_that_are_not_numbers_in_range_are_refused(
+    tmp_path, capsys, option, value
+):
+    # A NaN or negative duplicate limit silently turned the screening off; a NaN or
+    # negative edge width rejected every view as "blurred (... > nan)".
+    argv = ["intrinsics", str(tmp_path), "--pattern", "9x6", "--square-size-m", "0.03"]
+    with pytest.raises(SystemExit) as exit_:
+        cli.main([*argv, "-o", str(tmp_path / "cam.yaml"), option, value])
+    assert exit_.value.code == 2
+    assert f"argument {option}" in capsys.readouterr().err
