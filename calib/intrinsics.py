@@ -33,6 +33,10 @@ DUPLICATE_SHAPE_FRACTION = 0.02
 MIN_VIEWS = 4
 OUTLIER_VIEW_FACTOR = 3.0  # a view reprojecting worse than this x the median is dropped
 OUTLIER_VIEW_MIN_PX = 0.5  # ... unless its RMS is below this anyway
+# An overall RMS above this is warned about: a sharp, flat board fits to 0.1-0.3 px, and
+# corners off by more (a bent board, blur, a lens the model cannot follow) bend K and the
+# distortion with them.
+RMS_WARNING_PX = 0.5
 # Coverage: the image is cut in COVERAGE_GRID cells; a 3x3 region is "uncovered" when less
 # than REGION_MIN_COVERED of its cells are touched by some view's board.
 COVERAGE_GRID = (12, 9)
@@ -283,6 +287,11 @@ def calibrate_intrinsics(
         warnings.append(
             f"the boards cover {100 * fraction:.0f}% of the image{where}: add views with the "
             "board near those parts, or the distortion there is a guess"
+        )
+    if rms > RMS_WARNING_PX:
+        warnings.append(
+            f"corners reproject with {rms:.2f} px RMS (> {RMS_WARNING_PX} px): check that the "
+            "board is flat and the views sharp, or try --distortion-model rational"
         )
     if len(kept) < 10:
         warnings.append(f"only {len(kept)} views used; 10 or more give steadier intrinsics")

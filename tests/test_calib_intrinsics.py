@@ -1,3 +1,4 @@
+import dataclasses
 import json
 
 import cv2
@@ -5,6 +6,7 @@ import numpy as np
 import pytest
 
 from calib import cli
+from calib.chessboard import detect_chessboard
 from calib.intrinsics import CalibrationError, calibrate_intrinsics, check_tilts, coverage
 from calib.synthetic import (
     BoardSpec,
@@ -265,3 +267,21 @@ def test_screening_limits_that_are_not_numbers_in_range_are_refused(
         cli.main([*argv, "-o", str(tmp_path / "cam.yaml"), option, value])
     assert exit_.value.code == 2
     assert f"argument {option}" in capsys.readouterr().err
+
+
+def test_a_calibration_that_reprojects_poorly_is_warned_about(views, monkeypatch):
+    # Corners 1 px off everywhere (a board that is not flat, motion blur) gave a camera
+    # file with no word about its RMS.
+    plain = calibrate_intrinsics(views, BOARD.pattern_size, BOARD.square_size_m, progress=False)
+    assert not [w for w in plain.warnings if "RMS" in w]
+    rng = np.random.default_rng(3)
+
+    def shaky(*args, **kwargs):
+        found = detect_chessboard(*args, **kwargs)
+        corners = found.corners_px + rng.normal(0.0, 1.0, found.corners_px.shape)
+        return dataclasses.replace(found, corners_px=corners)
+
+    monkeypatch.setattr("calib.intrinsics.detect_chessboard", shaky)
+    poor = calibrate_intrinsics(views, BOARD.pattern_size, BOARD.square_size_m, progress=False)
+    assert poor.rms_px > 0.5
+    assert [w for w in poor.warnings if w.startswith(f"corners reproject with {poor.rms_px:.2f}")]
