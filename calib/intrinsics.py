@@ -204,9 +204,13 @@ def calibrate_intrinsics(
     max_edge_width_px: float = MAX_EDGE_WIDTH_PX,
     duplicate_fraction: float = DUPLICATE_FRACTION,
     max_views: int | None = None,
+    stop_at_views: int | None = None,
     progress: bool = True,
 ) -> IntrinsicsResult:
     """Calibrate from chessboard images (arrays, or (name, array) pairs).
+
+    `stop_at_views`: stop reading `images` once this many views are kept (a camera's
+    frames never run out).
 
     Raises CalibrationError when fewer than MIN_VIEWS views survive the screening, or when
     too few of them tilt the board left/right and up/down (`check_tilts`).
@@ -256,6 +260,8 @@ def calibrate_intrinsics(
             rejected.append((name, f"near-duplicate of {twin.name}"))
             continue
         kept.append(_View(name, detection.corners_px))
+        if stop_at_views is not None and len(kept) >= stop_at_views:
+            break
     if image_size is None:
         raise CalibrationError("no images to calibrate from")
     if max_views is not None and len(kept) > max_views:

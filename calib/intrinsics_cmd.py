@@ -36,7 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--max-views", type=int, default=60,
-        help="at most this many screened views go into the calibration (default 60)",
+        help="at most this many screened views go into the calibration (default 60); a "
+        "camera is read until it has given this many",
     )  # fmt: skip
     parser.add_argument(
         "--max-edge-width-px", type=positive_float, default=intr.MAX_EDGE_WIDTH_PX,
@@ -98,6 +99,7 @@ def main(args: argparse.Namespace) -> dict:
             f"got {args.every} and {args.max_views}"
         )
     paths = _image_files(args.inputs)
+    camera_index = paths is None and video_source(args.inputs).isdigit()
     kept_pose = _pose_to_keep(args.output)
     unreadable: list[tuple[str, str]] = []
     try:
@@ -109,6 +111,7 @@ def main(args: argparse.Namespace) -> dict:
             max_edge_width_px=args.max_edge_width_px,
             duplicate_fraction=args.duplicate_fraction,
             max_views=args.max_views,
+            stop_at_views=args.max_views if camera_index else None,
             progress=not args.json,
         )
     except intr.CalibrationError as exc:

@@ -285,3 +285,23 @@ def test_a_calibration_that_reprojects_poorly_is_warned_about(views, monkeypatch
     poor = calibrate_intrinsics(views, BOARD.pattern_size, BOARD.square_size_m, progress=False)
     assert poor.rms_px > 0.5
     assert [w for w in poor.warnings if w.startswith(f"corners reproject with {poor.rms_px:.2f}")]
+
+
+def test_a_camera_is_read_until_enough_views_are_kept(views, tmp_path, monkeypatch, capsys):
+    # A camera never runs out of frames: the command read it for ever.
+    read = []
+
+    def endless_camera(source, every=1, limit=None):
+        assert source == "0"
+        for index in range(10_000):
+            if len(read) > 40:
+                raise AssertionError("still reading the camera")
+            read.append(index)
+            yield f"frame {index}", views[index % len(views)][1]
+
+    monkeypatch.setattr("calib.intrinsics_cmd.iter_video_frames", endless_camera)
+    argv = ["intrinsics", "0", "--pattern", "9x6", "--square-size-m", "0.03", "--max-views",
+            "8", "-o", str(tmp_path / "cam.yaml"), "--json"]  # fmt: skip
+    assert cli.main(argv) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["views_used"] == 8 and len(read) == 8
