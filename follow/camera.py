@@ -78,6 +78,39 @@ POSE_BOUNDS: dict[str, tuple[float, float]] = {
 FILE_KEYS = ("image_width", "image_height", "camera_matrix", "distortion", "pose", "calibration")
 
 
+def _unique_keys(pairs: list[tuple]) -> dict:
+    """A mapping whose keys are all different: YAML and JSON readers keep the last of two
+    equal keys, so a second `pitch_rad` would silently replace the measured one."""
+    out = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"duplicate key {key!r}")
+        out[key] = value
+    return out
+
+
+def _parse_yaml(text: str):
+    """`yaml.safe_load`, refusing a key given twice in one mapping (see `_unique_keys`)."""
+    import yaml
+
+    class UniqueKeyLoader(yaml.SafeLoader):
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:  # before merging `<<` in: those may be overridden
+                if key_node.tag == "tag:yaml.org,2002:merge" or not isinstance(
+                    key_node, yaml.ScalarNode
+                ):
+                    continue
+                key = self.construct_object(key_node)
+                if key in seen:
+                    line = key_node.start_mark.line + 1
+                    raise ValueError(f"duplicate key {key!r} at line {line}")
+                seen.add(key)
+            return super().construct_mapping(node, deep)
+
+    return yaml.load(text, Loader=UniqueKeyLoader)
+
+
 @dataclass(frozen=True)
 class CameraPose:
     """Where the camera sits on the robot (in `base`); a pose outside POSE_BOUNDS, or a
@@ -444,11 +477,9 @@ class CameraModel:
             ) from None
         try:
             if path.suffix.lower() in (".yaml", ".yml"):
-                import yaml
-
-                data = yaml.safe_load(text)
+                data = _parse_yaml(text)
             else:
-                data = json.loads(text)
+                data = json.loads(text, object_pairs_hook=_unique_keys)
         except Exception as exc:  # yaml and json raise different types
             raise CameraFileError(f"camera file {path}: not valid YAML/JSON ({exc})") from None
         return cls.from_dict(data, source=f"camera file {path}")

@@ -108,3 +108,26 @@ def test_a_number_too_large_for_a_float_is_refused_by_name(tmp_path, field):
     path.write_text(json.dumps(data))
     with pytest.raises(CameraFileError, match=re.escape(f"camera file {path}: field '{field}'")):
         CameraModel.load(path)
+
+
+@pytest.mark.parametrize("name", ["cam.yaml", "cam.json"])
+def test_a_key_given_twice_is_refused_not_left_to_the_last_one(tmp_path, name):
+    # YAML and JSON readers keep the last of two equal keys: a pitch added below the
+    # measured one replaced it without a word.
+    data = _data()
+    measured = data["pose"]["pitch_rad"]
+    if name.endswith(".yaml"):
+        text = yaml.safe_dump(data, sort_keys=False)
+        text = text.replace(
+            f"  pitch_rad: {measured}\n", f"  pitch_rad: {measured}\n  pitch_rad: 0.0\n"
+        )
+    else:
+        text = json.dumps(data).replace(
+            f'"pitch_rad": {measured}', f'"pitch_rad": {measured}, "pitch_rad": 0.0'
+        )
+    assert text.count("pitch_rad") == 2
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(CameraFileError, match="duplicate key 'pitch_rad'") as err:
+        CameraModel.load(path)
+    assert str(path) in str(err.value)
