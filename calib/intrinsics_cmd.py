@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +93,16 @@ def _pose_to_keep(output: Path) -> CameraPose | None:
         ) from exc
 
 
+def _check_writable(output: Path) -> None:
+    """Refuse an -o whose folder cannot be made or written in before the calibration runs,
+    not after it (the missing folders are made when the file is written)."""
+    folder = output.absolute().parent
+    while not folder.exists():
+        folder = folder.parent
+    if not (folder.is_dir() and os.access(folder, os.W_OK | os.X_OK)):
+        raise OSError(f"cannot write {output}: {folder} is not a folder that can be written in")
+
+
 def main(args: argparse.Namespace) -> dict:
     if args.every < 1 or args.max_views < intr.MIN_VIEWS:
         raise ValueError(
@@ -101,6 +112,7 @@ def main(args: argparse.Namespace) -> dict:
     paths = _image_files(args.inputs)
     camera_index = paths is None and video_source(args.inputs).isdigit()
     kept_pose = _pose_to_keep(args.output)
+    _check_writable(args.output)
     unreadable: list[tuple[str, str]] = []
     try:
         result = intr.calibrate_intrinsics(

@@ -305,3 +305,17 @@ def test_a_camera_is_read_until_enough_views_are_kept(views, tmp_path, monkeypat
     assert cli.main(argv) == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert result["views_used"] == 8 and len(read) == 8
+
+
+def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, monkeypatch, capsys):
+    # It was found out only when the file was written, the views screened and the
+    # camera calibrated for nothing.
+    (tmp_path / "shot.png").write_bytes(b"")
+    ran = []
+    monkeypatch.setattr("calib.intrinsics.calibrate_intrinsics", lambda *a, **k: ran.append(1))
+    for output in ("shot.png/camera.yaml", "shot.png/new/camera.yaml"):
+        argv = ["intrinsics", str(tmp_path / "shot.png"), "--pattern", "9x6",
+                "--square-size-m", "0.03", "-o", str(tmp_path / output)]  # fmt: skip
+        assert cli.main(argv) == 2
+        assert f"cannot write {tmp_path / output}" in capsys.readouterr().err
+    assert not ran
