@@ -139,7 +139,10 @@ def _find_sector_based(
 
 def _find_classic(gray: np.ndarray, pattern_size: tuple[int, int]) -> np.ndarray | None:
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-    found, corners = cv2.findChessboardCorners(gray, pattern_size, flags=flags)
+    try:
+        found, corners = cv2.findChessboardCorners(gray, pattern_size, flags=flags)
+    except cv2.error:  # its threshold window asserts on images under ~15 px: no board there
+        return None
     return corners.reshape(-1, 2).astype(np.float64) if found else None
 
 

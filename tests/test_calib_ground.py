@@ -319,3 +319,13 @@ def test_board_in_base_must_be_finite_numbers(board_scene, capsys, values):
     assert exit_.value.code == 2
     assert "argument --board-in-base: expected a finite number" in capsys.readouterr().err
     assert (folder / "cam.yaml").read_text() == before
+
+
+def test_an_image_too_small_for_a_board_is_no_board_not_a_traceback(board_scene, capsys):
+    # OpenCV's classic detector asserts on images under about 15 px: cv2.error escaped.
+    _, folder = board_scene
+    for height, width in ((1, 1), (9, 12)):
+        assert detect_chessboard(np.full((height, width), 100, np.uint8), (7, 5)) is None
+    cv2.imwrite(str(folder / "thumb.png"), np.full((9, 12), 100, np.uint8))
+    assert ground_command(folder / "thumb.png", folder) == 2
+    assert "no 7x5 chessboard" in capsys.readouterr().err
