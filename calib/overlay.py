@@ -23,6 +23,7 @@ HORIZON_SAMPLES = 721
 HORIZON_DISTANCE_M = 1.0e5
 VALID_RADIUS_MARGIN = 1.05
 MIN_DEPTH_M = 0.05
+MAX_GRID_LINES = 10_000  # each way; a finer grid is a solid fill that takes minutes to draw
 
 
 def _camera_for(image: np.ndarray, camera: CameraModel) -> CameraModel:
@@ -110,6 +111,13 @@ def draw_ground_grid(
     if extent is None:
         return image
     x0, x1, y0, y1 = extent
+    lines = max(x1 - x0, y1 - y0) / step_m
+    if lines > MAX_GRID_LINES:
+        raise ValueError(
+            f"a grid step of {step_m:g} m draws {lines:.3g} lines across the "
+            f"{max(x1 - x0, y1 - y0):.1f} m of floor in view, more than {MAX_GRID_LINES}: "
+            "give a larger grid step"
+        )
     xs = np.arange(math.floor(x0 / step_m), math.ceil(x1 / step_m) + 1) * step_m
     ys = np.arange(math.floor(y0 / step_m), math.ceil(y1 / step_m) + 1) * step_m
     for fixed_x in (True, False):

@@ -39,3 +39,16 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, c
         assert exit_.code == 2 and "argument --max-range-m" in capsys.readouterr().err
     else:
         raise AssertionError("--max-range-m -1 was accepted")
+
+
+def test_a_grid_too_fine_to_draw_is_refused_by_name(tmp_path, capsys):
+    # A 1 nm grid asked numpy for a 139 GiB array: a MemoryError traceback.
+    video = _video(tmp_path / "clip.avi", frames=1)
+    camera = tmp_path / "cam.yaml"
+    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0, pitch_rad=0.2)).save(camera)
+    argv = ["check", str(video), "--camera", str(camera), "-o", str(tmp_path / "c.png")]
+    assert cli.main([*argv, "--grid-step-m", "1e-9"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and "grid step of 1e-09 m draws" in err, err
+    assert not (tmp_path / "c.png").exists()
+    assert cli.main([*argv, "--grid-step-m", "0.05"]) == 0
