@@ -298,13 +298,15 @@ class CameraModel:
 
     def pixel_rays_base(self, pixels: np.ndarray) -> np.ndarray:
         """Unit viewing rays (N, 3) in `base` through undistorted pixels (N, 2)."""
-        px = np.atleast_2d(np.asarray(pixels, dtype=np.float64)).reshape(-1, 1, 2)
+        px = np.atleast_2d(np.asarray(pixels, dtype=np.float64)).reshape(-1, 2)
+        Kinv = np.linalg.inv(self.K)
+        norm = px @ Kinv[:2, :2].T + Kinv[:2, 2]
         if self.dist.size:
+            # K^-1 first, then undistort with the identity: OpenCV's undistortPoints would
+            # ignore the skew K[0][1] that `_distort_to_pixels` applies.
             criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
-            norm = undistort_points(px, self.K, self.dist, criteria).reshape(-1, 2)
-        else:
-            Kinv = np.linalg.inv(self.K)
-            norm = px.reshape(-1, 2) @ Kinv[:2, :2].T + Kinv[:2, 2]
+            distorted = norm.reshape(-1, 1, 2)
+            norm = undistort_points(distorted, np.eye(3), self.dist, criteria).reshape(-1, 2)
         rays_cam = np.column_stack([norm, np.ones(len(norm))])
         rays = rays_cam @ self._R.T
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)

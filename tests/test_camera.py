@@ -45,6 +45,20 @@ def test_ground_round_trip(dist, pitch_deg, roll_deg, yaw_deg):
     np.testing.assert_allclose(back, pts[visible, :2], atol=1e-6 * 20)
 
 
+@pytest.mark.parametrize("dist", [None, np.array([-0.2, 0.05, 0.001, -0.001, 0.0])])
+def test_ground_round_trip_with_a_skewed_camera_matrix(dist):
+    # The file may hold a skew K[0][1] (projection applies it); OpenCV's undistortPoints
+    # ignores it, so with distortion a ground point came back from its pixel 7 cm off.
+    cam = make_camera(15, 3, -5, dist)
+    K = cam.K.copy()
+    K[0, 1] = 20.0
+    cam = CameraModel(K, cam.dist, cam.image_size, cam.pose)
+    pts = np.array([[2.0, 0.8, 0.0], [4.0, -1.0, 0.0], [8.0, 1.5, 0.0]])
+    px = cam.project(pts)
+    assert cam.in_image(px).all()
+    np.testing.assert_allclose(cam.back_project_to_ground(px), pts[:, :2], atol=1e-6)
+
+
 def test_plane_at_height_round_trip():
     cam = make_camera(12, 1, 0, np.array([-0.1, 0.01, 0, 0, 0]))
     p = np.array([[6.0, 0.5, 1.5], [3.0, -1.0, 1.2]])
