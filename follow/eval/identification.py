@@ -77,7 +77,7 @@ def add_arguments(p) -> None:
                         "last annotated frame; the ids of one person who leaves and returns "
                         "(pets2009_same_person.toml) are one target")  # fmt: skip
     p.add_argument("--plot", type=plot_path, help="write a PNG timeline of outcomes per target here "
-                                  "(with --perturb: the spread of CT+CL and WT over the variants)")  # fmt: skip
+                                  "(with --perturb: the spread of CT+CL and CT over the variants)")  # fmt: skip
     add_perturb_arguments(p)
 
 
