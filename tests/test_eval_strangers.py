@@ -118,3 +118,31 @@ def test_reacquired_means_named_from_then_to_the_end():
     dropped = frames[:17] + [(0.1 * k, False) for k in range(17, 30)]  # probation dropped it
     assert reacquisition_s(dropped, back_seen_s=0.5) is None
     assert reacquisition_s(frames, back_seen_s=None) is None
+
+
+def test_a_named_track_is_the_person_whose_detection_last_updated_it():
+    """A track coasting out of view to where another person waits stays the person it
+    saw: the nearest person there would name a stranger who was never followed."""
+    from types import SimpleNamespace
+
+    from follow.eval.strangers import _person_of, note_track_people
+    from follow.types import Observation
+
+    twin_skeleton, other_skeleton = object(), object()
+    detections = [SimpleNamespace(skeleton=twin_skeleton, person_id=13),
+                  SimpleNamespace(skeleton=other_skeleton, person_id=12)]  # fmt: skip
+    seen = SimpleNamespace(track_id=5, position_m=np.array([3.0, -1.5]),
+                           observation=Observation(np.array([100.0, 50.0]), skeleton=twin_skeleton))  # fmt: skip
+    people: dict[int, int] = {}
+    note_track_people(people, [seen], detections)
+    assert people == {5: 13}
+    # Later: no detection, the track coasts to (3, -5), where stranger 11 waits out of view.
+    coasting = SimpleNamespace(track_id=5, position_m=np.array([3.0, -5.0]), observation=None)
+    note_track_people(people, [coasting], [])
+    world = SimpleNamespace(people=[SimpleNamespace(person_id=11, position_m=np.array([3.0, -5.0])),
+                                    SimpleNamespace(person_id=13, position_m=np.array([3.0, -4.0]))])  # fmt: skip
+    result = SimpleNamespace(target_track=coasting)
+    assert _person_of(result, world, people) == 13
+    # A track never updated by a detection falls back to the person it stands on.
+    assert _person_of(SimpleNamespace(target_track=SimpleNamespace(
+        track_id=9, position_m=np.array([3.0, -5.0]))), world, people) == 11  # fmt: skip

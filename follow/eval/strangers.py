@@ -128,6 +128,7 @@ def run_scenario(config: Config, strangers: int = 5, seed: int = 0, variant: Var
     strangers_named: set[int] = set()
     target_back_seen_s = None
     target_named: list[tuple[float, bool]] = []  # (stamp, the target is the named one)
+    track_people: dict[int, int] = {}  # track id -> the person it last saw
     for k in range(int(end_s / world.dt_s)):
         wf = world.step()
         detections = detector.detect(wf)
@@ -138,7 +139,8 @@ def run_scenario(config: Config, strangers: int = 5, seed: int = 0, variant: Var
             image = variant.apply(image, k)
         result = perception.process(Frame(image, wf.stamp_s), Odometry(0, 0, 0, wf.stamp_s), k)
         command = controller.update(target_motion(result, robot), wf.stamp_s)
-        named = _person_of(result, wf)
+        note_track_people(track_people, result.tracks, detections)
+        named = _person_of(result, wf, track_people)
         if named is not None and named != TARGET_ID:
             wrong_s += world.dt_s
             strangers_named.add(named)
@@ -173,11 +175,24 @@ def reacquisition_s(target_named: list[tuple[float, bool]], back_seen_s: float |
     return since_s - back_seen_s
 
 
-def _person_of(result, world_frame) -> int | None:
-    """The simulated person the named target's track stands on (within 1 m), if any."""
+def note_track_people(track_people: dict[int, int], tracks, detections) -> None:
+    """Remember, for each track updated this frame, whose detection updated it."""
+    person_of_skeleton = {id(d.skeleton): d.person_id for d in detections}
+    for track in tracks:
+        skeleton = None if track.observation is None else track.observation.skeleton
+        if skeleton is not None and id(skeleton) in person_of_skeleton:
+            track_people[track.track_id] = person_of_skeleton[id(skeleton)]
+
+
+def _person_of(result, world_frame, track_people: dict[int, int]) -> int | None:
+    """The simulated person the named target's track is: the one whose detection last
+    updated it (a track coasting out of view stays theirs, wherever others wait), else
+    the one it stands on (within 1 m; -1 for nobody)."""
     track = result.target_track
     if track is None:
         return None
+    if track.track_id in track_people:
+        return track_people[track.track_id]
     dist, pid = min((float(np.linalg.norm(p.position_m - track.position_m)), p.person_id)
                     for p in world_frame.people)  # fmt: skip
     return pid if dist <= 1.0 else -1
