@@ -78,3 +78,15 @@ def test_a_failed_control_loop_is_an_error_in_the_diagnostics():
     levels = [messages.diagnostics(1.0, "follow", {}, ok, "m", failed=failed).status[0].level
               for ok, failed in ((True, False), (False, False), (True, True))]  # fmt: skip
     assert levels == [DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR]
+
+
+def test_the_diagnostics_name_why_frames_fail():
+    """A node whose every frame raises said only "no frames processed recently"."""
+    from follow.ros2.node import perception_status
+
+    assert perception_status(True, 0, None) == (True, "running")
+    assert perception_status(False, 0, "ValueError: old") == (False, "no frames processed recently")
+    ok, message = perception_status(False, 12, "ValueError: image 640x480, camera 1280x720")
+    assert not ok and "12 frame(s) failed" in message and "camera 1280x720" in message
+    ok, message = perception_status(True, 1, "KeyError: 'x'")
+    assert ok and message.startswith("running;") and "KeyError" in message

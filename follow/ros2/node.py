@@ -131,6 +131,17 @@ def _describe(key: tuple | None) -> str:
             f"distortion, fx {k[0]:g} fy {k[4]:g} cx {k[2]:g} cy {k[5]:g}, d {list(d)}")  # fmt: skip
 
 
+def perception_status(processed_recently: bool, failed_frames: int,
+                      last_error: str | None) -> tuple[bool, str]:  # fmt: skip
+    """The diagnostics' level (OK or not) and message for one period: where frames fail,
+    the message names the newest failure, so an operator sees why nothing gets through
+    rather than only that nothing does."""
+    if not failed_frames:
+        return processed_recently, "running" if processed_recently else "no frames processed recently"
+    failures = f"{failed_frames} frame(s) failed since the last report, the newest: {last_error}"
+    return processed_recently, f"running; {failures}" if processed_recently else failures
+
+
 class FollowNode(Node):
     """Subscribes, runs perception and control, publishes (see the module doc)."""
 
@@ -166,6 +177,8 @@ class FollowNode(Node):
         self._camera_key: tuple | None = None  # the image size and camera_info perceived with
         self.stale_frames = 0  # images unstamped, not newer than the last processed, or ahead
         self.errors = 0
+        self.last_error: str | None = None  # the newest frame failure, for the diagnostics
+        self._errors_reported = 0
         self._last_stamp: float | None = None
         self._recent: deque = deque(maxlen=300)  # (wall time, timing_ms) per frame
         self._images = LatestSlot()
@@ -312,9 +325,8 @@ class FollowNode(Node):
                         self._conclude(*detected)
                     elif not self._handoff.give(detected, self._stopping):
                         return
-                except Exception:  # one bad frame must not end the node; control goes stale
-                    self.errors += 1
-                    log.exception("frame failed")
+                except Exception as exc:  # one bad frame must not end the node; control goes stale
+                    self._frame_failed(exc)
         finally:
             if self._handoff is not None:
                 self._handoff.close()
@@ -323,9 +335,13 @@ class FollowNode(Node):
         for detected in self._handoff.items(poll_s=0.2):
             try:
                 self._conclude(*detected)
-            except Exception:  # one bad frame must not end the node; control goes stale
-                self.errors += 1
-                log.exception("frame failed")
+            except Exception as exc:  # one bad frame must not end the node; control goes stale
+                self._frame_failed(exc)
+
+    def _frame_failed(self, exc: Exception) -> None:
+        self.errors += 1
+        self.last_error = f"{type(exc).__name__}: {exc}"
+        log.exception("frame failed")
 
     def _perception_for(self, width: int, height: int):
         """The perception built for the first image's size and camera_info; an image of
@@ -462,6 +478,7 @@ class FollowNode(Node):
                   "frames": str(self.frames),
                   "frames_without_odometry": str(self.frames_without_odometry),
                   "odometry_dropped": str(self.odometry_dropped),
+                  "stale_frames": str(self.stale_frames), "errors": str(self.errors),
                   "following": str(self.following)}  # fmt: skip
         for stage in ("pose", "tracker", "identify"):
             stage_ms = [t[stage] for t in recent if stage in t]
@@ -470,8 +487,8 @@ class FollowNode(Node):
         if self.gate is not None:
             values["cmd_vel_blocked"] = str(self.gate.blocked)
             values["watchdog_trips"] = str(self.control.watchdog_trips)
-        ok = bool(recent)
-        message = "running" if ok else "no frames processed recently"
+        failed_frames, self._errors_reported = self.errors - self._errors_reported, self.errors
+        ok, message = perception_status(bool(recent), failed_frames, self.last_error)
         failed = self.control is not None and self.control.error is not None
         if failed:  # it stopped the base and sends nothing more: say so, every period
             message = (f"control loop failed ({type(self.control.error).__name__}: "
