@@ -70,12 +70,19 @@ def _frames(args: argparse.Namespace, paths: list[Path] | None, unreadable: list
     if paths is None:
         yield from iter_video_frames(video_source(args.inputs), every=args.every)
         return
-    for path in paths:
+    for path, label in zip(paths, view_labels(paths), strict=True):
         try:
-            yield path.name, read_image(path)
+            yield label, read_image(path)
         except ImageInputError as exc:
             log.warning("%s (skipped)", exc)
-            unreadable.append((path.name, str(exc)))
+            unreadable.append((label, str(exc)))
+
+
+def view_labels(paths: list[Path]) -> list[str]:
+    """Each image's name in the report: its file name, or its path where two inputs share
+    a file name (views are reported, and counted in the camera file, by this label)."""
+    names = [p.name for p in paths]
+    return [p.name if names.count(p.name) == 1 else str(p) for p in paths]
 
 
 def _pose_to_keep(output: Path) -> CameraPose | None:

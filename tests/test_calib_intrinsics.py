@@ -319,3 +319,20 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, m
         assert cli.main(argv) == 2
         assert f"cannot write {tmp_path / output}" in capsys.readouterr().err
     assert not ran
+
+
+def test_views_of_the_same_file_name_in_two_folders_are_each_counted(views, tmp_path, capsys):
+    """Views were reported by file name only: two folders of shots named alike collapsed
+    into one entry each, so views_used (written into the camera file) was too low."""
+    for k, folder in enumerate(("left", "right")):
+        (tmp_path / folder).mkdir()
+        for i, (_, image) in enumerate(views[3 * k : 3 * k + 3]):
+            cv2.imwrite(str(tmp_path / folder / f"shot_{i}.png"), image)
+    out = tmp_path / "cam.yaml"
+    argv = ["intrinsics", str(tmp_path / "left"), str(tmp_path / "right"),
+            "--pattern", "9x6", "--square-size-m", "0.03", "-o", str(out), "--json"]  # fmt: skip
+    assert cli.main(argv) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["views_used"] == 6
+    assert len(result["per_view_rms_px"]) == 6
+    assert str(tmp_path / "right" / "shot_0.png") in result["per_view_rms_px"]
