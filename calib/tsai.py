@@ -37,6 +37,9 @@ _FIT_GRID_STEP_PX = 8.0
 _CHECK_DEPTH_M = 10.0
 # A camera centre lower than this over the ground z = 0 is a world in other units than mm
 # (in metres a camera sits 1000 times too low: PETS's 7 m mast at 7 mm) or with z down.
+# An image side beyond any camera's: the conversion samples the whole image, so a
+# typing error (1e6) would ask for a grid of a trillion points.
+MAX_IMAGE_SIDE_PX = 16384
 MIN_CAMERA_HEIGHT_M = 0.05
 
 
@@ -115,9 +118,15 @@ class TsaiCamera:
                     )
                 values[tag][attribute] = number
         g, i, e = values["Geometry"], values["Intrinsic"], values["Extrinsic"]
+        for key in ("width", "height"):
+            if not (g[key].is_integer() and 0 < g[key] <= MAX_IMAGE_SIDE_PX):
+                raise TsaiFileError(
+                    f"Tsai file {path}: <Geometry> attribute '{key}' must be a whole number "
+                    f"of pixels, 1 to {MAX_IMAGE_SIDE_PX}, got {g[key]:g}"
+                )
         try:
             camera = cls(
-                image_size=(int(round(g["width"])), int(round(g["height"]))),
+                image_size=(int(g["width"]), int(g["height"])),
                 focal_mm=i["focal"],
                 kappa1_per_mm2=i["kappa1"],
                 cx_px=i["cx"],

@@ -88,6 +88,11 @@ def test_discrepancy_grows_when_the_model_is_wrong(synthetic_tsai):
         (VALID_XML.format(kappa1=0.0, rx=0.0).replace('cy="238.0"', ""), "'cy'"),
         (VALID_XML.format(kappa1="abc", rx=0.0), "'kappa1' is not a number"),
         (VALID_XML.format(kappa1=0.0, rx=0.0).replace('focal="4.0"', 'focal="-4"'), "focal"),
+        # a fractional size was rounded, a huge one asked the conversion for a vast grid
+        (VALID_XML.format(kappa1=0.0, rx=0.0).replace('width="640"', 'width="640.4"'),
+         "'width' must be a whole number of pixels"),
+        (VALID_XML.format(kappa1=0.0, rx=0.0).replace('height="480"', 'height="1e6"'),
+         "'height' must be a whole number of pixels, 1 to 16384"),
     ],
 )
 def test_malformed_xml_names_the_problem(tmp_path, text, expected):
