@@ -9,11 +9,16 @@ from calib import cli
 from follow.camera import CameraModel, CameraPose
 
 
-def test_a_frame_past_the_end_names_the_frame_and_the_count(tmp_path, capsys):
-    video = _video(tmp_path / "clip.avi", frames=7)
+def _camera(tmp_path):
+    """A camera file for the tiny test videos, 1 m up, pitched down 0.2 rad."""
     camera = tmp_path / "cam.yaml"
     CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0, pitch_rad=0.2)).save(camera)
-    argv = ["check", str(video), "--camera", str(camera), "-o", str(tmp_path / "c.png")]
+    return camera
+
+
+def test_a_frame_past_the_end_names_the_frame_and_the_count(tmp_path, capsys):
+    video = _video(tmp_path / "clip.avi", frames=7)
+    argv = ["check", str(video), "--camera", str(_camera(tmp_path)), "-o", str(tmp_path / "c.png")]
     assert cli.main([*argv, "--frame", "999999"]) == 2
     err = capsys.readouterr().err.strip()
     assert "Traceback" not in err and len(err.splitlines()) == 1, err
@@ -23,8 +28,7 @@ def test_a_frame_past_the_end_names_the_frame_and_the_count(tmp_path, capsys):
 
 def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, capsys):
     video = _video(tmp_path / "clip.avi", frames=2)
-    camera = tmp_path / "cam.yaml"
-    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0, pitch_rad=0.2)).save(camera)
+    camera = _camera(tmp_path)
     for output, option in (("c.xyz", "--output"), ("missing/c.png", "--output")):
         try:
             cli.main(["check", str(video), "--camera", str(camera), "-o", str(tmp_path / output)])
@@ -44,9 +48,7 @@ def test_an_output_that_cannot_be_written_is_refused_before_the_work(tmp_path, c
 def test_a_grid_too_fine_to_draw_is_refused_by_name(tmp_path, capsys):
     # A 1 nm grid asked numpy for a 139 GiB array: a MemoryError traceback.
     video = _video(tmp_path / "clip.avi", frames=1)
-    camera = tmp_path / "cam.yaml"
-    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0, pitch_rad=0.2)).save(camera)
-    argv = ["check", str(video), "--camera", str(camera), "-o", str(tmp_path / "c.png")]
+    argv = ["check", str(video), "--camera", str(_camera(tmp_path)), "-o", str(tmp_path / "c.png")]
     assert cli.main([*argv, "--grid-step-m", "1e-9"]) == 2
     err = capsys.readouterr().err.strip()
     assert "Traceback" not in err and "grid step of 1e-09 m draws" in err, err

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import pytest
+from waiting import wait_for
 
 from follow.camera import CameraModel, CameraPose
 from follow.config import Config
@@ -89,15 +90,6 @@ def _moving(twist) -> bool:
     return twist.linear.x != 0.0 or twist.angular.z != 0.0
 
 
-def _wait(predicate, timeout_s: float = 3.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return False
-
-
 def test_shutdown_stops_the_base_before_waiting_for_the_pose_network():
     """On a CPU the network takes a second a frame: the base must not drive on the last
     result while shutdown waits for it."""
@@ -115,7 +107,7 @@ def test_shutdown_stops_the_base_before_waiting_for_the_pose_network():
         assert inside.wait(3.0), "the image never reached the pose network"
         node.results.put(_result(node.now_s()))
         node.control.notify()
-        assert _wait(lambda: bool(twists) and _moving(twists[-1])), "the base never drove"
+        assert wait_for(lambda: bool(twists) and _moving(twists[-1]), 3.0), "the base never drove"
         stopper.start()
         time.sleep(0.5)  # the network is still busy with the image
         driving = node.control._thread.is_alive()
@@ -136,7 +128,7 @@ def test_destroying_the_node_stops_the_base_first():
     try:
         node.results.put(_result(node.now_s()))
         node.control.notify()
-        assert _wait(lambda: bool(twists) and _moving(twists[-1])), "the base never drove"
+        assert wait_for(lambda: bool(twists) and _moving(twists[-1]), 3.0), "the base never drove"
     finally:
         done.set()
         node.destroy_node()
