@@ -177,28 +177,6 @@ def test_a_candidate_on_probation_is_doubted_to_its_end():
     assert ctx.model.learnt == [] and ctx.last_target_s == 10.0  # undone
 
 
-def test_a_frame_too_doubtful_to_learn_marks_nobody_as_another_person():
-    """After a gap the target comes back on a new track, far from its old one, which the
-    tracker gave someone else: a frame not learnt because the new track looks more like
-    the target does not vouch that the two are different people (which would keep the
-    target, on the new track, from ever being re-identified)."""
-    ctx = tracked_context(stamp_s=10.0, observed={1: 50, 3: 50})
-    state = Tracking(1)
-    gap = CFG.identity_risk_unseen_s + 0.5
-    hidden = person(1, 2.0, observed=False, last_seen_s=10.0)
-    assert state.update(ctx, frame([hidden], 10.0 + gap - 0.1, {})) is state
-    back = [person(1, 2.0, last_seen_s=10.0 + gap), person(3, 3.5, last_seen_s=10.0 + gap)]
-    assert state.update(ctx, frame(back, 10.0 + gap, {1: -0.05, 3: 0.8})) is state
-    assert ctx.model.learnt == [] and not ctx.seen_beside_target(3)
-    t = 10.0 + gap + 0.1
-    low = CFG.id_switch_confidence - 0.3
-    state = state.update(ctx, frame(back, t, {1: low, 3: 0.8}, {1: 0.0, 3: 0.9}))
-    assert isinstance(state, Reidentification)
-    for k in range(1, CFG.reid_frames + 1):
-        state = state.update(ctx, frame(back, t + 0.1 * k, {1: low, 3: 0.8}, {1: 0.0, 3: 0.9}))
-    assert isinstance(state, Probation) and state.target_id == 3
-
-
 def test_the_targets_stature_comes_only_from_frames_that_vouched_for_it():
     low = CFG.id_switch_confidence - 0.1
     ctx = tracked_context(stamp_s=10.0)

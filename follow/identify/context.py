@@ -140,10 +140,12 @@ class IdentityContext:
         return self._by_track(frame, self.model.similarity)
 
     # ------------------------------------------------------------------ the target
-    def note_target(self, target_id: int, frame: FrameTracks, stature: bool = True) -> None:
+    def note_target(self, target_id: int, frame: FrameTracks, confirmed: bool = False,
+                    stature: bool = True) -> None:  # fmt: skip
         """Remember where the target is, when it was seen, its height (unless not
-        `stature`), and whether the tracker could be swapping it with someone this
-        frame (who could be is no longer `seen_apart`)."""
+        `stature`), whether the tracker could be swapping it with someone this frame,
+        and, on a frame that `confirmed` its identity, who was seen beside it
+        (`seen_apart`)."""
         track = frame.by_id[target_id]
         self.last_target_position_m = track.position_m.copy()
         self.last_target_s = frame.stamp_s
@@ -155,26 +157,20 @@ class IdentityContext:
         unseen_s = frame.stamp_s - track.last_seen_s
         if near or unseen_s > self.config.identity_risk_unseen_s:
             self.identity_risk_s = frame.stamp_s
-        self.seen_apart -= near | self._touching_target(target_id, frame)
-
-    def note_beside(self, target_id: int, frame: FrameTracks) -> None:
-        """On a frame that vouches for the target's identity (after `note_target`),
-        remember who was seen beside it (`seen_apart`): two people seen at once are two
-        people, where the tracker cannot be confusing them, and such a track is never
-        the target come back. A frame that doubts the identity vouches for nothing: the
-        target may be on one of the others."""
-        if frame.by_id[target_id].observation is None:
-            return
-        swappable = self._near_target(target_id, frame) | self._touching_target(target_id, frame)
-        self.seen_apart |= {
-            i for i, t in frame.by_id.items()
-            if i != target_id and t.observation is not None and i not in swappable
-        }  # fmt: skip
+        swappable = near | self._touching_target(target_id, frame)
+        self.seen_apart -= swappable
+        if confirmed and track.observation is not None:
+            # Two people seen at once are two people, where the tracker cannot be
+            # confusing them: such a track is never the target come back.
+            self.seen_apart |= {
+                i for i, t in frame.by_id.items()
+                if i != target_id and t.observation is not None and i not in swappable
+            }  # fmt: skip
 
     def whereabouts(self) -> tuple:
         """Where and when the target was last named and seen, when its identity was last
-        at risk, and who was seen beside it: what `note_target` and `note_beside` move,
-        besides its height, to be put back with `restore`."""
+        at risk, and who was seen beside it: what `note_target` moves, besides its
+        height, to be put back with `restore`."""
         return (self.last_target_position_m, self.last_target_s, self.last_target_seen_s,
                 self.identity_risk_s, set(self.seen_apart))  # fmt: skip
 

@@ -87,9 +87,8 @@ class InitialTraining(State):
             return Initial()
         context.look(frame, only=self.target_id)
         learnt = self.target_id in frame.appearances and context.learn(self.target_id, frame)
-        context.note_target(self.target_id, frame)
+        context.note_target(self.target_id, frame, confirmed=learnt)
         if learnt:
-            context.note_beside(self.target_id, frame)
             self.frames_learnt += 1
             if self.frames_learnt >= context.config.initial_training_frames:
                 log.info("target track %d learnt: tracking", self.target_id)
@@ -137,13 +136,12 @@ class Tracking(State):
         # tracker swapped in must not become the bar. (A frame without a crop, at the
         # image's edge, judges nothing either way.)
         doubted = confidence is not None and not confirmed
-        context.note_target(self.target_id, frame, stature=self.notes_stature and not doubted)
+        context.note_target(self.target_id, frame, confirmed,
+                            stature=self.notes_stature and not doubted)  # fmt: skip
         if confidence is None:  # not observed this frame: nothing to judge or learn
             return True
         if confirmed:
-            # A frame not learnt for fear of a swap vouches for nobody being another person.
             if context.may_learn(self.target_id, frame, confidence):
-                context.note_beside(self.target_id, frame)
                 context.learn(self.target_id, frame)
             return True
         if self._excused_as_turn(context, frame.stamp_s):
