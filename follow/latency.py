@@ -19,11 +19,13 @@ class LatencyRecorder:
         self._values_s.append(latency_s)
         self.count += 1
 
-    def summary_ms(self) -> dict[str, float | None]:
-        """Median and 95th percentile in milliseconds (None before the first)."""
-        if not self._values_s:
+    def summary_ms(self, skip: int = 0) -> dict[str, float | None]:
+        """Median and 95th percentile in milliseconds (None before the first), without
+        the first `skip` latencies recorded (a warm-up)."""
+        kept = list(self._values_s)[max(0, skip - (self.count - len(self._values_s))) :]
+        if not kept:
             return {"median": None, "p95": None}
-        values = 1e3 * np.asarray(self._values_s)
+        values = 1e3 * np.asarray(kept)
         return {
             "median": round(float(np.median(values)), 2),
             "p95": round(float(np.percentile(values, 95)), 2),

@@ -7,8 +7,8 @@ One run measures, in this order and in one process:
    another, each stage timed (medians over frames, after a warm-up);
 3. **runner**: the threads that drive a robot (`build_runner`, stages overlapped as
    configured) fed by a camera at `--camera-fps`: frames processed per second, capture
-   to command latency (median, p95), and end-to-end time per frame over the bare
-   inference time (1.0 would be the floor).
+   to command latency (median, p95), both after the warm-up, and end-to-end time per
+   frame over the bare inference time (1.0 would be the floor).
 Peak RSS is the process's. `--matrix` runs the robot defaults and the PETS settings
 with onnxruntime and with OpenVINO (or the runtimes `--providers` names: `cpu,cuda` on
 a GPU machine), each in its own process (so each has its own peak RSS), and prints them
@@ -230,9 +230,10 @@ def runner_times(config, detector, setup, total: int, warmup: int, camera_fps: f
     if not quiet:
         print(f"bench: runner at {camera_fps:g} fps ({total} frames)...", file=sys.stderr)
     runner.run(camera(), pace_hz=camera_fps, on_result=on_result)
-    timed = done_s[min(warmup, max(0, len(done_s) - 2)) :]
+    skip = min(warmup, max(0, len(done_s) - 2))  # the warm-up, leaving two results
+    timed = done_s[skip:]
     fps = (len(timed) - 1) / (timed[-1] - timed[0]) if len(timed) >= 2 else None
-    latency = runner.control.latency.summary_ms()
+    latency = runner.control.latency.summary_ms(skip)  # the same results' latencies
     return {
         "overlap_stages": runner.overlap_stages,
         "camera_fps": camera_fps,

@@ -1,0 +1,62 @@
+"""`follow bench`'s runner figures, on a scripted perception (no network, no data)."""
+
+import time
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from follow.config import Config
+from follow.eval import bench
+from follow.latency import LatencyRecorder
+from follow.pipeline import Detections, FrameResult
+from follow.types import TargetEstimate, TargetStatus
+
+
+class _WarmingPerception:
+    """Pose takes `slow_s` on the first `slow` frames (a runtime warming up), then
+    `fast_s`; nobody is seen."""
+
+    pose_backend = None
+
+    def __init__(self, slow: int, slow_s: float = 0.2, fast_s: float = 0.01):
+        self.slow, self.slow_s, self.fast_s = slow, slow_s, fast_s
+        self.detected = 0
+
+    def detect_people(self, frame):
+        self.detected += 1
+        time.sleep(self.slow_s if self.detected <= self.slow else self.fast_s)
+        return Detections([], 0.0)
+
+    def conclude(self, frame, robot, index, detections):
+        return FrameResult(index, frame.stamp_s, robot, [], [],
+                           TargetEstimate(TargetStatus.INITIAL, None, {}, frame.stamp_s))  # fmt: skip
+
+
+def _runner_times(monkeypatch, perception, frames: int, warmup: int, camera_fps: float) -> dict:
+    monkeypatch.setattr(bench, "_learning_perception", lambda config, setup, detector: perception)
+    image = np.zeros((48, 64, 3), np.uint8)
+    setup = SimpleNamespace(sequence=SimpleNamespace(read_frame=lambda index: image))
+    return bench.runner_times(Config(), None, setup, frames, warmup, camera_fps, quiet=True)
+
+
+def test_the_runner_latency_leaves_out_the_warm_up_frames_as_its_frame_rate_does(monkeypatch):
+    # 5 warm-up frames of 200 ms, then 10 ms frames from a 50 fps camera: ~45 results,
+    # whose 95th percentile would be the warm-up's if it were counted
+    r = _runner_times(monkeypatch, _WarmingPerception(slow=5), frames=75, warmup=5,
+                      camera_fps=50.0)  # fmt: skip
+    assert r["runner_frames"] >= 20
+    assert r["capture_to_command_p95_ms"] < 120.0, r
+    assert r["capture_to_command_median_ms"] < 60.0, r
+
+
+def test_the_latency_summary_can_leave_out_the_first_latencies_recorded():
+    recorder = LatencyRecorder(window=4)
+    for latency_s in (1.0, 0.01, 0.02, 0.03):
+        recorder.add(latency_s)
+    assert recorder.summary_ms(skip=1)["median"] == pytest.approx(20.0)
+    assert recorder.summary_ms()["median"] == pytest.approx(25.0)
+    recorder.add(0.04)  # the first has left the window: skipping it skips nothing kept
+    assert recorder.summary_ms(skip=1)["median"] == pytest.approx(25.0)
+    assert recorder.summary_ms(skip=2)["median"] == pytest.approx(30.0)
+    assert recorder.summary_ms(skip=5) == {"median": None, "p95": None}
