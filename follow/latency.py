@@ -20,13 +20,15 @@ class LatencyRecorder:
         self.count += 1
 
     def summary_ms(self, skip: int = 0) -> dict[str, float | None]:
-        """Median and 95th percentile in milliseconds (None before the first), without
-        the first `skip` latencies recorded (a warm-up)."""
+        """Median and 95th percentile in milliseconds (None before the first), and the
+        number of latencies they come from, without the first `skip` recorded (a
+        warm-up)."""
         kept = list(self._values_s)[max(0, skip - (self.count - len(self._values_s))) :]
         if not kept:
-            return {"median": None, "p95": None}
+            return {"median": None, "p95": None, "samples": 0}
         values = 1e3 * np.asarray(kept)
         return {
             "median": round(float(np.median(values)), 2),
             "p95": round(float(np.percentile(values, 95)), 2),
+            "samples": len(kept),
         }

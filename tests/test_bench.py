@@ -59,4 +59,12 @@ def test_the_latency_summary_can_leave_out_the_first_latencies_recorded():
     recorder.add(0.04)  # the first has left the window: skipping it skips nothing kept
     assert recorder.summary_ms(skip=1)["median"] == pytest.approx(25.0)
     assert recorder.summary_ms(skip=2)["median"] == pytest.approx(30.0)
-    assert recorder.summary_ms(skip=5) == {"median": None, "p95": None}
+    assert recorder.summary_ms(skip=2)["samples"] == 3
+    assert recorder.summary_ms(skip=5) == {"median": None, "p95": None, "samples": 0}
+
+
+def test_the_runner_says_how_many_latencies_its_median_and_p95_come_from(monkeypatch):
+    r = _runner_times(monkeypatch, _WarmingPerception(slow=0, fast_s=0.02), frames=20,
+                      warmup=3, camera_fps=50.0)  # fmt: skip
+    # one per result after the warm-up (the last result may end the run before its command)
+    assert r["runner_frames"] - 3 - 1 <= r["capture_to_command_samples"] <= r["runner_frames"] - 3

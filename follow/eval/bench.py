@@ -32,6 +32,8 @@ from follow.pose.runtime import GPU_PROVIDERS
 PROVIDER_CHOICES = ("auto", "cpu", "openvino", "cuda", "tensorrt")
 SETTINGS_CHOICES = ("robot", "pets")
 MATRIX_PROVIDERS = ("cpu", "openvino")
+# Below this many latencies the 95th percentile lies between the two largest.
+MIN_P95_SAMPLES = 20
 
 
 def provider_list(text: str) -> tuple[str, ...]:
@@ -123,7 +125,8 @@ def main(args) -> dict:
     other_run = runner_times(other, detector, setup, total, args.warmup, args.camera_fps,
                              args.json)  # fmt: skip
     other_name = "overlapped" if other_run["overlap_stages"] else "in_turn"
-    for key in ("runner_fps", "capture_to_command_median_ms", "capture_to_command_p95_ms"):
+    for key in ("runner_fps", "capture_to_command_median_ms", "capture_to_command_p95_ms",
+                "capture_to_command_samples"):  # fmt: skip
         result[f"{key}_stages_{other_name}"] = other_run[key]
     e2e_ms = result["runner_frame_ms"]
     result["end_to_end_over_inference"] = (
@@ -137,6 +140,10 @@ def main(args) -> dict:
     if result["runner_fps"] and result["runner_fps"] >= 0.95 * args.camera_fps:
         notes.append(f"the runner kept up with the {args.camera_fps:g} fps camera: its figures "
                      "are the camera's rate, not the stack's limit")  # fmt: skip
+    samples = result["capture_to_command_samples"]
+    if samples < MIN_P95_SAMPLES:
+        notes.append(f"the capture-to-command p95 comes from {samples} latencies (under "
+                     f"{MIN_P95_SAMPLES}, it is about their largest): more --frames")  # fmt: skip
     result["notes"] = notes
     if not args.json:
         print_report(result, args.camera_fps)
@@ -243,6 +250,7 @@ def runner_times(config, detector, setup, total: int, warmup: int, camera_fps: f
         "runner_frame_ms": round(1000.0 / fps, 3) if fps else None,
         "capture_to_command_median_ms": latency["median"],
         "capture_to_command_p95_ms": latency["p95"],
+        "capture_to_command_samples": latency["samples"],  # after the warm-up
     }
 
 
@@ -293,20 +301,23 @@ def print_report(result: dict, camera_fps: float) -> None:
           f"{camera_fps:g} fps): {result['runner_fps']} fps, {result['runner_frame_ms']} ms a "
           f"frame = {result['end_to_end_over_inference']} x bare inference; capture to command "
           f"median {result['capture_to_command_median_ms']} ms, p95 "
-          f"{result['capture_to_command_p95_ms']} ms")  # fmt: skip
+          f"{result['capture_to_command_p95_ms']} ms (of "
+          f"{result['capture_to_command_samples']} frames)")  # fmt: skip
     for other in ("in_turn", "overlapped"):
         if f"runner_fps_stages_{other}" in result:
             print(f"  the same runner with the stages {other.replace('_', ' ')}: "
                   f"{result[f'runner_fps_stages_{other}']} fps; capture to command median "
                   f"{result[f'capture_to_command_median_ms_stages_{other}']} ms, p95 "
-                  f"{result[f'capture_to_command_p95_ms_stages_{other}']} ms")  # fmt: skip
+                  f"{result[f'capture_to_command_p95_ms_stages_{other}']} ms (of "
+                  f"{result[f'capture_to_command_samples_stages_{other}']} frames)")  # fmt: skip
     print(f"  peak RSS {result['peak_rss_mb']} MB")
     for note in result["notes"]:
         print(f"  note: {note}")
 
 
 MATRIX_KEYS = ("bare_inference_ms", "in_turn_fps", "runner_fps", "end_to_end_over_inference",
-               "capture_to_command_median_ms", "capture_to_command_p95_ms", "peak_rss_mb")  # fmt: skip
+               "capture_to_command_median_ms", "capture_to_command_p95_ms",
+               "capture_to_command_samples", "peak_rss_mb")  # fmt: skip
 
 
 def run_matrix(args) -> dict:
@@ -337,12 +348,14 @@ def run_matrix(args) -> dict:
     if not args.json:
         print(f"medians of {args.repeats} run(s) per cell, camera {args.camera_fps:g} fps")
         print(f"{'cell':18s} {'inference ms':>12s} {'in turn fps':>11s} {'runner fps':>10s} "
-              f"{'x inference':>11s} {'latency p50':>11s} {'p95':>7s} {'peak RSS MB':>11s}  "
+              f"{'x inference':>11s} {'latency p50':>11s} {'p95':>7s} {'of':>4s} "
+              f"{'peak RSS MB':>11s}  "
               f"ran on")  # fmt: skip
         for name, row in table.items():
             print(f"{name:18s} {row['bare_inference_ms']:12.1f} {row['in_turn_fps']:11.1f} "
                   f"{row['runner_fps']:10.1f} {row['end_to_end_over_inference']:11.2f} "
                   f"{row['capture_to_command_median_ms']:11.1f} "
-                  f"{row['capture_to_command_p95_ms']:7.1f} {row['peak_rss_mb']:11.0f}  "
+                  f"{row['capture_to_command_p95_ms']:7.1f} "
+                  f"{row['capture_to_command_samples']:4.0f} {row['peak_rss_mb']:11.0f}  "
                   f"{row['pose_backend']}")  # fmt: skip
     return {"matrix": table, "repeats": args.repeats, "camera_fps": args.camera_fps}
