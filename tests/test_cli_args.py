@@ -80,7 +80,9 @@ def test_bench_matrix_runs_the_runtimes_providers_names(monkeypatch, capsys):
         commands.append(command)
         provider = command[command.index("--provider") + 1]
         row = dict.fromkeys(bench.MATRIX_KEYS, 1.0)
-        row.update(pose_backend=f"onnxruntime:{provider}", pose_model="m.onnx")
+        row.update(pose_backend=f"onnxruntime:{provider}", pose_model="m.onnx",
+                   overlap_stages=provider == "cuda", reid_backend="onnxruntime:CPU",
+                   notes=["the runner kept up"] if provider == "cuda" else [])  # fmt: skip
         return types.SimpleNamespace(returncode=0, stdout=json.dumps(row) + "\n", stderr="")
 
     monkeypatch.setattr(subprocess, "run", fake_run)
@@ -89,7 +91,11 @@ def test_bench_matrix_runs_the_runtimes_providers_names(monkeypatch, capsys):
     assert sorted(set(cells)) == [("pets", "cpu"), ("pets", "cuda"), ("robot", "cpu"),
                                   ("robot", "cuda")]  # fmt: skip
     assert len(cells) == 8  # twice each, the repeated name once
-    assert "onnxruntime:cuda" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    # each row says what its cell ran, and the cells' notes are kept
+    assert "m.onnx on onnxruntime:cuda, stages overlapped, re-id onnxruntime:CPU" in out
+    assert "m.onnx on onnxruntime:cpu, stages in turn, re-id onnxruntime:CPU" in out
+    assert "note (robot/cuda): the runner kept up" in out
     with pytest.raises(SystemExit) as exit_:
         main(["bench", "--matrix", "--providers", "cpu,gpu"])
     assert exit_.value.code == 2

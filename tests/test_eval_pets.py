@@ -125,6 +125,7 @@ def test_bench_pets_settings_run_the_initial_stage_at_576_px(pets, capsys):
              "--warmup", "0", "--json")  # fmt: skip
     assert r["input_height_px"] == 576 and r["network_stages"] == 1
     assert r["pose_backend"] == "onnxruntime:CPUExecutionProvider"
+    assert r["reid_backend"] == "onnxruntime:CPUExecutionProvider"  # a CPU cell: all on it
     assert "initial-stage" in r["pose_model"]
 
 

@@ -12,7 +12,8 @@ One run measures, in this order and in one process:
 Peak RSS is the process's. `--matrix` runs the robot defaults and the PETS settings
 with onnxruntime and with OpenVINO (or the runtimes `--providers` names: `cpu,cuda` on
 a GPU machine), each in its own process (so each has its own peak RSS), and prints them
-side by side with the back-end that actually ran.
+side by side with what each actually ran (pose model and runtime, the runner's stages,
+the re-id runtime) and each cell's notes.
 """
 
 from __future__ import annotations
@@ -204,7 +205,9 @@ def stage_times(config, detector, setup, total: int, warmup: int, quiet: bool) -
         if observed:
             per_person.append(stage_ms["identify"] / observed)
     in_turn = _median(times.pop("in_turn"))
+    reid = perception.identifier.identifier.context.model.reid
     return {
+        "reid_backend": reid.backend_name if reid is not None else None,
         "frames": len(people),
         "people_in_view_median": _median(people),
         "people_in_view_max": max(people) if people else None,
@@ -286,7 +289,8 @@ def _learning_perception(config, setup, detector):
 def print_report(result: dict, camera_fps: float) -> None:
     print(f"{result['frames']} PETS frames ({result['settings']} settings), pose input "
           f"{result['input_height_px']} px, {result['pose_model']} on {result['pose_backend']}, "
-          f"identifier {result['identifier']}, people in view median "
+          f"identifier {result['identifier']} (re-id on {result['reid_backend']}), people in "
+          f"view median "
           f"{result['people_in_view_median']} (max {result['people_in_view_max']}); medians:")  # fmt: skip
     print(f"  bare inference           {result['bare_inference_ms']} ms (the floor)")
     for key, value in result.items():
@@ -320,6 +324,13 @@ MATRIX_KEYS = ("bare_inference_ms", "in_turn_fps", "runner_fps", "end_to_end_ove
                "capture_to_command_samples", "peak_rss_mb")  # fmt: skip
 
 
+def ran_on(row: dict) -> str:
+    """What a cell ran: pose model and runtime, the runner's stages, the re-id runtime."""
+    stages = "stages overlapped" if row["overlap_stages"] else "stages in turn"
+    return (f"{row['pose_model']} on {row['pose_backend']}, {stages}, re-id "
+            f"{row['reid_backend'] or 'none'}")  # fmt: skip
+
+
 def run_matrix(args) -> dict:
     """Each (settings, runtime) in its own process, `--repeats` times, interleaved so
     that a change in the machine's load touches every cell alike."""
@@ -341,8 +352,9 @@ def run_matrix(args) -> dict:
     table = {}
     for name, runs_of_cell in cells.items():
         row = {k: _median([r[k] for r in runs_of_cell if r[k] is not None]) for k in MATRIX_KEYS}
-        row["pose_backend"] = runs_of_cell[0]["pose_backend"]
-        row["pose_model"] = runs_of_cell[0]["pose_model"]
+        for key in ("pose_backend", "pose_model", "overlap_stages", "reid_backend"):
+            row[key] = runs_of_cell[0][key]
+        row["notes"] = list(dict.fromkeys(n for r in runs_of_cell for n in r["notes"]))
         row["runs"] = len(runs_of_cell)
         table[name] = row
     if not args.json:
@@ -357,5 +369,8 @@ def run_matrix(args) -> dict:
                   f"{row['capture_to_command_median_ms']:11.1f} "
                   f"{row['capture_to_command_p95_ms']:7.1f} "
                   f"{row['capture_to_command_samples']:4.0f} {row['peak_rss_mb']:11.0f}  "
-                  f"{row['pose_backend']}")  # fmt: skip
+                  f"{ran_on(row)}")  # fmt: skip
+        for name, row in table.items():
+            for note in row["notes"]:
+                print(f"note ({name}): {note}")
     return {"matrix": table, "repeats": args.repeats, "camera_fps": args.camera_fps}
