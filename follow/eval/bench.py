@@ -72,8 +72,10 @@ def add_arguments(p) -> None:
 
 
 def peak_rss_mb() -> float:
+    """This process's peak resident set size in megabytes (10^6 bytes, the unit of the
+    goal): getrusage gives KiB on Linux, bytes on macOS."""
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
+    return (peak if sys.platform == "darwin" else peak * 1024.0) / 1e6
 
 
 def _median(values) -> float | None:
