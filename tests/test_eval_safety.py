@@ -33,3 +33,12 @@ def test_rover_stops_after_the_target_leaves_the_view_the_detector_hangs_and_on_
     assert driven_m <= safety.GOAL_DRIVEN_AFTER_LOSS_M, report["cases"]
     assert report["cases"]["sigterm"]["signal"] == "SIGTERM"
     assert report["cases"]["perception_stalls"]["watchdog_trips"] >= 1
+
+
+def test_a_case_where_the_rover_was_not_driving_at_the_fault_misses_its_goal():
+    # A rover that never moved "stands" at once after any fault: that proves nothing.
+    stood_still = {"stop_s": 0.008, "driven_m": 0.0, "speed_at_fault_mps": 0.0}
+    for name in safety.CASE_NAMES:
+        assert not safety.goals_met(name, stood_still), name
+    driving = {**stood_still, "speed_at_fault_mps": 1.0}
+    assert safety.goals_met("target_leaves_view", driving)
