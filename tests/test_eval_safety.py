@@ -1,6 +1,7 @@
 """`follow eval safety` on a fast subset: the runner stops the simulated rover within
-the goals when the target leaves the view, when the detector hangs and on SIGTERM (the
-other faults have their own tests: odometry policy, MAVLink link and mode)."""
+the goals when the target leaves the view, when the detector hangs, on SIGTERM and when
+the target runs out at the side, timed from before the stack lost it (the other faults
+have their own tests: odometry policy, MAVLink link and mode)."""
 
 import numpy as np
 
@@ -42,3 +43,34 @@ def test_a_case_where_the_rover_was_not_driving_at_the_fault_misses_its_goal():
         assert not safety.goals_met(name, stood_still), name
     driving = {**stood_still, "speed_at_fault_mps": 1.0}
     assert safety.goals_met("target_leaves_view", driving)
+
+
+def test_the_side_exit_is_timed_from_before_the_stack_lost_the_target(monkeypatch):
+    # The 3 m/s dash is outside the tracker's gate: the target is lost at the turn, frames
+    # before its neck leaves the image. The fault instant must not come after the loss,
+    # or the robot's reaction to it (braking from full speed) goes unmeasured.
+    from follow import pipeline
+
+    seen = []  # (capture stamp, target observed)
+    conclude = pipeline.Perception.conclude
+
+    def spy(self, frame, robot, index, detections):
+        result = conclude(self, frame, robot, index, detections)
+        track = result.target_track
+        seen.append((frame.stamp_s, track is not None and track.observation is not None))
+        return result
+
+    faults = []
+    stop_and_distance = safety.stop_and_distance
+
+    def fault_spy(samples, fault_s):
+        faults.append(fault_s)
+        return stop_and_distance(samples, fault_s)
+
+    monkeypatch.setattr(pipeline.Perception, "conclude", spy)
+    monkeypatch.setattr(safety, "stop_and_distance", fault_spy)
+    case = safety.run_cases(("target_exits_side",), fault_at_s=5.0)["cases"]["target_exits_side"]
+    last_before = [observed for stamp, observed in seen if stamp <= faults[0]][-1]
+    assert last_before, case  # the stack still saw the target when the fault came
+    assert case["left_image_after_s"] is not None and case["left_image_after_s"] > 0, case
+    assert case["goal_met"], case

@@ -52,7 +52,7 @@ class FaultContext:
     rover: object
     fault_s: float | None = None
     hide_target: bool = False
-    side_exit: bool = False  # the fault is the target's first frame outside the image
+    left_image_s: float | None = None  # side exit: the target's first frame outside the image
     stalled: threading.Event = field(default_factory=threading.Event)
     released: threading.Event = field(default_factory=threading.Event)
 
@@ -104,7 +104,7 @@ def _signal(signum: int) -> Callable[[FaultContext], None]:
 
 CASES = (
     Case("target_leaves_view", _leave_view),
-    Case("target_exits_side", lambda ctx: None, side_exit=True),
+    Case("target_exits_side", _mark, side_exit=True),
     Case("perception_stalls", _stall),
     Case("odometry_stops", _odometry),
     Case("link_cut", _cut, after_s=5.0),
@@ -118,7 +118,9 @@ SIGNAL_CASES = ("sigint", "sigterm")
 
 def target_walker(fault_at_s: float, side_exit: bool) -> Walker:
     """Walks away from the robot from 2.6 m ahead at 1 m/s from t = 1 s; for a side
-    exit it turns left at the fault time and runs across the view at 3 m/s."""
+    exit it turns left at the fault time and runs across the view at 3 m/s. The turn is
+    the fault: a dash that sudden is outside the tracker's gate (a new track), so the
+    target is lost there, frames before it leaves the image."""
     turn_x = 2.6 + (fault_at_s - 1.0) * 1.0
     if side_exit:
         waypoints = np.array([[2.6, 0.0], [turn_x, 0.0], [turn_x, 30.0]])
@@ -193,7 +195,7 @@ def run_case(case: Case, fault_at_s: float = 5.0, seed: int = 0,
     looks = {TARGET_ID: TARGET_LOOK, 2: Appearance.random(rng)}
     n_frames = int(round((fault_at_s + case.after_s) * DEMO_CAMERA.fps))
     with SimRover(seed=seed) as rover, RoverMonitor(rover) as monitor:
-        ctx = FaultContext(rover, side_exit=case.side_exit)
+        ctx = FaultContext(rover)
         mav = dataclasses.replace(config.mavlink or MavlinkConfig(), connection=rover.connection)
         base = MavlinkBase(mav)
         perception = sim_perception(camera, config, seed)
@@ -207,12 +209,12 @@ def run_case(case: Case, fault_at_s: float = 5.0, seed: int = 0,
         perception.detect = detect
 
         def edit(wf):
-            if ctx.fault_s is None and not case.side_exit and wf.stamp_s >= fault_at_s:
+            if ctx.fault_s is None and wf.stamp_s >= fault_at_s:
                 case.inject(ctx)
-            if ctx.fault_s is None and case.side_exit and wf.stamp_s >= fault_at_s:
+            if case.side_exit and ctx.fault_s is not None and ctx.left_image_s is None:
                 target = wf.person(TARGET_ID)
                 if target is not None and not _neck_in_image(target, wf.robot, camera):
-                    _mark(ctx)
+                    ctx.left_image_s = time.monotonic()
             if ctx.hide_target:
                 return dataclasses.replace(
                     wf, people=[p for p in wf.people if p.person_id != TARGET_ID]
@@ -234,11 +236,11 @@ def run_case(case: Case, fault_at_s: float = 5.0, seed: int = 0,
         finally:
             ctx.released.set()
             base.close()
-    if ctx.fault_s is None:
+    if ctx.fault_s is None or (case.side_exit and ctx.left_image_s is None):
         return {"stop_s": None, "driven_m": None, "note": "the fault never happened"}
     stop_s, driven_m = stop_and_distance(monitor.samples, ctx.fault_s)
     speed_before = _speed_at(monitor.samples, ctx.fault_s)
-    return {
+    result = {
         "stop_s": None if stop_s is None else round(stop_s, 3),
         "driven_m": round(driven_m, 3),
         "speed_at_fault_mps": round(speed_before, 3),
@@ -246,6 +248,9 @@ def run_case(case: Case, fault_at_s: float = 5.0, seed: int = 0,
         "odometry_losses": runner.control.odometry.losses,
         **({"signal": interrupted} if interrupted else {}),
     }
+    if case.side_exit:  # the turn is the fault; the target then runs out of the image
+        result["left_image_after_s"] = round(ctx.left_image_s - ctx.fault_s, 3)
+    return result
 
 
 def _neck_in_image(person, robot, camera) -> bool:
