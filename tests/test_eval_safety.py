@@ -74,3 +74,15 @@ def test_the_side_exit_is_timed_from_before_the_stack_lost_the_target(monkeypatc
     assert last_before, case  # the stack still saw the target when the fault came
     assert case["left_image_after_s"] is not None and case["left_image_after_s"] > 0, case
     assert case["goal_met"], case
+
+
+def test_the_text_table_shows_a_fault_that_never_happened():
+    """Its driven distance is None: the table's number format ended the command."""
+    from follow.eval.safety import case_row
+
+    row = case_row("link_cut", {"stop_s": None, "driven_m": None, "goal_met": False,
+                                "note": "the fault never happened"})  # fmt: skip
+    assert "never" in row and "MISSED" in row and "the fault never happened" in row
+    row = case_row("sigint", {"stop_s": 0.52, "driven_m": 0.29, "speed_at_fault_mps": 1.09,
+                              "goal_met": True})  # fmt: skip
+    assert row.split() == ["sigint", "0.52", "0.29", "1.09", "met"]

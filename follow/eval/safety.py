@@ -317,8 +317,16 @@ def main(args: argparse.Namespace) -> dict:
     if not args.json:
         print(f"{'case':<20} {'stop_s':>7} {'driven_m':>9} {'v_fault':>8}  goal")
         for name, r in report["cases"].items():
-            stop = "never" if r["stop_s"] is None else f"{r['stop_s']:.2f}"
-            print(f"{name:<20} {stop:>7} {r['driven_m']:>9.2f} "
-                  f"{r.get('speed_at_fault_mps', 0.0):>8.2f}  "
-                  f"{'met' if r['goal_met'] else 'MISSED'}")  # fmt: skip
+            print(case_row(name, r))
     return report
+
+
+def case_row(name: str, r: dict) -> str:
+    """One case's line of the text table; a fault that never happened has no figures."""
+    stop = "never" if r["stop_s"] is None else f"{r['stop_s']:.2f}"
+    driven = "-" if r.get("driven_m") is None else f"{r['driven_m']:.2f}"
+    speed = r.get("speed_at_fault_mps")
+    speed_text = "-" if speed is None else f"{speed:.2f}"
+    goal = "met" if r.get("goal_met") else "MISSED"
+    note = f"  ({r['note']})" if r.get("note") else ""
+    return f"{name:<20} {stop:>7} {driven:>9} {speed_text:>8}  {goal}{note}"
