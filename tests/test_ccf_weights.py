@@ -68,6 +68,16 @@ def test_non_numeric_value_is_rejected(weight_folder):
         load_conv_layer(path)
 
 
+def test_value_beyond_float32_is_rejected(weight_folder):
+    """1e39 is a finite double but overflows the float32 the network runs in."""
+    path = weight_folder / "conv_t1"
+    lines = path.read_text().splitlines()
+    lines[1] = "1e39 " + " ".join(lines[1].split()[1:])
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(WeightsError, match="conv_t1: line 2 .* non-finite"):
+        load_conv_layer(path)
+
+
 def test_bias_count_mismatch_is_rejected(weight_folder):
     path = weight_folder / "conv_t1"
     lines = path.read_text().splitlines()
