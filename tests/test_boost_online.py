@@ -105,3 +105,21 @@ def test_bad_inputs_are_rejected():
         clf.update(FeatureMaps.from_maps(np.zeros((H, W, 2))), -1)
     with pytest.raises(ValueError, match="rect_min_fraction"):
         OnlineBoostingClassifier(CHANNELS, IdentifyConfig(rect_min_fraction=0.6))
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("compiled", [False, True])
+def test_fast_forgetting_never_leaves_an_error_count_of_zero_over_zero(compiled):
+    """A selector the importance weight has not reached for a while keeps forgetting its
+    counts; with a fast `selector_error_decay` they underflowed to 0 and its error was
+    0 / 0 (NaN, and a ZeroDivisionError in the compiled loop)."""
+    if compiled:
+        pytest.importorskip("numba")
+    clf = OnlineBoostingClassifier(
+        CHANNELS, IdentifyConfig(seed=1, selector_error_decay=0.1), compiled=compiled
+    )
+    rng = np.random.default_rng(1)
+    train_frames(clf, rng, 200, TARGET, TARGET)  # indistinguishable: the chain often stops
+    assert (clf._correct + clf._wrong > 0.0).all()
+    assert np.isfinite(clf.alpha).all()
+    assert np.isfinite(clf.confidence([person(rng, *TARGET)])).all()

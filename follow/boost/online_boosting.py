@@ -37,6 +37,7 @@ from follow.config import IdentifyConfig
 from follow.types import InvalidInput
 
 STOCK_SIZE = 512  # random weak-classifier parameters drawn at once
+MIN_COUNT = float(np.finfo(np.float64).tiny)  # floor of a forgotten error count
 NEG, POS = 0, 1
 
 
@@ -284,8 +285,10 @@ class OnlineBoostingClassifier:
         """One step of forgetting for the error counts; returns the current gain."""
         self._decay_gain /= self.config.selector_error_decay
         if self._decay_gain > 1e150:
-            self._correct /= self._decay_gain
-            self._wrong /= self._decay_gain
+            # counts of a selector lambda has not reached for long are forgotten down to
+            # the smallest normal double, not to 0: their error would be 0 / 0
+            for counts in (self._correct, self._wrong):
+                np.maximum(counts / self._decay_gain, MIN_COUNT, out=counts)
             self._decay_gain = 1.0
         return self._decay_gain
 
