@@ -139,7 +139,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
     },
     "identify": {
         "num_selectors": closed(1, 200),
-        "weak_classifiers_per_selector": closed(1, 200),
+        "weak_classifiers_per_selector": closed(2, 200),
         "sample_bank_size": closed(1, 10000),
         "rect_min_fraction": positive(1.0),
         "rect_max_fraction": positive(1.0),

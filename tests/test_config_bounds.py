@@ -111,3 +111,11 @@ def test_a_switch_with_an_auto_choice_refuses_other_types_naming_both(tmp_path):
     path.write_text("[control]\noverlap_stages = 1\n")
     with pytest.raises(ConfigError, match="'overlap_stages' must be bool or str, got int"):
         Config.load(path)
+
+
+def test_a_classifier_shape_the_booster_cannot_build_is_refused_at_load():
+    """One weak classifier per selector passed validation and failed later, when the
+    identifier built its classifier."""
+    with pytest.raises(ConfigError, match="weak_classifiers_per_selector"):
+        Config.from_dict({"identify": {"weak_classifiers_per_selector": 1}})
+    assert Config.from_dict({"identify": {"weak_classifiers_per_selector": 2}})
