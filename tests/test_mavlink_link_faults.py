@@ -157,6 +157,18 @@ def test_attitude_from_another_component_is_not_odometry(vehicle):
         assert yaws == {0.0}, f"odometry yaw took values {yaws} (the autopilot reports 0)"
 
 
+@pytest.mark.parametrize("field", ["yaw", "north"])
+def test_non_finite_telemetry_is_no_odometry(vehicle, field):
+    # An estimator without a solution may report NaN: no pose (None, the control loop
+    # stops and goes on), never an exception out of odometry() that ends the run.
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        assert wait_for(lambda: base.odometry() is not None, 2.0)
+        setattr(vehicle.rover, field, float("nan"))
+        assert wait_for(lambda: base.odometry() is None, 2.0)
+        setattr(vehicle.rover, field, 0.0)
+        assert wait_for(lambda: base.odometry() is not None, 2.0)
+
+
 def test_malformed_connection_string_is_a_config_or_mavlink_error():
     with pytest.raises((ConfigError, MavlinkError)):
         MavlinkBase(MavlinkConfig(connection="udpin:0.0.0.0", **FAST))

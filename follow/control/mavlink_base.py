@@ -136,8 +136,8 @@ class MavlinkBase:
 
     def odometry(self) -> Odometry | None:
         """Pose from the newest LOCAL_POSITION_NED and ATTITUDE, stamped with the older
-        receipt time of the two; None when either is missing or older than
-        odometry_timeout_s."""
+        receipt time of the two; None when either is missing, older than
+        odometry_timeout_s or not finite (an estimator without a solution)."""
         with self._lock:
             pos = self._newest.get("LOCAL_POSITION_NED")
             att = self._newest.get("ATTITUDE")
@@ -147,6 +147,8 @@ class MavlinkBase:
         if self._clock() - stamp > self.config.odometry_timeout_s:
             return None
         x, y, yaw = mf.ned_pose_to_odom(pos[0].x, pos[0].y, att[0].yaw)
+        if not all(math.isfinite(v) for v in (x, y, yaw)):
+            return None  # no pose, never an exception that ends the run
         return Odometry(x, y, yaw, stamp)
 
     def healthy(self) -> bool:
