@@ -27,8 +27,10 @@ class _Writer:
 
 class FakeRover:
     def __init__(self, write, sysid=1, compid=1, mode=MANUAL, armed=True,
-                 mav_type=mavlink.MAV_TYPE_GROUND_ROVER):
+                 mav_type=mavlink.MAV_TYPE_GROUND_ROVER,
+                 autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA):
         self.sysid, self.compid = sysid, compid
+        self.autopilot = autopilot
         self.mav = mavlink.MAVLink(_Writer(write), srcSystem=sysid, srcComponent=compid)
         self.parser = mavlink.MAVLink(None)
         self.parser.robust_parsing = True
@@ -67,7 +69,7 @@ class FakeRover:
         base_mode = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         if self.armed:
             base_mode |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-        self.mav.heartbeat_send(self.mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+        self.mav.heartbeat_send(self.mav_type, self.autopilot,
                                 base_mode, self.mode, mavlink.MAV_STATE_ACTIVE)
 
     def telemetry(self):

@@ -270,3 +270,20 @@ def test_a_non_rover_autopilot_is_refused():
                     f"{len(modes)}x, {len(v.rover.setpoints)} setpoints streamed")
     finally:
         v.close()
+
+
+@pytest.mark.parametrize("configured, heard", [
+    ("px4", mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA),  # PX4's OFFBOARD (6) is Rover's FOLLOW
+    ("ardupilot", mavlink.MAV_AUTOPILOT_PX4),
+])  # fmt: skip
+def test_an_autopilot_other_than_the_configured_one_is_refused(configured, heard):
+    # Mode numbers are the autopilot's own: asking an ArduPilot Rover for PX4's OFFBOARD
+    # (main mode 6) would put it in FOLLOW, which drives after another vehicle.
+    v = UdpRover(autopilot=heard)
+    try:
+        with pytest.raises(MavlinkError, match="autopilot"):
+            MavlinkBase(MavlinkConfig(connection=v.connection, autopilot=configured, **FAST))
+        assert mavlink.MAV_CMD_DO_SET_MODE not in v.rover.commands
+        assert v.rover.mode == MANUAL
+    finally:
+        v.close()

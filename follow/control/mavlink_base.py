@@ -34,6 +34,9 @@ _REBOOT_JUMP_MS = 10_000
 # ground rover): another type's mode numbers mean other modes (ArduCopter's 15 is
 # AUTOTUNE, not GUIDED), so it is refused.
 ROVER_TYPES = frozenset({mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_TYPE_SURFACE_BOAT})
+# The autopilot each `[mavlink] autopilot` drives: mode numbers are the autopilot's own
+# (PX4's OFFBOARD, main mode 6, is ArduPilot Rover's FOLLOW), so another one is refused.
+AUTOPILOTS = {"ardupilot": mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, "px4": mavlink.MAV_AUTOPILOT_PX4}
 _RECEIVE_ERROR_LOG_S = 5.0  # a failing link is logged at most this often
 _ACK_RETRIES = 3
 
@@ -91,7 +94,7 @@ class MavlinkBase:
         self._prestream = False  # PX4: stream setpoints before asking for OFFBOARD
         self.last_error: str | None = None
         self.setpoints_sent = 0
-        self._other_vehicle: str | None = None  # an autopilot heard that is no rover
+        self._other_vehicle: str | None = None  # why the autopilot heard cannot be driven
         self._receive_error_logged_s = -math.inf
         try:
             # autoreconnect: a TCP peer or USB serial adapter that goes and comes back
@@ -240,10 +243,7 @@ class MavlinkBase:
         with self._lock:
             while self._heartbeat is None:
                 if self._other_vehicle is not None:
-                    raise MavlinkError(
-                        f"the autopilot on {cfg.connection} is no rover ({self._other_vehicle}; "
-                        "follow drives ArduPilot Rover or PX4 rovers: ground rover or boat)"
-                    )
+                    raise MavlinkError(f"the autopilot on {cfg.connection} {self._other_vehicle}")
                 if not self._changed.wait(timeout=max(0.0, deadline - self._clock())):
                     if self._heartbeat is None and self._other_vehicle is None:
                         raise MavlinkError(
@@ -346,7 +346,17 @@ class MavlinkBase:
                 ):
                     return  # a ground station, companion or peripheral, not the autopilot
                 if self._target is None and msg.type not in ROVER_TYPES:
-                    self._other_vehicle = f"MAV_TYPE {msg.type}"
+                    self._other_vehicle = (
+                        f"is no rover (MAV_TYPE {msg.type}; follow drives ArduPilot Rover or "
+                        "PX4 rovers: ground rover or boat)"
+                    )
+                    self._changed.notify_all()
+                    return
+                if self._target is None and msg.autopilot != AUTOPILOTS[self.config.autopilot]:
+                    self._other_vehicle = (
+                        f"is not the configured autopilot {self.config.autopilot!r} "
+                        f"(MAV_AUTOPILOT {msg.autopilot}; set [mavlink] autopilot)"
+                    )
                     self._changed.notify_all()
                     return
                 if self._target is None:
