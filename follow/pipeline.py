@@ -38,6 +38,7 @@ from follow.frames import odom_to_base, vector_odom_to_base
 from follow.freshness import is_ahead, is_fresh
 from follow.handoff import Handoff, OrderedWorker
 from follow.latency import LatencyRecorder
+from follow.odometry_buffer import pose_jumped
 from follow.shutdown import cleanup_begins
 from follow.types import (
     Frame,
@@ -146,8 +147,12 @@ def target_motion(
     fed where they were lags them by that latency times their speed. Only within
     `MAX_CARRY_FORWARD_S`: an older result is late, not in flight, and stalled
     perception must not make a target seem to walk on ahead while the robot closes in
-    (the watchdog stops the base at its own time-out)."""
+    (the watchdog stops the base at its own time-out). None when the odometry jumped
+    since the frame's pose (a reset): its tracks are in an odom frame that no longer
+    exists until the tracker moves them with the next frame."""
     if result is None or result.target.status != TargetStatus.TRACKING:
+        return None
+    if pose_jumped(result.robot, robot_now, abs(robot_now.stamp_s - result.robot.stamp_s)):
         return None
     track = result.target_track
     if track is None or track.observation is None and not track.confirmed:

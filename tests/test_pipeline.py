@@ -32,7 +32,7 @@ def _result(stamp_s: float, target_xy=(5.0, 0.0), status=TargetStatus.TRACKING) 
 
 def test_target_motion_uses_the_robot_pose_now():
     result = _result(1.0, target_xy=(0.0, 3.0))
-    turned = Odometry(0.0, 0.0, np.pi / 2, 1.1)  # robot now faces +y of odom
+    turned = Odometry(0.0, 0.0, np.pi / 2, 1.5)  # robot now faces +y of odom (0.5 s later)
     motion = target_motion(result, turned)
     np.testing.assert_allclose(motion.position_m, [3.0, 0.0], atol=1e-9)
     assert motion.stamp_s == 1.0

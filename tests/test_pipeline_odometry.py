@@ -2,6 +2,7 @@
 no target motion and a zero command (never the origin pose); odometry is sampled with
 each frame when it is captured."""
 
+import dataclasses
 import logging
 import threading
 import time
@@ -12,6 +13,7 @@ from follow.capture import LatestSlot
 from follow.config import ControlConfig
 from follow.control.controller import FollowingController
 from follow.control.odometry import OdometryPolicy
+from follow.frames import base_to_odom
 from follow.pipeline import ControlLoop, Detections, FrameResult, ThreadedRunner, run_offline
 from follow.types import Frame, Observation, Odometry, TargetEstimate, TargetStatus, TrackState
 
@@ -161,3 +163,38 @@ def test_the_watchdog_has_its_own_timeout():
     assert loop.tick().forward_mps > 0  # 0.2 s old: fresh for both timeouts
     now[0] = 0.4
     assert loop.tick().is_stop and loop.watchdog_trips == 1  # past the watchdog only
+
+
+def test_odometry_that_jumped_since_the_frame_drives_nothing():
+    """An estimator's yaw reset between a frame and the tick: the frame's tracks are in
+    the odom frame from before it, so the target cannot be placed (the tracker moves
+    them only with the next frame). Until then: zero, not a turn after a phantom."""
+    now = [0.0]
+    pose = [Odometry.origin()]
+
+    class StampedBase(_Base):
+        def odometry(self):
+            return dataclasses.replace(pose[0], stamp_s=now[0])
+
+    def tracking(stamp_s: float) -> FrameResult:  # the target 4 m ahead of the robot
+        robot = dataclasses.replace(pose[0], stamp_s=stamp_s)
+        result = _tracking(stamp_s)
+        track = dataclasses.replace(result.tracks[0], mean=np.array(
+            [*base_to_odom(np.array([4.0, 0.0]), robot), 0.0, 0.0, 1.45]))  # fmt: skip
+        return dataclasses.replace(result, robot=robot, tracks=[track])
+
+    base, slot = StampedBase(), LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=15.0,
+                       perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
+    for _ in range(10):
+        now[0] += 1 / 15
+        slot.put(tracking(now[0]))
+        moving = loop.tick()
+    assert moving.forward_mps > 0.5 and moving.yaw_rate_radps == 0.0
+    pose[0] = Odometry(0.0, 0.0, 1.5, 0.0)  # the heading "changed" by 86 degrees at once
+    for _ in range(3):
+        now[0] += 1 / 30
+        assert loop.tick().is_stop
+    now[0] += 1 / 30
+    slot.put(tracking(now[0]))  # the next frame, its tracks in the new odom frame
+    assert loop.tick().forward_mps > 0
