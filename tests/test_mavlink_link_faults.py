@@ -135,6 +135,29 @@ def test_after_override_the_robot_restarts_from_rest():
         v.close()
 
 
+def test_heartbeats_lost_while_driving_end_in_zero_setpoints(vehicle):
+    # Three heartbeats lost in a row on a lossy radio while setpoints still reach the
+    # vehicle (and telemetry still comes): once the link counts as lost, the vehicle
+    # must not drive on the last moving setpoint until its own 3 s GUIDED timeout.
+    moving = VelocityCommand(1.0, 0.2, 0.0)
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        assert base.state is LinkState.ACTIVE
+        for _ in range(5):
+            base.send(moving)
+            time.sleep(0.05)
+        vehicle.rover.heartbeat = lambda: None  # heartbeats lost, nothing else
+        deadline = time.monotonic() + 2.0
+        while base.state is not LinkState.LINK_LOST and time.monotonic() < deadline:
+            base.send(moving)  # the control loop: odometry still fresh
+            time.sleep(0.05)
+        assert base.state is LinkState.LINK_LOST
+        for _ in range(4):
+            assert base.send(moving).is_stop
+            time.sleep(0.05)
+        last = vehicle.rover.setpoints[-1]
+        assert (last[3], last[5]) == (0.0, 0.0), f"the vehicle was left on {last[3:]}"
+
+
 def test_attitude_from_another_component_is_not_odometry(vehicle):
     # Another component on the vehicle's system (e.g. a gimbal, a second IMU/AHRS board,
     # a companion process) emitting ATTITUDE with its own boot clock.

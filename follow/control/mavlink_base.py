@@ -91,6 +91,7 @@ class MavlinkBase:
         self._acks: dict[int, int] = {}  # command id -> result
         self._command: tuple[VelocityCommand, float] | None = None
         self._engaged = False  # we have put the vehicle in our mode
+        self._lost_while_active = False  # the link went while we were commanding the vehicle
         self._prestream = False  # PX4: stream setpoints before asking for OFFBOARD
         self.last_error: str | None = None
         self.setpoints_sent = 0
@@ -410,6 +411,7 @@ class MavlinkBase:
             return
         silent_s = self._clock() - self._heartbeat_at_s
         if silent_s > self.config.heartbeat_timeout_s:
+            self._lost_while_active = self._state is LinkState.ACTIVE
             self._state = LinkState.LINK_LOST
             self.last_error = f"no vehicle heartbeat for {silent_s:.1f} s: link lost"
             log.error("%s; motion commands stopped", self.last_error)
@@ -445,6 +447,10 @@ class MavlinkBase:
         with self._lock:
             self._check_link_locked()
             if self._prestream and self._state is LinkState.CONNECTING:
+                return VelocityCommand.stop(now)
+            if self._state is LinkState.LINK_LOST and self._lost_while_active:
+                # zero, not silence: a vehicle that still hears us (only its heartbeats
+                # lost) stops now, not on its last moving setpoint at its own time-out
                 return VelocityCommand.stop(now)
             if self._state is not LinkState.ACTIVE:
                 return None
