@@ -35,6 +35,10 @@ def test_px4_setpoint_turns_through_the_velocity_direction():
     assert mf.px4_setpoint(VelocityCommand(1.0, 0.0, 0.0), 0.5) == pytest.approx((1.0, 0.0))
     vx, vy = mf.px4_setpoint(VelocityCommand(1.0, -10.0, 0.0), 0.5)
     assert vx == pytest.approx(0.0, abs=1e-12) and vy == pytest.approx(1.0)  # capped at 90 deg
+    # Backing while turning left (counter-clockwise): the velocity, pointing backward,
+    # turns counter-clockwise too, so backward and to the right (FRD +y).
+    vx, vy = mf.px4_setpoint(VelocityCommand(-0.5, 0.5, 0.0), turn_horizon_s=0.5)
+    assert vx < 0 and vy > 0 and math.hypot(vx, vy) == pytest.approx(0.5)
 
 
 def test_px4_custom_mode_packing():

@@ -82,8 +82,9 @@ def ardupilot_setpoint(cmd: VelocityCommand) -> tuple[float, float, float]:
 
 def px4_setpoint(cmd: VelocityCommand, turn_horizon_s: float) -> tuple[float, float]:
     """(vx, vy) FRD body velocity for a rover that ignores yaw rate: the speed is kept and
-    its direction points where the commanded turn takes the heading within the horizon
-    (at most 90 degrees). A turn on the spot (zero speed) cannot be expressed this way."""
+    the velocity turns with the heading, by the angle the commanded turn reaches within
+    the horizon (at most 90 degrees); backing while turning left, the rear swings right.
+    A turn on the spot (zero speed) cannot be expressed this way."""
     angle = max(-math.pi / 2, min(math.pi / 2, cmd.yaw_rate_radps * turn_horizon_s))
     speed = cmd.forward_mps
-    return speed * math.cos(angle), -abs(speed) * math.sin(angle)
+    return speed * math.cos(angle), -speed * math.sin(angle)
