@@ -10,6 +10,7 @@ from follow.capture import LatestSlot
 from follow.config import ControlConfig, MavlinkConfig
 from follow.control.controller import FollowingController
 from follow.control.mavlink_base import MavlinkBase
+from follow.frames import base_to_odom
 from follow.pipeline import ControlLoop, FrameResult
 from follow.sim.demo import run_demo
 from follow.sim.rover import SimRover
@@ -37,11 +38,15 @@ def test_demo_follows_the_target_through_a_crossing(tmp_path):
         assert (tmp_path / name).stat().st_size > 1000
 
 
-def _tracking(stamp_s: float) -> FrameResult:
-    track = TrackState(
-        1, np.array([4.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s, observation=SEEN
-    )
-    return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], [track],
+def _tracking(stamp_s: float, robot: Odometry | None) -> FrameResult:
+    """A frame tracking a target 4 m ahead of the robot's pose at capture, `robot` (as a
+    real frame carries the odometry of its capture: a pose far from the robot's now is an
+    odometry jump, and no frame from before it drives)."""
+    robot = Odometry.origin(stamp_s) if robot is None else robot
+    ahead = base_to_odom(np.array([4.0, 0.0]), robot)
+    track = TrackState(1, np.array([*ahead, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s,
+                       observation=SEEN)  # fmt: skip
+    return FrameResult(0, stamp_s, robot, [], [track],
                        TargetEstimate(TargetStatus.TRACKING, 1, {1: 0.9}, stamp_s))  # fmt: skip
 
 
@@ -55,7 +60,7 @@ def test_watchdog_stops_the_rover_when_perception_freezes():
             try:
                 end = time.monotonic() + 1.5
                 while time.monotonic() < end:  # perception alive: a target 4 m ahead
-                    slot.put(_tracking(time.monotonic()))
+                    slot.put(_tracking(time.monotonic(), base.odometry()))
                     time.sleep(1 / 15)
                 moving = rover.true_velocity()[0]
                 time.sleep(1.5)  # perception frozen
