@@ -39,11 +39,15 @@ class _Base:
         pass
 
 
-def _tracking(stamp_s: float) -> FrameResult:
-    track = TrackState(
-        1, np.array([4.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s, observation=SEEN
-    )
-    return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], [track],
+def _tracking(stamp_s: float, robot: Odometry | None = None) -> FrameResult:
+    """A frame tracking a target 4 m ahead of the robot's pose at capture, `robot` (the
+    origin by default): a real frame carries the odometry of its capture, and one whose
+    pose lies far from the robot's now reads as an odometry jump and drives nothing."""
+    robot = Odometry.origin(stamp_s) if robot is None else robot
+    ahead = base_to_odom(np.array([4.0, 0.0]), robot)
+    track = TrackState(1, np.array([*ahead, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s,
+                       observation=SEEN)  # fmt: skip
+    return FrameResult(0, stamp_s, robot, [], [track],
                        TargetEstimate(TargetStatus.TRACKING, 1, {1: 0.9}, stamp_s))  # fmt: skip
 
 
@@ -176,12 +180,8 @@ def test_odometry_that_jumped_since_the_frame_drives_nothing():
         def odometry(self):
             return dataclasses.replace(pose[0], stamp_s=now[0])
 
-    def tracking(stamp_s: float) -> FrameResult:  # the target 4 m ahead of the robot
-        robot = dataclasses.replace(pose[0], stamp_s=stamp_s)
-        result = _tracking(stamp_s)
-        track = dataclasses.replace(result.tracks[0], mean=np.array(
-            [*base_to_odom(np.array([4.0, 0.0]), robot), 0.0, 0.0, 1.45]))  # fmt: skip
-        return dataclasses.replace(result, robot=robot, tracks=[track])
+    def tracking(stamp_s: float) -> FrameResult:  # captured at the robot's pose then
+        return _tracking(stamp_s, dataclasses.replace(pose[0], stamp_s=stamp_s))
 
     base, slot = StampedBase(), LatestSlot()
     loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=15.0,

@@ -4,20 +4,15 @@ rover over MAVLink."""
 import dataclasses
 import time
 
-import numpy as np
+from test_pipeline_odometry import _tracking
 
 from follow.capture import LatestSlot
 from follow.config import ControlConfig, MavlinkConfig
 from follow.control.controller import FollowingController
 from follow.control.mavlink_base import MavlinkBase
-from follow.frames import base_to_odom
-from follow.pipeline import ControlLoop, FrameResult
+from follow.pipeline import ControlLoop
 from follow.sim.demo import run_demo
 from follow.sim.rover import SimRover
-from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
-
-# The target was seen in the frame (the controller drives blind only briefly).
-SEEN = Observation(np.array([320.0, 200.0]), np.array([320.0, 400.0]))
 
 
 def test_demo_follows_the_target_through_a_crossing(tmp_path):
@@ -36,18 +31,6 @@ def test_demo_follows_the_target_through_a_crossing(tmp_path):
     assert summary["distance_error_worst_m"] < 1.5, summary
     for name in ("demo.mp4", "demo_top_down.png", "demo.jsonl"):
         assert (tmp_path / name).stat().st_size > 1000
-
-
-def _tracking(stamp_s: float, robot: Odometry | None) -> FrameResult:
-    """A frame tracking a target 4 m ahead of the robot's pose at capture, `robot` (as a
-    real frame carries the odometry of its capture: a pose far from the robot's now is an
-    odometry jump, and no frame from before it drives)."""
-    robot = Odometry.origin(stamp_s) if robot is None else robot
-    ahead = base_to_odom(np.array([4.0, 0.0]), robot)
-    track = TrackState(1, np.array([*ahead, 0.0, 0.0, 1.45]), np.eye(5) * 0.01, True, stamp_s,
-                       observation=SEEN)  # fmt: skip
-    return FrameResult(0, stamp_s, robot, [], [track],
-                       TargetEstimate(TargetStatus.TRACKING, 1, {1: 0.9}, stamp_s))  # fmt: skip
 
 
 def test_watchdog_stops_the_rover_when_perception_freezes():
