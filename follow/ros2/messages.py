@@ -12,6 +12,7 @@ from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped, Quaternion, T
 from std_msgs.msg import ColorRGBA, Header, String
 from visualization_msgs.msg import Marker, MarkerArray
 
+from follow.freshness import is_fresh
 from follow.pipeline import FrameResult
 from follow.rosmsg import quaternion_of_yaw, stamp_fields
 from follow.types import TargetStatus, TrackState, VelocityCommand
@@ -60,7 +61,7 @@ def target_pose(result: FrameResult, frame_id: str, stamp: Time | None = None,
     `max_unseen_s` before the frame: lost, as the controller takes it (the tracker
     predicts a hidden track on, and each new stamp would make that pose look fresh)."""
     track = target_track(result)
-    if track is None or result.stamp_s - track.last_seen_s > max_unseen_s:
+    if track is None or not is_fresh(result.stamp_s, track.last_seen_s, max_unseen_s):
         return None
     return PoseStamped(header=_result_header(result, frame_id, stamp), pose=track_pose(track))
 

@@ -383,7 +383,7 @@ class FollowNode(Node):
         clock, unreadable, without odometry, or before the camera is known)."""
         ros = self.config.ros
         stamp = stamp_s(msg.header)
-        if msg.header.stamp.sec == 0 and msg.header.stamp.nanosec == 0:
+        if stamp == 0.0:
             self.stale_frames += 1  # taken, it would make every later image out of order
             self.get_logger().warning(
                 "image dropped: its header has no stamp (zero): the camera driver must "
