@@ -50,7 +50,10 @@ def head_histogram(crop_bgr: np.ndarray) -> np.ndarray:
 
 
 def distance(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.sqrt(max(0.0, 1.0 - float(np.sum(np.sqrt(a * b))))))
+    """The parts' Hellinger distance (`colour_distances`) between two head histograms."""
+    from follow.identify.parts import colour_distances
+
+    return float(colour_distances(a[None, None], b[None, None])[0, 0, 0])
 
 
 def cuhk03_distances(folder: Path) -> dict[str, list[float]]:
