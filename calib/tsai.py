@@ -35,11 +35,11 @@ _REQUIRED = {
 _NEWTON_ITERATIONS = 30
 _FIT_GRID_STEP_PX = 8.0
 _CHECK_DEPTH_M = 10.0
-# A camera centre lower than this over the ground z = 0 is a world in other units than mm
-# (in metres a camera sits 1000 times too low: PETS's 7 m mast at 7 mm) or with z down.
 # An image side beyond any camera's: the conversion samples the whole image, so a
 # typing error (1e6) would ask for a grid of a trillion points.
 MAX_IMAGE_SIDE_PX = 16384
+# A camera centre lower than this over the ground z = 0 is a world in other units than mm
+# (in metres a camera sits 1000 times too low: PETS's 7 m mast at 7 mm) or with z down.
 MIN_CAMERA_HEIGHT_M = 0.05
 
 
