@@ -99,3 +99,22 @@ def test_an_operator_stop_is_the_last_command_even_with_a_tick_in_flight():
     tick.join(2.0)
     stopper.join(2.0)
     assert published[-1].is_stop and not gate.following
+
+
+def test_a_node_clock_that_stops_advancing_stops_the_base():
+    """With use_sim_time the node's clock is the simulator's /clock: when the simulator is
+    paused or dies that clock stands still, and odometry stamped just before it stopped
+    would stay fresh for ever. Once the clock has not moved for max_odometry_age_s of
+    wall time, nothing moving is published; when it moves again, driving resumes."""
+    import time
+
+    now = [50.0]
+    gate, sent = make_gate(now)
+    gate.update_odometry(Odometry.origin(50.0))
+    assert gate.send(VelocityCommand(0.5, 0.0, 50.0)).forward_mps == 0.5
+    time.sleep(0.3)  # /clock stopped: the node's clock stays at 50.0 s
+    assert gate.send(VelocityCommand(0.5, 0.0, 50.0)).is_stop
+    assert sent[-1].is_stop and gate.blocked == 1 and not gate.healthy()
+    now[0] += 0.05  # the simulator runs again
+    gate.update_odometry(Odometry.origin(now[0]))
+    assert gate.send(VelocityCommand(0.5, 0.0, now[0])).forward_mps == 0.5

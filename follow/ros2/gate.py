@@ -6,16 +6,24 @@ The ControlLoop already stops on stale images (its perception time-out) and the
 controller on a lost target; this gate adds the rules that only the node knows: no
 fresh odometry (by its stamp, on the node's clock; a stamp ahead of that clock is not
 fresh either, `follow.freshness`) means stop, and so does an operator's stop request.
+A node clock that stops advancing (`use_sim_time` with the simulator paused or gone:
+/clock no longer published) would leave every stamp as fresh as when it stopped, so no
+odometry counts as fresh once that clock has stood still for `max_odometry_age_s` of
+wall time.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
+import time
 from collections.abc import Callable
 
 from follow.config import ConfigError, RosConfig
 from follow.freshness import is_ahead, is_fresh
 from follow.types import Odometry, VelocityCommand
+
+log = logging.getLogger(__name__)
 
 
 class CmdVelGate:
@@ -34,25 +42,46 @@ class CmdVelGate:
         self.blocked = 0  # moving commands replaced by zero
         self.last_sent: VelocityCommand | None = None
         self._odometry: Odometry | None = None
-        self._lock = threading.Lock()  # the newest pose
+        self._lock = threading.Lock()  # the newest pose, the clock's last reading
+        self._clock_read = clock()
+        self._clock_moved_wall_s = time.monotonic()  # when `clock` last gave a new reading
+        self._clock_stalled = False
         self._send_lock = threading.Lock()  # a command's check and its publishing
 
     def update_odometry(self, pose: Odometry) -> None:
         """Keep the newest pose; one stamped ahead of the clock is not kept (it would
         make every later, correct pose look older and block the base for good)."""
-        if is_ahead(self.clock(), pose.stamp_s):
+        now, _ = self._now()
+        if is_ahead(now, pose.stamp_s):
             return
         with self._lock:
             if self._odometry is None or pose.stamp_s >= self._odometry.stamp_s:
                 self._odometry = pose
 
     def odometry(self) -> Odometry | None:
-        """The newest pose if it is fresh, else None (never an assumed one)."""
+        """The newest pose if it is fresh, else None (never an assumed one); None too
+        while the clock stands still."""
+        now, stalled = self._now()
         with self._lock:
             pose = self._odometry
-        if pose is None or not is_fresh(self.clock(), pose.stamp_s, self.max_odometry_age_s):
+        if stalled or pose is None or not is_fresh(now, pose.stamp_s, self.max_odometry_age_s):
             return None
         return pose
+
+    def _now(self) -> tuple[float, bool]:
+        """The clock's reading, and whether it has given the same reading for longer
+        than `max_odometry_age_s` of wall time."""
+        now, wall = self.clock(), time.monotonic()
+        with self._lock:
+            if now != self._clock_read:
+                self._clock_read, self._clock_moved_wall_s = now, wall
+            stalled = wall - self._clock_moved_wall_s > self.max_odometry_age_s
+            if stalled and not self._clock_stalled:
+                log.warning("the node's clock has not advanced for %.1f s (use_sim_time with "
+                            "/clock stopped?): cmd_vel is zero until it does",
+                            wall - self._clock_moved_wall_s)  # fmt: skip
+            self._clock_stalled = stalled
+        return now, stalled
 
     def healthy(self) -> bool:
         return self.odometry() is not None
