@@ -72,6 +72,31 @@ def test_gcs_heartbeat_is_not_taken_for_the_vehicle(vehicle):
         MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST))
 
 
+def test_a_command_ack_addressed_to_another_system_or_sent_before_is_not_ours(vehicle):
+    """The vehicle answers a ground station's mode change (refused) just before ours, on
+    the same link: that ACK names the ground station as its target and is not taken as the
+    answer to our DO_SET_MODE; nor is an ACK that came before our command was sent."""
+    rover = vehicle.rover
+    handle = rover.handle
+
+    def answer_a_gcs_first(msg):
+        if msg.get_type() == "COMMAND_LONG" and msg.command == mavlink.MAV_CMD_DO_SET_MODE:
+            rover.mav.command_ack_send(msg.command, mavlink.MAV_RESULT_DENIED, 0, 0, 255, 190)
+        handle(msg)
+
+    rover.handle = answer_a_gcs_first
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        assert base.state is LinkState.ACTIVE and rover.mode == GUIDED
+        rover.handle = handle
+        earlier = mavlink.MAVLink_command_ack_message(mavlink.MAV_CMD_DO_SET_MODE,
+                                                      mavlink.MAV_RESULT_DENIED)  # fmt: skip
+        earlier._header = base._heartbeat._header
+        base._on_message(earlier)  # from the vehicle, before the command below
+        result = base._command_long(mavlink.MAV_CMD_DO_SET_MODE,
+                                    mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED)  # fmt: skip
+        assert result == mavlink.MAV_RESULT_ACCEPTED
+
+
 # -- link faults ------------------------------------------------------------------------
 
 

@@ -88,7 +88,7 @@ class MavlinkBase:
         self._heartbeat = None  # newest vehicle HEARTBEAT
         self._heartbeat_at_s = -math.inf
         self._newest: dict[str, tuple[object, float]] = {}  # type -> (message, received at)
-        self._acks: dict[int, int] = {}  # command id -> result
+        self._acks: dict[int, tuple[int, float]] = {}  # command id -> (result, received at)
         self._command: tuple[VelocityCommand, float] | None = None
         self._engaged = False  # we have put the vehicle in our mode
         self._lost_while_active = False  # the link went while we were commanding the vehicle
@@ -298,23 +298,26 @@ class MavlinkBase:
             raise MavlinkError(f"vehicle refused {what} ({reason})")
 
     def _command_long(self, command: int, *params: float) -> int | None:
-        """Send COMMAND_LONG and wait for its COMMAND_ACK, resending on silence."""
+        """Send COMMAND_LONG and wait for its COMMAND_ACK, resending on silence. Only an
+        ACK received after the command was sent answers it (`_on_message` keeps only
+        those addressed to us)."""
         params = tuple(params) + (0.0,) * (7 - len(params))
         per_try_s = self.config.connect_timeout_s / _ACK_RETRIES
         for attempt in range(_ACK_RETRIES):
-            with self._lock:
-                self._acks.pop(command, None)
+            sent_s = self._clock()
             with self._send_lock:
                 self._conn.mav.command_long_send(*self._target, command, attempt, *params)
-            deadline = self._clock() + per_try_s
+            deadline = sent_s + per_try_s
             with self._lock:
-                while command not in self._acks:
+                while True:
+                    result, received_s = self._acks.get(command, (None, -math.inf))
+                    if received_s >= sent_s:
+                        del self._acks[command]
+                        return result
                     remaining = deadline - self._clock()
                     if remaining <= 0 or self._stop.is_set():
                         break
                     self._changed.wait(timeout=remaining)
-                if command in self._acks:
-                    return self._acks.pop(command)
         return None
 
     # -- receiving ------------------------------------------------------------------------
@@ -369,7 +372,14 @@ class MavlinkBase:
             elif self._target is None or (msg.get_srcSystem(), msg.get_srcComponent()) != self._target:
                 return  # another vehicle, or another component of ours (a gimbal's ATTITUDE)
             elif kind == "COMMAND_ACK":
-                self._acks[msg.command] = msg.result
+                # MAVLink 2 names whom an ACK answers: one to a ground station's command
+                # (the same command id) is not ours; 0 (MAVLink 1, unset) may be anyone's.
+                to = (getattr(msg, "target_system", 0), getattr(msg, "target_component", 0))
+                if to[0] not in (0, self.config.source_system) or (
+                    to[1] not in (0, self.config.source_component)
+                ):
+                    return
+                self._acks[msg.command] = (msg.result, now)
             elif kind in ("LOCAL_POSITION_NED", "ATTITUDE"):
                 previous = self._newest.get(kind)
                 if previous is not None:
