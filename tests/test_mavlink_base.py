@@ -176,6 +176,21 @@ def test_a_moving_setpoint_taken_before_close_never_follows_its_zeros(rover):
     assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.0)
 
 
+def test_close_after_an_emergency_stop_still_closes_and_sends_only_zeros(rover):
+    """emergency_stop (a second signal) marks the base closed; a close() after it must not
+    take that for done: it neither raises nor sends anything moving, and it still stops
+    the threads and closes the connection (they ran on, the socket open)."""
+    base = MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST))
+    drive(base, 1.0, 0.0, 0.6)
+    base.emergency_stop()
+    base.close()
+    assert not base._sender.is_alive() and not base._receiver.is_alive()
+    time.sleep(0.2)
+    assert rover.last_setpoint[1] == 0.0  # the last forward speed it heard
+    assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.0)
+    base.close()  # idempotent
+
+
 def test_exception_in_the_with_block_still_stops(rover):
     with pytest.raises(KeyError):
         with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:

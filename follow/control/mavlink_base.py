@@ -92,6 +92,7 @@ class MavlinkBase:
         self._command: tuple[VelocityCommand, float] | None = None
         self._engaged = False  # we have put the vehicle in our mode
         self._lost_while_active = False  # the link went while we were commanding the vehicle
+        self._closed = False  # close() has run (emergency_stop leaves it to do)
         self._prestream = False  # PX4: stream setpoints before asking for OFFBOARD
         self.last_error: str | None = None
         self.setpoints_sent = 0
@@ -162,10 +163,12 @@ class MavlinkBase:
             return self._state is LinkState.ACTIVE and self._armed_locked()
 
     def close(self) -> None:
-        """Send zero velocity (a few times, UDP may drop one), stop the threads, close."""
+        """Send zero velocity (a few times, UDP may drop one), stop the threads, close;
+        after `emergency_stop` too."""
         with self._lock:
-            if self._state is LinkState.CLOSED:
+            if self._closed:
                 return
+            self._closed = True
             was_connected = self._target is not None
             self._state = LinkState.CLOSED
         atexit.unregister(self.close)
@@ -187,7 +190,8 @@ class MavlinkBase:
     def emergency_stop(self) -> None:
         """Zero setpoints now, from any thread, taking no lock that the interrupted main
         thread may hold (the second signal's path, `follow.shutdown`): from here on the
-        sender streams nothing moving, and a few zeros go out at once."""
+        sender streams nothing moving, and a few zeros go out at once. `close` still
+        stops the threads and closes the connection afterwards."""
         self._state = LinkState.CLOSED  # read by the sender under its lock: no more motion
         self._command = (VelocityCommand.stop(self._clock()), self._clock())
         if self._target is None:
