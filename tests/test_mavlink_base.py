@@ -191,6 +191,35 @@ def test_close_after_an_emergency_stop_still_closes_and_sends_only_zeros(rover):
     base.close()  # idempotent
 
 
+def test_one_failed_zero_neither_cancels_the_others_nor_goes_unreported(rover):
+    """emergency_stop and close send three zeros (UDP may drop one): one that fails to
+    send (a full buffer, a port that hiccups) must not end the stop there, and the
+    failure is reported: emergency_stop raises it as MavlinkError, close logs it."""
+    base = MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST))
+    drive(base, 1.0, 0.0, 0.6)
+    write = base._conn.mav.set_position_target_local_ned_send
+    written, failing = [], [True]
+
+    def fails_once(*args):
+        if threading.current_thread() is not threading.main_thread():
+            return write(*args)  # the sender thread's own stream
+        if failing[0]:
+            failing[0] = False
+            raise OSError("no buffer space")
+        written.append(args)
+        return write(*args)
+
+    base._conn.mav.set_position_target_local_ned_send = fails_once
+    with pytest.raises(MavlinkError, match="emergency stop: no buffer space"):
+        base.emergency_stop()
+    assert len(written) == 2 and "no buffer space" in base.last_error
+    failing[0] = True
+    base.close()
+    assert len(written) == 4 and "while closing" in base.last_error
+    assert all(args[8] == 0.0 and args[15] == 0.0 for args in written)  # vx, yaw rate
+    assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.0)
+
+
 def test_exception_in_the_with_block_still_stops(rover):
     with pytest.raises(KeyError):
         with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:

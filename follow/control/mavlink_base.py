@@ -173,12 +173,9 @@ class MavlinkBase:
             self._state = LinkState.CLOSED
         atexit.unregister(self.close)
         if was_connected:
-            try:
-                for _ in range(3):
-                    self._send_setpoint(VelocityCommand.stop(self._clock()))
-                    time.sleep(0.01)
-            except Exception as exc:  # a port gone: the threads must stop all the same
-                self.last_error = f"send failed while closing: {exc}"
+            failure = self._send_zeros(self._send_setpoint, pause_s=0.01)
+            if failure is not None:  # a port gone: the threads must stop all the same
+                self.last_error = f"send failed while closing: {failure}"
                 log.error("MAVLink %s", self.last_error)
         self._stop.set()
         self._wake.set()
@@ -190,7 +187,8 @@ class MavlinkBase:
     def emergency_stop(self) -> None:
         """Zero setpoints now, from any thread, taking no lock that the interrupted main
         thread may hold (the second signal's path, `follow.shutdown`): from here on the
-        sender streams nothing moving, and a few zeros go out at once. `close` still
+        sender streams nothing moving, and a few zeros go out at once. A zero that fails
+        to send is raised as MavlinkError, after the others were tried. `close` still
         stops the threads and closes the connection afterwards."""
         self._state = LinkState.CLOSED  # read by the sender under its lock: no more motion
         self._command = (VelocityCommand.stop(self._clock()), self._clock())
@@ -198,11 +196,13 @@ class MavlinkBase:
             return
         got = self._send_lock.acquire(timeout=0.2)  # held by the interrupted code: go on
         try:
-            for _ in range(3):
-                self._write_setpoint(VelocityCommand.stop(self._clock()))
+            failure = self._send_zeros(self._write_setpoint)
         finally:
             if got:
                 self._send_lock.release()
+        if failure is not None:
+            self.last_error = f"send failed during emergency stop: {failure}"
+            raise MavlinkError(self.last_error) from failure
 
     def __enter__(self) -> MavlinkBase:
         return self
@@ -474,6 +474,19 @@ class MavlinkBase:
         if now - received_s > self.config.command_timeout_s:
             return VelocityCommand.stop(now)
         return command
+
+    def _send_zeros(self, send: Callable[[VelocityCommand], None],
+                    pause_s: float = 0.0) -> Exception | None:  # fmt: skip
+        """Three zero setpoints through `send` (UDP may drop one), each tried whatever
+        became of the one before; the last failure, or None."""
+        failure = None
+        for _ in range(3):
+            try:
+                send(VelocityCommand.stop(self._clock()))
+            except Exception as exc:
+                failure = exc
+            time.sleep(pause_s)
+        return failure
 
     def _send_setpoint(self, cmd: VelocityCommand) -> None:
         if self._target is None:
