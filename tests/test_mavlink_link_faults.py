@@ -7,6 +7,7 @@ rover, or a malformed connection string, is refused by name. Conventions (setpoi
 frame and mask, yaw-rate sign, NED to odom) are checked by hand-computed examples."""
 
 import math
+import re
 import time
 
 import numpy as np
@@ -158,6 +159,41 @@ def test_after_override_the_robot_restarts_from_rest():
             )
     finally:
         v.close()
+
+
+def test_a_link_failing_every_tick_is_logged_once_per_period_not_per_tick(
+    vehicle, caplog, monkeypatch
+):
+    """A write that fails on every sender tick (20 Hz) logs its first error at once, then
+    one line per period with the count of ticks failed since, and a last one with the
+    count when sending works again; the stale command then goes out as zero."""
+    import threading
+
+    from follow.control import mavlink_base
+
+    monkeypatch.setattr(mavlink_base, "_ERROR_LOG_S", 1.0, raising=False)
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        write = base._conn.mav.set_position_target_local_ned_send
+        broken = threading.Event()
+
+        def failing(*args):
+            if broken.is_set():
+                raise OSError("device gone")
+            return write(*args)
+
+        base._conn.mav.set_position_target_local_ned_send = failing
+        base.send(VelocityCommand(0.5, 0.0, time.monotonic()))
+        broken.set()
+        with caplog.at_level("WARNING", logger="follow.control.mavlink_base"):
+            time.sleep(1.4)  # 28 ticks or so, all failing: two reports
+            errors = [r.getMessage() for r in caplog.records if "send failed" in r.getMessage()]
+            assert len(errors) == 2 and "device gone" in base.last_error
+            assert int(re.search(r"\((\d+) failed ticks since", errors[1]).group(1)) >= 10
+            broken.clear()
+            assert wait_for(lambda: "works again" in caplog.text, 2.0)
+        assert re.search(r"works again; (\d+) failed tick", caplog.text)
+        assert int(re.search(r"works again; (\d+)", caplog.text).group(1)) >= 5
+        assert wait_for(lambda: vehicle.rover.setpoints[-1][3] == 0.0, 1.0)
 
 
 def test_heartbeats_lost_while_driving_end_in_zero_setpoints(vehicle):

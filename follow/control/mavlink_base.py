@@ -37,7 +37,7 @@ ROVER_TYPES = frozenset({mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_TYPE_SURFACE
 # The autopilot each `[mavlink] autopilot` drives: mode numbers are the autopilot's own
 # (PX4's OFFBOARD, main mode 6, is ArduPilot Rover's FOLLOW), so another one is refused.
 AUTOPILOTS = {"ardupilot": mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, "px4": mavlink.MAV_AUTOPILOT_PX4}
-_RECEIVE_ERROR_LOG_S = 5.0  # a failing link is logged at most this often
+_ERROR_LOG_S = 5.0  # a failing link is logged at most this often (each direction)
 _ACK_RETRIES = 3
 
 
@@ -98,6 +98,8 @@ class MavlinkBase:
         self.setpoints_sent = 0
         self._other_vehicle: str | None = None  # why the autopilot heard cannot be driven
         self._receive_error_logged_s = -math.inf
+        self._send_error_logged_s = -math.inf
+        self._send_unlogged = 0  # failed sender ticks not reported yet
         try:
             # autoreconnect: a TCP peer or USB serial adapter that goes and comes back
             # (a router or SITL restart, a loose cable) is reopened by pymavlink instead
@@ -333,7 +335,7 @@ class MavlinkBase:
             except (OSError, ValueError) as exc:  # socket closed under us, a port gone
                 if not self._stop.is_set():
                     now = time.monotonic()
-                    if now - self._receive_error_logged_s >= _RECEIVE_ERROR_LOG_S:
+                    if now - self._receive_error_logged_s >= _ERROR_LOG_S:
                         self._receive_error_logged_s = now
                         log.error("MAVLink receive failed (retrying): %s", exc)
                     time.sleep(0.05)
@@ -454,7 +456,29 @@ class MavlinkBase:
                     self._send_setpoint(command)
             except Exception as exc:  # keep the watchdog alive; report and go on
                 self.last_error = f"send failed: {exc}"
-                log.error("MAVLink %s", self.last_error)
+                self._send_unlogged += 1
+                self._report_send_failures(failing=True)
+            else:
+                if self._send_unlogged:
+                    self._report_send_failures(failing=False)
+
+    def _report_send_failures(self, failing: bool) -> None:
+        """A link that fails every tick is logged at once, then at most once per
+        `_ERROR_LOG_S` with the count of failed ticks since the last report, not once per
+        tick; failures left unreported when sending works again are counted then."""
+        now = time.monotonic()
+        if now - self._send_error_logged_s < _ERROR_LOG_S:
+            return
+        self._send_error_logged_s = now
+        failed, self._send_unlogged = self._send_unlogged, 0
+        if not failing:
+            log.warning("MAVLink sending works again; %d failed tick(s) since the last "
+                        "report, the newest: %s", failed, self.last_error)  # fmt: skip
+        elif failed == 1:
+            log.error("MAVLink %s", self.last_error)
+        else:
+            log.error("MAVLink %s (%d failed ticks since the last report)",
+                      self.last_error, failed)  # fmt: skip
 
     def _command_to_stream(self, now: float) -> VelocityCommand | None:
         """The command to send now, or None when we must not command the vehicle."""
