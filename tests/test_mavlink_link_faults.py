@@ -219,6 +219,62 @@ def test_heartbeats_lost_while_driving_end_in_zero_setpoints(vehicle):
         assert (last[3], last[5]) == (0.0, 0.0), f"the vehicle was left on {last[3:]}"
 
 
+def test_telemetry_held_by_the_link_and_delivered_late_is_not_fresh_odometry(vehicle):
+    """A link that holds the vehicle's messages while it is down (a radio, a router) and
+    delivers them at once when it is back: by their own time_boot_ms they are 0.6-0.8 s
+    old, and they must not count as fresh (they did, stamped by their receipt). Live
+    telemetry afterwards is fresh again."""
+    rover = vehicle.rover
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        assert wait_for(lambda: base.odometry() is not None, 1.0)
+        with rover.lock:
+            rover.silent = True  # the link goes down: nothing more arrives
+            held = rover.boot_ms()
+        time.sleep(0.8)
+        with rover.lock:  # back: what it held comes now, 0.2 s of it
+            for k in range(1, 7):
+                rover.mav.local_position_ned_send(held + 33 * k, 5.0, 0, 0, 0, 0, 0)
+                rover.mav.attitude_send(held + 33 * k, 0, 0, 1.0, 0, 0, 0)
+        assert wait_for(lambda: base._newest["ATTITUDE"][0].time_boot_ms == held + 198, 1.0)
+        assert base.odometry() is None
+        rover.silent = False
+        assert wait_for(lambda: base.odometry() is not None, 1.0)
+        assert base.odometry().x_m == 0.0  # the live pose, the rover's
+
+
+def test_a_vehicle_clock_slower_than_ours_or_paused_a_while_still_gives_fresh_odometry(
+    vehicle,
+):
+    """Telemetry is timed by the vehicle's own clock, which need not run at our rate: a
+    simulator at half real time, or paused and resumed, still gives fresh odometry (the
+    first message after the pause aside, which is as old as the pause)."""
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        assert wait_for(lambda: base.odometry() is not None, 1.0)
+        vehicle.rover.silent = True  # from here on only the messages below
+        header, boot = base._heartbeat._header, [base._newest["ATTITUDE"][0].time_boot_ms]
+
+        def telemetry(advance_ms):
+            boot[0] += advance_ms
+            for msg in (mavlink.MAVLink_local_position_ned_message(boot[0], 0, 0, 0, 0, 0, 0),
+                        mavlink.MAVLink_attitude_message(boot[0], 0, 0, 0, 0, 0, 0)):  # fmt: skip
+                msg._header = header
+                base._on_message(msg)
+
+        fresh = []
+        for _ in range(25):  # 1 s at half real time
+            time.sleep(0.04)
+            telemetry(20)
+            fresh.append(base.odometry() is not None)
+        assert all(fresh[5:]), fresh
+        time.sleep(0.8)  # paused: the vehicle's clock stands still
+        fresh = []
+        for _ in range(10):
+            telemetry(20)
+            fresh.append(base.odometry() is not None)
+            time.sleep(0.04)
+        assert not fresh[0] and all(fresh[3:]), fresh
+
+
 def test_attitude_from_another_component_is_not_odometry(vehicle):
     # Another component on the vehicle's system (e.g. a gimbal, a second IMU/AHRS board,
     # a companion process) emitting ATTITUDE with its own boot clock.

@@ -87,7 +87,9 @@ class MavlinkBase:
         self._target: tuple[int, int] | None = None
         self._heartbeat = None  # newest vehicle HEARTBEAT
         self._heartbeat_at_s = -math.inf
-        self._newest: dict[str, tuple[object, float]] = {}  # type -> (message, received at)
+        # type -> (message, its time on our clock, received at)
+        self._newest: dict[str, tuple[object, float, float]] = {}
+        self._boot_offset_s: float | None = None  # our clock minus the vehicle's boot clock
         self._acks: dict[int, tuple[int, float]] = {}  # command id -> (result, received at)
         self._command: tuple[VelocityCommand, float] | None = None
         self._engaged = False  # we have put the vehicle in our mode
@@ -143,8 +145,9 @@ class MavlinkBase:
 
     def odometry(self) -> Odometry | None:
         """Pose from the newest LOCAL_POSITION_NED and ATTITUDE, stamped with the older
-        receipt time of the two; None when either is missing, older than
-        odometry_timeout_s or not finite (an estimator without a solution)."""
+        time of the two (their own time, `_telemetry_stamp_locked`); None when either is
+        missing, older than odometry_timeout_s or not finite (an estimator without a
+        solution)."""
         with self._lock:
             pos = self._newest.get("LOCAL_POSITION_NED")
             att = self._newest.get("ATTITUDE")
@@ -392,10 +395,34 @@ class MavlinkBase:
                     back_ms = previous[0].time_boot_ms - msg.time_boot_ms
                     if 0 <= back_ms < _REBOOT_JUMP_MS:
                         return  # reordered or repeated: keep the newer one
-                self._newest[kind] = (msg, now)
+                stamp = self._telemetry_stamp_locked(msg, now, previous)
+                self._newest[kind] = (msg, stamp, now)
             else:
                 return
             self._changed.notify_all()
+
+    def _telemetry_stamp_locked(self, msg, received_s: float, previous) -> float:
+        """When `msg` was produced, on our clock: its `time_boot_ms` plus the offset of
+        the vehicle's clock to ours. Its receipt time would make a backlog (messages
+        held by a link while it was down, delivered all at once when it is back) as
+        fresh as live data. The offset is taken from live telemetry: a message that came
+        within odometry_timeout_s of the one before it of its type, with the vehicle's
+        clock advanced no more than ours between them (a backlog arrives faster than it
+        was produced); from any message with a smaller offset (a shorter way here); and
+        anew after a vehicle reboot. A clock running slow (a simulator below real time)
+        is followed that way; a link that steadily falls further behind cannot be told
+        from one, and its telemetry counts as live."""
+        boot_s = msg.time_boot_ms / 1000.0
+        offset_s = received_s - boot_s
+        live = previous is not None and (
+            received_s - previous[2] <= self.config.odometry_timeout_s
+            and boot_s - previous[0].time_boot_ms / 1000.0 <= received_s - previous[2]
+        )  # fmt: skip
+        if self._boot_offset_s is None or live or offset_s < self._boot_offset_s or (
+            previous is not None and previous[0].time_boot_ms > msg.time_boot_ms  # rebooted
+        ):
+            self._boot_offset_s = offset_s
+        return boot_s + self._boot_offset_s
 
     def _on_heartbeat_locked(self) -> None:
         if self._state is LinkState.LINK_LOST:
