@@ -47,6 +47,13 @@ class PoseConfig:
     # chosen on the robot-camera crops, checked on CUHK03 (`follow eval pose-near`;
     # docs/pose.md). A 640x480 camera of 60 degrees gets 376 px, a 16:9 one of 70 336 px.
     min_person_input_px: float = 85.0
+    # While every person in view is larger than that, run a smaller input (down to 256
+    # px, where the smallest of them is still min_person_input_px tall: half the time of
+    # 368 px), and the full height every full_input_every_frames frames and whenever the
+    # last frame found nobody, so that a far newcomer is found within that many frames
+    # (follow/pose/people_sized_input.py; docs/pose.md).
+    input_height_from_people: bool = True
+    full_input_every_frames: int = 6
     provider: str = "auto"  # auto | cpu | cuda | tensorrt | openvino
     # int8: the INT8 model made by tools/quantize_pose.py (user cache), the fast CPU path;
     # auto: that model when it has been made, else fp32.

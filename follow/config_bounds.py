@@ -89,6 +89,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "far_person_height_m": closed(0.5, 2.5),
         "min_person_input_px": closed(16.0, 576.0),
         "network_stages": closed(1, 2),
+        "full_input_every_frames": closed(1, 1000),
         "cpu_threads": THREADS,
         "warmup_runs": closed(0, 100),
         "median_filter_radius_px": closed(0, 4),

@@ -114,6 +114,8 @@ def evaluate_size(
     from follow.pose.detector import PoseDetector
     from follow.pose.observations import skeletons_to_observations
 
+    # every frame at the size measured (the frames are spread over the sequence)
+    config = dataclasses.replace(config, input_height_from_people=False)
     detector = PoseDetector(config, model_path)
     totals = Counts()
     times_ms = []

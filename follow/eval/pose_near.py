@@ -117,8 +117,10 @@ def main(args) -> dict:
             frames = [(v.apply(frame, i), box) for i, (frame, box) in enumerate(pasted)]
             for stages in args.stages:
                 for size in args.sizes:
+                    # each frame at the size measured (unrelated frames, in no order)
                     pose = dataclasses.replace(config.pose, input_height_px=size,
-                                               network_stages=stages, warmup_runs=0)  # fmt: skip
+                                               network_stages=stages, warmup_runs=0,
+                                               input_height_from_people=False)  # fmt: skip
                     neck, ankle, dup = detection_rates(PoseDetector(pose), frames)
                     rows.append({"person_px": person_px,
                                  "person_input_px": round(person_px * size / FRAME_SIZE[1], 1),

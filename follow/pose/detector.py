@@ -12,6 +12,7 @@ import numpy as np
 from follow import model_manifest, models
 from follow.config import PoseConfig
 from follow.pose.decode import DecodedPerson, DecodeParams, decode
+from follow.pose.people_sized_input import PeopleSizedInput
 from follow.pose.prepare import SOURCE_MODEL
 from follow.pose.preprocess import (
     NETWORK_STRIDE_PX,
@@ -123,7 +124,9 @@ class PoseDetector:
     """Lightweight OpenPose on onnxruntime (or OpenVINO), with our own decoding.
 
     `last_timing_ms` holds the split of the latest `detect` call: `preprocess`,
-    `inference`, `decode` and `total` milliseconds.
+    `inference`, `decode` and `total` milliseconds; `last_input_height_px` the input
+    height it ran at (smaller than the configured one where every person in view is
+    large: `input_height_from_people`, follow/pose/people_sized_input.py).
     """
 
     # PoseConfig is frozen, so one shared default instance is safe.
@@ -147,8 +150,14 @@ class PoseDetector:
         log.info("pose: running %s (sha256 %s) on %s", self.model_path,
                  models.sha256_of(self.model_path)[:16], self.backend.name)  # fmt: skip
         _advise_on_int8_without_dot_product(self.model_path, self.backend.name)
-        self._input_buffers: dict[tuple[int, int], np.ndarray] = {}
+        self._input_buffers: dict[tuple, np.ndarray] = {}
         self._frame_filter = FrameFilter.from_config(self.config)
+        self.input_sizing = (
+            PeopleSizedInput(config.input_height_px, config.min_person_input_px,
+                             config.full_input_every_frames)
+            if config.input_height_from_people else None
+        )  # fmt: skip
+        self.last_input_height_px = config.input_height_px
         self.warm_up(frame_size)
 
     @property
@@ -156,18 +165,23 @@ class PoseDetector:
         return self.backend.name
 
     def warm_up(self, frame_size: tuple[int, int] = (640, 480)) -> None:
-        """Run the network `warmup_runs` times on a grey frame so that one-off costs
-        (allocation, kernel selection, compilation) do not hit the first real frame."""
+        """Run the network `warmup_runs` times on a grey frame, at every input height it
+        may run at, so that one-off costs (allocation, kernel selection, compilation) do
+        not hit a real frame."""
         grey = np.full((frame_size[1], frame_size[0], 3), 128, np.uint8)
-        for _ in range(self.config.warmup_runs):
-            self.infer(grey)
+        heights = self.input_sizing.heights_px if self.input_sizing else [None]
+        for height in heights:
+            for _ in range(self.config.warmup_runs):
+                self.infer(grey, height)
 
-    def infer(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, Letterbox]:
-        """(heatmaps, pafs, letterbox plan) of one frame; raises InvalidInput on a bad frame."""
+    def infer(self, image_bgr: np.ndarray, input_height_px: int | None = None
+              ) -> tuple[np.ndarray, np.ndarray, Letterbox]:  # fmt: skip
+        """(heatmaps, pafs, letterbox plan) of one frame, at `input_height_px` (default:
+        the configured height); raises InvalidInput on a bad frame."""
         t0 = time.perf_counter()
         prepare = prepare_frame if self.backend.frame_input else prepare_input
-        tensor, plan = prepare(image_bgr, self.config.input_height_px, self._input_buffers,
-                               self._frame_filter)  # fmt: skip
+        height = input_height_px or self.config.input_height_px
+        tensor, plan = prepare(image_bgr, height, self._input_buffers, self._frame_filter)
         t1 = time.perf_counter()
         heatmaps, pafs = self.backend.run(tensor)
         t2 = time.perf_counter()
@@ -185,7 +199,13 @@ class PoseDetector:
     def detect(self, image_bgr: np.ndarray) -> list[Skeleton]:
         """All people in a BGR uint8 frame (HxWx3); keypoints in the frame's pixels."""
         t0 = time.perf_counter()
-        heatmaps, pafs, plan = self.infer(image_bgr)
+        height = None
+        if self.input_sizing is not None and isinstance(image_bgr, np.ndarray) and image_bgr.ndim:
+            height = self.input_sizing.next_height_px(image_bgr.shape[0])
+        heatmaps, pafs, plan = self.infer(image_bgr, height)
         skeletons = self.decode(heatmaps, pafs, plan)
+        self.last_input_height_px = plan.input_size[1]
+        if self.input_sizing is not None:
+            self.input_sizing.observe(skeletons, plan.input_size[1])
         self.last_timing_ms["total"] = (time.perf_counter() - t0) * 1e3
         return skeletons

@@ -138,8 +138,9 @@ def _resized(
 
 
 def _padded_buffer(buffers, image_bgr, shape, dtype) -> np.ndarray:
-    """The caller's array for this frame size, or a new one; padding written once."""
-    key = image_bgr.shape[1], image_bgr.shape[0]
+    """The caller's array for this frame size and input shape, or a new one; padding
+    written once."""
+    key = image_bgr.shape[1], image_bgr.shape[0], shape
     array = None if buffers is None else buffers.get(key)
     if array is None:
         array = np.full(shape, PAD_VALUE, dtype)
@@ -151,12 +152,12 @@ def _padded_buffer(buffers, image_bgr, shape, dtype) -> np.ndarray:
 def prepare_input(
     image_bgr: np.ndarray,
     input_height_px: int,
-    buffers: dict[tuple[int, int], np.ndarray] | None = None,
+    buffers: dict[tuple, np.ndarray] | None = None,
     frame_filter: FrameFilter | None = None,
 ) -> tuple[np.ndarray, Letterbox]:
     """A float32 (1, 3, H, W) raw-BGR tensor for the network, and the plan to map back.
 
-    With `buffers` (one per frame size, kept by the caller) the tensor is written into
+    With `buffers` (one per frame size and input height, kept by the caller) the tensor is written into
     the same array every frame instead of a new one; the caller must be done with the
     previous tensor before the next call. `frame_filter` (a `FrameFilter`) filters the
     frame first.
@@ -171,7 +172,7 @@ def prepare_input(
 def prepare_frame(
     image_bgr: np.ndarray,
     input_height_px: int,
-    buffers: dict[tuple[int, int], np.ndarray] | None = None,
+    buffers: dict[tuple, np.ndarray] | None = None,
     frame_filter: FrameFilter | None = None,
 ) -> tuple[np.ndarray, Letterbox]:
     """The same as uint8 (1, H, W, 3), for a back-end that converts it inside the graph

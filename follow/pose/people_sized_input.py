@@ -1,0 +1,85 @@
+"""The network input height for the next frame, from the size of the people in view.
+
+The configured (or camera-chosen) input height is sized for the farthest person to be
+followed (follow/pose/input_size.py). When every person in view is larger, a smaller
+input finds them as well, and the network's time falls with the input's area (256 px
+costs half of 368 px). Near people are even found better there: their ankles are lost
+when they are far larger in the input than the people the network was trained on
+(docs/pose.md, *People seen large*).
+
+So each frame runs at the smallest of a few fixed heights (few shapes, each warmed up
+once) at which the smallest person seen in the last frame, and in the last frame run at
+the full height, stays `min_person_input_px` tall. Every `full_input_every_frames`
+frames, and whenever the last frame found nobody, the full height runs again, so that
+a far newcomer is found within that many frames.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from follow.pose.input_size import MIN_INPUT_HEIGHT_PX
+from follow.types import Skeleton
+
+# The smaller heights are steps of this many pixels from MIN_INPUT_HEIGHT_PX up: few
+# network shapes (each costs a slow first run), fine enough to follow a person's size.
+HEIGHT_STEP_PX = 32
+# Skeletons with fewer found keypoints are fragments (a hand and an elbow beside a body,
+# the head of someone behind another): their extent says nothing of a person's size.
+MIN_KEYPOINTS_FOR_SIZE = 5
+
+
+def person_height_px(skeleton: Skeleton) -> float | None:
+    """The vertical extent of a skeleton's found keypoints (px): a person's height from
+    the eyes to the ankles, less where parts are missing or out of the frame, so it
+    never overstates how large the person is; None for a fragment of a few keypoints."""
+    points = skeleton.keypoints_px[np.isfinite(skeleton.keypoints_px).all(axis=1)]
+    if len(points) < MIN_KEYPOINTS_FOR_SIZE:
+        return None
+    extent = float(points[:, 1].max() - points[:, 1].min())
+    return extent if extent > 0 else None
+
+
+def smallest_person_px(skeletons: list[Skeleton]) -> float | None:
+    """The smallest height among the skeletons (px); None without any measurable one."""
+    heights = [h for h in map(person_height_px, skeletons) if h is not None]
+    return min(heights) if heights else None
+
+
+class PeopleSizedInput:
+    """Chooses each frame's input height and learns from what it found."""
+
+    def __init__(self, full_height_px: int, min_person_input_px: float,
+                 full_input_every_frames: int):  # fmt: skip
+        if full_input_every_frames < 1:
+            raise ValueError(f"full_input_every_frames must be >= 1, got {full_input_every_frames}")
+        self.full_height_px = full_height_px
+        self.min_person_input_px = min_person_input_px
+        self.full_input_every_frames = full_input_every_frames
+        self.heights_px = sorted({*range(MIN_INPUT_HEIGHT_PX, full_height_px, HEIGHT_STEP_PX),
+                                  full_height_px})  # fmt: skip
+        self._frames_since_full = math.inf
+        self._smallest_last_px: float | None = None
+        self._smallest_at_full_px: float | None = None
+
+    def next_height_px(self, frame_height_px: int) -> int:
+        """The input height for the next frame, `frame_height_px` tall."""
+        if self._frames_since_full + 1 >= self.full_input_every_frames:
+            return self.full_height_px
+        sizes = [s for s in (self._smallest_last_px, self._smallest_at_full_px) if s is not None]
+        if self._smallest_last_px is None or not sizes:
+            return self.full_height_px  # nobody found last frame: look at full size
+        needed = frame_height_px * self.min_person_input_px / min(sizes)
+        return next((h for h in self.heights_px if h >= needed), self.full_height_px)
+
+    def observe(self, skeletons: list[Skeleton], input_height_px: int) -> None:
+        """What a frame run at `input_height_px` found."""
+        smallest = smallest_person_px(skeletons)
+        self._smallest_last_px = smallest
+        if input_height_px >= self.full_height_px:
+            self._frames_since_full = 0
+            self._smallest_at_full_px = smallest
+        else:
+            self._frames_since_full += 1
