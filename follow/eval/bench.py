@@ -1,5 +1,7 @@
-"""`follow bench`: the whole stack on PETS 2009 frames, against the pose network's own
-inference time on the same frames (the floor for the runtime).
+"""`follow bench`: the whole stack on PETS 2009 frames (or, `--scene robot`, a robot's
+view of real people at following distances: follow/eval/robot_scene.py), against the
+pose network's own inference time on the same frames at the configured input height
+(the floor for the runtime, unless the people-sized input runs smaller inputs).
 
 One run measures, in this order and in one process:
 1. **bare inference**: the pose network alone on each frame (median ms);
@@ -32,6 +34,7 @@ from follow.pose.runtime import GPU_PROVIDERS
 
 PROVIDER_CHOICES = ("auto", "cpu", "openvino", "cuda", "tensorrt")
 SETTINGS_CHOICES = ("robot", "pets")
+SCENE_CHOICES = ("pets", "robot")
 MATRIX_PROVIDERS = ("cpu", "openvino")
 # Below this many latencies the 95th percentile lies between the two largest.
 MIN_P95_SAMPLES = 20
@@ -51,7 +54,7 @@ def provider_list(text: str) -> tuple[str, ...]:
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--frames", type=positive_int, default=60, help="PETS frames to time (default 60)")
+    p.add_argument("--frames", type=positive_int, default=60, help="frames to time (default 60)")
     p.add_argument("--warmup", type=non_negative_int, default=5, help="frames run before timing")
     p.add_argument("--settings", choices=SETTINGS_CHOICES, default="robot",
                    help="robot defaults, or the PETS settings (follow/eval/pets2009.toml)")  # fmt: skip
@@ -61,6 +64,14 @@ def add_arguments(p) -> None:
                         "re-id network runs on the CPU too")  # fmt: skip
     p.add_argument("--camera-fps", type=positive_float, default=30.0,
                    help="rate the runner's simulated camera delivers frames at (default 30)")  # fmt: skip
+    p.add_argument("--scene", choices=SCENE_CHOICES, default="pets",
+                   help="frames: PETS 2009 (5-8 people 35-95 px tall), or a robot's 640x480 "
+                        "view of real people, the target 2.5 m ahead (default pets)")  # fmt: skip
+    p.add_argument("--people", type=positive_int, default=5,
+                   help="with --scene robot: people in view, 1-5 (default 5)")  # fmt: skip
+    p.add_argument("--far-m", type=positive_float, default=5.0,
+                   help="with --scene robot: the farthest person's distance, 3-15 m; the "
+                        "others stand between 3 m and it (default 5)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration over the chosen settings")
     p.add_argument("--matrix", action="store_true",
                    help="robot and PETS settings x runtimes (--providers), one process each")  # fmt: skip
@@ -102,16 +113,16 @@ def main(args) -> dict:
         raise ValueError("--frames must be >= 1 and --warmup >= 0")
     if args.matrix:
         return run_matrix(args)
-    from follow.eval.pets_setup import PetsSetup
     from follow.pose.detector import PoseDetector
 
     config = bench_config(args)
-    setup = PetsSetup.load()
+    setup, scene = bench_scene(args)
     total = min(args.warmup + args.frames, setup.frame_count)
     first = setup.sequence.read_frame(0)
     detector = PoseDetector(config.pose, frame_size=(first.shape[1], first.shape[0]))
     result = {
         "settings": args.settings,
+        "scene": scene,
         "input_height_px": config.pose.input_height_px,
         "network_stages": config.pose.network_stages,
         "identifier": config.identify.identifier,
@@ -153,6 +164,20 @@ def main(args) -> dict:
     return result
 
 
+def bench_scene(args):
+    """(the frames' setup, a description): PETS 2009, or the robot scene."""
+    if args.scene == "pets":
+        from follow.eval.pets_setup import PetsSetup
+
+        return PetsSetup.load(), "PETS 2009 frames"
+    from follow.eval.robot_scene import RobotScene
+    from follow.eval.verification import data_root
+
+    scene = RobotScene(data_root(None), args.people, args.far_m, args.warmup + args.frames)
+    far = f", the others 3-{args.far_m:g} m" if args.people > 1 else ""
+    return scene, f"robot view, {args.people} people (target 2.5 m{far})"
+
+
 def bare_inference_ms(detector, setup, total: int, warmup: int, quiet: bool) -> float | None:
     """The pose network alone on the frames (preprocessing and decoding excluded)."""
     from tqdm import tqdm
@@ -171,7 +196,6 @@ def stage_times(config, detector, setup, total: int, warmup: int, quiet: bool) -
     from tqdm import tqdm
 
     from follow.control.controller import FollowingController
-    from follow.eval.pets_setup import PETS_FPS
     from follow.pipeline import target_motion
     from follow.types import Frame, Odometry
 
@@ -180,9 +204,9 @@ def stage_times(config, detector, setup, total: int, warmup: int, quiet: bool) -
     times: dict[str, list[float]] = {k: [] for k in (
         "capture", "preprocess", "inference", "decode", "pose", "tracker", "identify",
         "control", "in_turn")}  # fmt: skip
-    per_track, per_person, people = [], [], []
+    per_track, per_person, people, heights = [], [], [], []
     for index in tqdm(range(total), desc="bench: stages", unit="frame", disable=quiet):
-        stamp = index / PETS_FPS
+        stamp = index / setup.fps
         robot = Odometry.origin(stamp)
         t0 = time.perf_counter()
         image = setup.sequence.read_frame(index)
@@ -193,6 +217,7 @@ def stage_times(config, detector, setup, total: int, warmup: int, quiet: bool) -
         t3 = time.perf_counter()
         if index < warmup:
             continue
+        heights.append(detector.last_input_height_px)
         stage_ms = result.timing_ms
         for key, value_ms in (("capture", 1e3 * (t1 - t0)), ("control", 1e3 * (t3 - t2)),
                               ("in_turn", 1e3 * (t3 - t0)),
@@ -213,6 +238,8 @@ def stage_times(config, detector, setup, total: int, warmup: int, quiet: bool) -
         "frames": len(people),
         "people_in_view_median": _median(people),
         "people_in_view_max": max(people) if people else None,
+        "input_height_px_shares": {int(h): round(heights.count(h) / len(heights), 3)
+                                   for h in sorted(set(heights))},  # fmt: skip
         **{f"{k}_ms": _median(v) for k, v in times.items()},
         "tracker_ms_per_track": _median(per_track),
         "identify_ms_per_person": _median(per_person),
@@ -289,12 +316,16 @@ def _learning_perception(config, setup, detector):
 
 
 def print_report(result: dict, camera_fps: float) -> None:
-    print(f"{result['frames']} PETS frames ({result['settings']} settings), pose input "
-          f"{result['input_height_px']} px, {result['pose_model']} on {result['pose_backend']}, "
+    shares = ", ".join(f"{h} px {share:.0%}" for h, share in
+                       result["input_height_px_shares"].items())  # fmt: skip
+    print(f"{result['frames']} frames, {result['scene']} ({result['settings']} settings), pose "
+          f"input {result['input_height_px']} px (frames run at: {shares}), "
+          f"{result['pose_model']} on {result['pose_backend']}, "
           f"identifier {result['identifier']} (re-id on {result['reid_backend']}), people in "
           f"view median "
           f"{result['people_in_view_median']} (max {result['people_in_view_max']}); medians:")  # fmt: skip
-    print(f"  bare inference           {result['bare_inference_ms']} ms (the floor)")
+    print(f"  bare inference           {result['bare_inference_ms']} ms (at "
+          f"{result['input_height_px']} px: the floor, unless smaller inputs ran)")
     for key, value in result.items():
         if (
             key.endswith("_ms")
@@ -344,7 +375,8 @@ def run_matrix(args) -> dict:
     for settings, provider in tqdm(runs, desc="bench matrix", unit="run", disable=args.json):
         command = [sys.executable, "-m", "follow.cli", "bench", "--json", "--settings", settings,
                    "--provider", provider, "--frames", str(args.frames), "--warmup",
-                   str(args.warmup), "--camera-fps", str(args.camera_fps)]  # fmt: skip
+                   str(args.warmup), "--camera-fps", str(args.camera_fps), "--scene",
+                   args.scene, "--people", str(args.people), "--far-m", str(args.far_m)]  # fmt: skip
         if args.config:
             command += ["--config", args.config]
         out = subprocess.run(command, capture_output=True, text=True)

@@ -77,6 +77,10 @@ class PetsSetup:
     def frame_count(self) -> int:
         return self.sequence.frame_count
 
+    @property
+    def fps(self) -> float:
+        return PETS_FPS
+
 
 def add_evaluation_arguments(p) -> None:
     """The options `load_evaluation` reads, for every PETS evaluation command."""
