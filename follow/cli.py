@@ -22,6 +22,7 @@ COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
     ("eval", "localization"): ("follow.eval.localization", "ground-plane error vs distance (simulation)"),
     ("eval", "pose"): ("follow.eval.pose", "skeleton detector recall/precision on PETS 2009"),
     ("eval", "pose-near"): ("follow.eval.pose_near", "skeleton detector on people seen large (real crops, robot scale)"),
+    ("eval", "pose-scene"): ("follow.eval.pose_scene", "people-sized against fixed pose input on a robot's view of real people"),
     ("eval", "crops"): ("follow.eval.crops", "target identification on real person crops"),
     ("eval", "ankle-height"): ("follow.eval.ankle_height", "ankle keypoint height over the annotated ground point (PETS 2009)"),
     ("eval", "walking-accel"): ("follow.eval.walking_accel", "how steadily the annotated people walk: the tracker's acceleration noise (PETS 2009)"),

@@ -60,3 +60,27 @@ def test_bench_on_the_robot_scene_runs_the_target_alone_at_smaller_inputs(data_r
     assert sum(shares.values()) == pytest.approx(1.0, abs=0.01)
     assert min(shares) < result["input_height_px"] == max(shares)
     assert result["people_in_view_max"] == 1
+
+
+def test_pose_scene_compares_people_sized_with_fixed_input(data_root, monkeypatch, model_path):
+    from follow.eval import pose_scene
+
+    model_path("pose/human-pose-estimation-0001.onnx")
+    monkeypatch.setenv("FOLLOW_DATA_DIR", str(data_root))
+    parser = argparse.ArgumentParser()
+    pose_scene.add_arguments(parser)
+    args = parser.parse_args(["--scenes", "1:5", "--frames", "7"])
+    args.json = True
+    (row,) = pose_scene.main(args)["rows"]
+    sized, fixed = row["people-sized"], row["fixed"]
+    assert list(fixed["input_height_px_shares"]) == [368]
+    # the target alone, 2.5 m away: full height on the first frame and every 6th
+    assert sized["input_height_px_shares"][368] == pytest.approx(2 / 7, abs=1e-3)
+    assert sized["neck"] == [1.0] and fixed["neck"] == [1.0]
+
+
+def test_pose_scene_refuses_a_malformed_scene_list():
+    from follow.eval.pose_scene import scene_list
+
+    with pytest.raises(argparse.ArgumentTypeError, match="PEOPLE:FAR_M"):
+        scene_list("five")

@@ -152,13 +152,19 @@ class PoseDetector:
         _advise_on_int8_without_dot_product(self.model_path, self.backend.name)
         self._input_buffers: dict[tuple, np.ndarray] = {}
         self._frame_filter = FrameFilter.from_config(self.config)
+        self.reset_input_sizing()
+        self.last_input_height_px = config.input_height_px
+        self.warm_up(frame_size)
+
+    def reset_input_sizing(self) -> None:
+        """Forget the people of earlier frames (before another video): the next frame
+        runs at the full input height."""
+        config = self.config
         self.input_sizing = (
             PeopleSizedInput(config.input_height_px, config.min_person_input_px,
                              config.full_input_every_frames)
             if config.input_height_from_people else None
         )  # fmt: skip
-        self.last_input_height_px = config.input_height_px
-        self.warm_up(frame_size)
 
     @property
     def backend_name(self) -> str:
