@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from follow.ccf.roi import roi_from_keypoints
+from follow.ccf.features import cut_crops
+from follow.ccf.roi import person_boxes, roi_from_keypoints, track_rois
 from follow.config import IdentifyConfig
+from follow.types import Observation, TrackState
 
 CFG = IdentifyConfig()
 SIZE = (640, 480)
@@ -66,3 +68,28 @@ def test_without_ankle_or_hip_the_feet_are_assumed_at_the_image_bottom():
 def test_bad_image_size_is_an_error():
     with pytest.raises(ValueError, match="image_size"):
         roi_from_keypoints((1, 1), (1, 50), (0, 480), CFG)
+
+
+def test_a_person_cut_by_the_image_border_is_padded_not_stretched():
+    """The same person seen whole and with the left fifth of their box outside the
+    image: the crop of the cut one shows the body at the same size and place (the part
+    outside padded), not the visible part stretched over the whole crop. The box the
+    person occupies, which the overlap rules compare, stays inside the image."""
+    rng = np.random.default_rng(0)
+    wide = rng.integers(0, 256, (480, 800, 3), np.uint8)
+    shift = 160  # the cut image starts here: 28 of the box's 136 columns fall outside
+    cut = np.ascontiguousarray(wide[:, shift:])
+
+    def crop_and_box(image, neck_x):
+        h, w = image.shape[:2]
+        track = TrackState(1, np.zeros(5), np.eye(5), True, 0.0,
+                           observation=Observation((neck_x, 100.0), (neck_x, 370.0)))  # fmt: skip
+        rois = track_rois([track], (w, h), CFG)
+        crop = cut_crops(image, [rois[1]], (CFG.crop_width_px, CFG.crop_height_px))[0]
+        return crop, person_boxes([track], rois, (w, h), CFG)[1]
+
+    whole_crop, whole_box = crop_and_box(wide, 200.0)
+    cut_crop, cut_box = crop_and_box(cut, 200.0 - shift)
+    padded = int(np.ceil(28 / 136 * CFG.crop_width_px)) + 1  # and one column it blurs into
+    assert np.array_equal(cut_crop[:, padded:], whole_crop[:, padded:])
+    assert cut_box == (0, whole_box[1], whole_box[2] - shift, whole_box[3])

@@ -124,17 +124,25 @@ def check_image(image_bgr: np.ndarray, what: str = "image") -> None:
 
 
 def cut_crops(image_bgr: np.ndarray, rois: Sequence[Roi], crop_size: tuple[int, int]) -> np.ndarray:
-    """ROIs of an image resized to crop_size (width, height): (N, H, W, 3) uint8."""
+    """ROIs of an image resized to crop_size (width, height): (N, H, W, 3) uint8. The
+    part of a ROI outside the image (a person cut by its border) is padded with the
+    image's edge pixels repeated, so that the part inside keeps its shape and its place
+    in the crop instead of being stretched over the whole of it."""
     check_image(image_bgr)
     ih, iw = image_bgr.shape[:2]
     width, height = crop_size
     out = np.empty((len(rois), height, width, 3), dtype=np.uint8)
     for i, roi in enumerate(rois):
         x0, y0, x1, y1 = (int(v) for v in roi)
-        x0, y0, x1, y1 = max(0, x0), max(0, y0), min(iw, x1), min(ih, y1)
-        if x1 - x0 < 1 or y1 - y0 < 1:
+        cx0, cy0, cx1, cy1 = max(0, x0), max(0, y0), min(iw, x1), min(ih, y1)
+        if cx1 - cx0 < 1 or cy1 - cy0 < 1:
             raise InvalidInput(f"ROI {roi} is empty inside a {iw}x{ih} image")
-        out[i] = _resize(image_bgr[y0:y1, x0:x1], crop_size)
+        crop = image_bgr[cy0:cy1, cx0:cx1]
+        if (cx0, cy0, cx1, cy1) != (x0, y0, x1, y1):
+            crop = cv2.copyMakeBorder(
+                crop, cy0 - y0, y1 - cy1, cx0 - x0, x1 - cx1, cv2.BORDER_REPLICATE
+            )
+        out[i] = _resize(crop, crop_size)
     return out
 
 

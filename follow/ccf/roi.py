@@ -7,9 +7,12 @@ with an assumed body proportion, or else taken at the image bottom below the nec
 feet of a close person are out of view).
 
 A track's crop is the ROI of the observation associated with it in this frame; a track
-without one (occluded, missed) has no crop. A person hidden behind another still
-occupies a box, from the tracker's expected neck and ankle pixels, so that a crossing
-is noticed while one of the two is hidden.
+without one (occluded, missed) has no crop. A track's ROI is the whole box, reaching
+outside the image where its border cuts the person: the crop pads the part outside
+(`follow.ccf.features.cut_crops`), so that the body keeps its shape and its place in
+the crop. The box a person occupies (`person_boxes`) is clipped to the image. A person
+hidden behind another still occupies a box, from the tracker's expected neck and ankle
+pixels, so that a crossing is noticed while one of the two is hidden.
 """
 
 from __future__ import annotations
@@ -47,8 +50,11 @@ def roi_from_keypoints(
     image_size: tuple[int, int],
     config: IdentifyConfig,
     hip_px=None,
+    whole: bool = False,
 ) -> Roi | None:
     """(x0, y0, x1, y1) of a person's box clipped to the image (width, height), or None.
+    With `whole`, the same box not clipped: where the image border cuts the person it
+    reaches outside the image (for a crop padded there rather than stretched).
 
     None when the box would be degenerate (ankle not below the neck), too small
     (`min_roi_height_px`) or mostly outside the image (`min_roi_visible_fraction`).
@@ -56,10 +62,10 @@ def roi_from_keypoints(
     box = _box(neck_px, ankle_px, image_size, config, hip_px)
     if box is None:
         return None
-    (x0, y0, x1, y1), visible = box
+    (x0, y0, x1, y1), visible, unclipped = box
     if visible < config.min_roi_visible_fraction or (y1 - y0) < config.min_roi_height_px:
         return None
-    return x0, y0, x1, y1
+    return unclipped if whole else (x0, y0, x1, y1)
 
 
 def body_box(neck_px, ankle_px, image_size: tuple[int, int], config: IdentifyConfig,
@@ -71,9 +77,16 @@ def body_box(neck_px, ankle_px, image_size: tuple[int, int], config: IdentifyCon
     return None if box is None else box[0]
 
 
+def clip_roi(roi: Roi, image_size: tuple[int, int]) -> Roi:
+    """The part of a ROI inside the image (width, height)."""
+    x0, y0, x1, y1 = roi
+    return max(0, x0), max(0, y0), min(int(image_size[0]), x1), min(int(image_size[1]), y1)
+
+
 def _box(neck_px, ankle_px, image_size, config: IdentifyConfig, hip_px=None):
-    """((x0, y0, x1, y1) clipped to the image, the share of the whole box inside it), or
-    None for no neck, an ankle not below it, or a box under 2 px either way."""
+    """((x0, y0, x1, y1) clipped to the image, the share of the whole box inside it, the
+    whole box), or None for no neck, an ankle not below it, or a clipped box under 2 px
+    either way."""
     width, height = int(image_size[0]), int(image_size[1])
     if width <= 0 or height <= 0:
         raise ValueError(f"roi_from_keypoints: image_size must be positive, got {image_size}")
@@ -96,11 +109,11 @@ def _box(neck_px, ankle_px, image_size, config: IdentifyConfig, hip_px=None):
     centre = neck + (0.5 + config.roi_center_offset_per_neck_ankle) * axis
     fx0, fy0 = centre[0] - 0.5 * box_w, centre[1] - 0.5 * box_h
     fx1, fy1 = fx0 + box_w, fy0 + box_h
-    x0, y0 = max(0, int(round(fx0))), max(0, int(round(fy0)))
-    x1, y1 = min(width, int(round(fx1))), min(height, int(round(fy1)))
+    unclipped = (int(round(fx0)), int(round(fy0)), int(round(fx1)), int(round(fy1)))
+    x0, y0, x1, y1 = clip_roi(unclipped, (width, height))
     if x1 - x0 < 2 or y1 - y0 < 2:
         return None
-    return (x0, y0, x1, y1), (x1 - x0) * (y1 - y0) / (box_w * box_h)
+    return (x0, y0, x1, y1), (x1 - x0) * (y1 - y0) / (box_w * box_h), unclipped
 
 
 def body_rows(config: IdentifyConfig) -> tuple[float, float, float]:
@@ -127,14 +140,17 @@ def part_bands(config: IdentifyConfig) -> dict[str, tuple[float, float, float, f
 def track_rois(
     tracks: Sequence[TrackState], image_size: tuple[int, int], config: IdentifyConfig
 ) -> dict[int, Roi]:
-    """track id -> ROI for the tracks with an observation this frame and a usable box."""
+    """track id -> ROI for the tracks with an observation this frame and a usable box:
+    the whole box, reaching outside the image where its border cuts the person (the
+    crop is padded there, `cut_crops`)."""
     out = {}
     for track in tracks:
         obs = track.observation
         if obs is None:
             continue
         ankle = obs.ankle_px if obs.ankle_px is not None else track.expected_ankle_px
-        roi = roi_from_keypoints(obs.neck_px, ankle, image_size, config, hip_px=hip_of(obs))
+        roi = roi_from_keypoints(obs.neck_px, ankle, image_size, config, hip_px=hip_of(obs),
+                                 whole=True)  # fmt: skip
         if roi is not None:
             out[track.track_id] = roi
     return out
@@ -146,10 +162,10 @@ def person_boxes(
     image_size: tuple[int, int],
     config: IdentifyConfig,
 ) -> dict[int, Roi]:
-    """track id -> the box a person occupies: its ROI when seen, else (`body_box`, no
-    crop filters) the box of its observed keypoints, or of the tracker's expected neck
-    and ankle pixels (a person hidden behind another)."""
-    out = dict(rois)
+    """track id -> the box a person occupies in the image: its ROI clipped to the image
+    when seen, else (`body_box`, no crop filters) the box of its observed keypoints, or
+    of the tracker's expected neck and ankle pixels (a person hidden behind another)."""
+    out = {i: clip_roi(roi, image_size) for i, roi in rois.items()}
     for track in tracks:
         if track.track_id in out:
             continue
