@@ -536,3 +536,25 @@ def test_a_reidentified_track_does_not_set_the_stature_the_target_is_judged_by()
     assert type(state) is Tracking and state.target_id == 7  # the twin passed
     assert ctx.target_height[0] == pytest.approx(1.45)
     assert ctx.same_height(person(9, 2.0, neck_height_m=1.44, height_std_m=0.002))
+
+
+def test_the_stature_is_not_taken_from_a_frame_in_which_another_person_covers_the_target():
+    """Another person's box covering the target's: its skeleton may carry that person's
+    feet, and its height must not become the bar, as its appearance is not learnt. The
+    bar stays the one from the last clear frame, in initial training and tracking, and
+    the target coming back at that height is still taken for itself."""
+    covered = {1: (0, 0, 100, 200), 2: (20, 0, 120, 200)}  # 80 % of the target covered
+    taller = dict(neck_height_m=1.60, last_seen_s=10.1)
+    ctx = context()
+    training = InitialTraining(1)
+    training.update(ctx, frame([person(1, 2.0), person(2, 2.3)], 9.9, {1: 0.0, 2: 0.0}))
+    training.update(ctx, frame([person(1, 2.0, neck_height_m=1.60), person(2, 2.3)], 10.0,
+                               {1: 0.0, 2: 0.0}, boxes=covered))  # fmt: skip
+    assert ctx.target_height[0] == pytest.approx(1.45)
+    ctx = tracked_context(stamp_s=10.0, observed={1: 20, 7: 20})
+    tracking = Tracking(1)
+    together = [person(1, 2.0, **taller), person(2, 2.3, last_seen_s=10.1)]
+    assert tracking.update(ctx, frame(together, 10.1, {1: 0.9, 2: -0.5}, boxes=covered)) is tracking
+    assert ctx.model.learnt == []  # confirmed, but its crop shows the other person
+    assert ctx.target_height[0] == pytest.approx(1.45)
+    assert ctx.same_height(person(7, 2.5, neck_height_m=1.45))

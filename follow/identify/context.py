@@ -143,15 +143,17 @@ class IdentityContext:
     def note_target(self, target_id: int, frame: FrameTracks, confirmed: bool = False,
                     stature: bool = True) -> None:  # fmt: skip
         """Remember where the target is, when it was seen, its height (unless not
-        `stature`), whether the tracker could be swapping it with someone this frame,
-        and, on a frame that `confirmed` its identity, who was seen beside it
-        (`seen_apart`)."""
+        `stature`, or another person covers its crop as `crop_shows_another` tells:
+        its skeleton may then have been given that person's feet, and nothing is learnt
+        of its appearance either), whether the tracker could be swapping it with
+        someone this frame, and, on a frame that `confirmed` its identity, who was seen
+        beside it (`seen_apart`)."""
         track = frame.by_id[target_id]
         self.last_target_position_m = track.position_m.copy()
         self.last_target_s = frame.stamp_s
         if track.observation is not None:
             self.last_target_seen_s = frame.stamp_s
-            if stature:
+            if stature and not self.crop_shows_another(target_id, frame):
                 self.target_height = (track.neck_height_m, float(track.cov[4, 4]))
         near = self._near_target(target_id, frame)
         unseen_s = frame.stamp_s - track.last_seen_s
@@ -223,8 +225,11 @@ class IdentityContext:
 
     def crop_shows_another(self, target_id: int, frame: FrameTracks) -> bool:
         """Whether another person's box covers more than `max_learning_overlap` of the
-        target's: its crop then shows (part of) someone else."""
-        target_box = frame.boxes[target_id]
+        target's: its crop then shows (part of) someone else. (False for a target
+        without a box this frame: nothing to judge.)"""
+        target_box = frame.boxes.get(target_id)
+        if target_box is None:
+            return False
         limit = self.config.max_learning_overlap
         return any(
             covered_fraction(target_box, box) > limit
