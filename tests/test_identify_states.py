@@ -203,6 +203,18 @@ def test_initial_training_starts_over_when_the_target_is_lost():
     assert ctx.model.resets == resets + 1 and ctx.last_target_position_m is None
 
 
+def test_initial_training_that_loses_its_target_chooses_again_in_the_same_frame():
+    """The tracker replaces the target's track in a frame: initial training starts over
+    on that frame, as every other state hands over within the frame it is lost in, and
+    the nearest established track is chosen and learnt there."""
+    ctx = context(observed={2: 2})
+    state = InitialTraining(1)
+    state.update(ctx, frame([person(1, 2.0), person(2, 3.0)], 0.0, {1: 0.0, 2: 0.0}))
+    nxt = state.update(ctx, frame([person(2, 3.0), person(3, 2.0)], 0.1, {2: 0.0, 3: 0.0}))
+    assert isinstance(nxt, InitialTraining) and nxt.target_id == 2  # 3 is new: not yet
+    assert nxt.frames_learnt == 1 and ctx.last_target_s == 0.1
+
+
 # --------------------------------------------------------------------------- tracking
 def test_tracking_becomes_reidentification_when_the_target_is_lost():
     ctx = tracked_context(observed={2: 5})

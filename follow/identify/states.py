@@ -68,7 +68,7 @@ class Initial(State):
 class InitialTraining(State):
     """The target is learnt as positive and every other observed track as negative, in
     `initial_training_frames` frames in which it is seen and its crop shows nobody else;
-    losing its track before then starts over."""
+    losing its track before then starts over, from the frame it is lost in."""
 
     status = TargetStatus.INITIAL_TRAINING
 
@@ -84,7 +84,7 @@ class InitialTraining(State):
             else:
                 log.info("target track %d lost during initial training", self.target_id)
             context.forget()
-            return Initial()
+            return Initial().update(context, frame)
         context.look(frame, only=self.target_id)
         learnt = self.target_id in frame.appearances and context.learn(self.target_id, frame)
         context.note_target(self.target_id, frame, confirmed=learnt)
