@@ -95,9 +95,11 @@ def main(argv: list[str] | None = None) -> int:
         commands.choices[args.command].print_help(sys.stderr)
         print(f"follow {args.command}: error: name one of its commands", file=sys.stderr)
         return 2
+    from follow.blas_threads import limit_blas_threads
     from follow.memory import fix_mmap_threshold
 
     fix_mmap_threshold()  # a robot runs for hours: its memory must not creep
+    limit_blas_threads()  # idle BLAS workers must not spin on the network's cores
     try:
         result = module.main(args)
     except KeyboardInterrupt:
