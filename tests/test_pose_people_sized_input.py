@@ -72,6 +72,15 @@ def test_a_far_person_seen_at_the_last_full_height_counts_though_missed_since():
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 288  # not 256: it may still be there
 
 
+def test_a_far_person_missed_by_one_full_height_frame_is_still_looked_for():
+    sizing = schedule(every=2)
+    sizing.observe([person(50, 400), person(200, 110)], 368)  # the far one: full height
+    sizing.observe([person(50, 400)], 368)  # a full-height frame missed the far one
+    assert sizing.next_height_px(FRAME_HEIGHT_PX) == 368
+    sizing.observe([person(50, 400)], 368)  # and a second one: it has gone
+    assert sizing.next_height_px(FRAME_HEIGHT_PX) == 256
+
+
 def test_an_empty_frame_and_the_schedule_bring_the_full_height_back():
     sizing = schedule(every=3)
     sizing.observe([person(50, 400)], 368)

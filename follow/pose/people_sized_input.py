@@ -8,8 +8,8 @@ when they are far larger in the input than the people the network was trained on
 (docs/pose.md, *People seen large*).
 
 So each frame runs at the smallest of a few fixed heights (few shapes, each warmed up
-once) at which the smallest person seen in the last frame, and in the last frame run at
-the full height, stays `min_person_input_px` tall. Every `full_input_every_frames`
+once) at which the smallest person seen in the last frame, and in the last two frames
+run at the full height, stays `min_person_input_px` tall. Every `full_input_every_frames`
 frames, and whenever the last frame found nobody, the full height runs again, so that
 a far newcomer is found within that many frames.
 """
@@ -17,6 +17,7 @@ a far newcomer is found within that many frames.
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 
@@ -24,8 +25,15 @@ from follow.pose.input_size import MIN_INPUT_HEIGHT_PX
 from follow.types import Skeleton
 
 # The smaller heights are steps of this many pixels from MIN_INPUT_HEIGHT_PX up: few
-# network shapes (each costs a slow first run), fine enough to follow a person's size.
+# network shapes, since each costs a slow first run and, with OpenVINO (one compiled
+# model per shape), 25-30 MiB of memory; steps of 64 px saved 50 MB there but ran five
+# people within 5 m 4-5 ms a frame slower (320 px where 288 px did).
 HEIGHT_STEP_PX = 32
+# A person found at one full-height frame and missed at the next is still looked for at
+# a height that finds them until this many full-height frames have missed them: a far
+# person the full height finds 9 times in 10 is otherwise lost for a whole schedule
+# whenever one full-height frame misses them.
+FULL_FRAMES_REMEMBERED = 2
 # Skeletons with fewer found keypoints are fragments (a hand and an elbow beside a body,
 # the head of someone behind another): their extent says nothing of a person's size.
 MIN_KEYPOINTS_FOR_SIZE = 5
@@ -62,14 +70,14 @@ class PeopleSizedInput:
                                   full_height_px})  # fmt: skip
         self._frames_since_full = math.inf
         self._smallest_last_px: float | None = None
-        self._smallest_at_full_px: float | None = None
+        self._smallest_at_full_px: deque[float | None] = deque(maxlen=FULL_FRAMES_REMEMBERED)
 
     def next_height_px(self, frame_height_px: int) -> int:
         """The input height for the next frame, `frame_height_px` tall."""
         if self._frames_since_full + 1 >= self.full_input_every_frames:
             return self.full_height_px
-        sizes = [s for s in (self._smallest_last_px, self._smallest_at_full_px) if s is not None]
-        if self._smallest_last_px is None or not sizes:
+        sizes = [s for s in (self._smallest_last_px, *self._smallest_at_full_px) if s is not None]
+        if self._smallest_last_px is None:
             return self.full_height_px  # nobody found last frame: look at full size
         needed = frame_height_px * self.min_person_input_px / min(sizes)
         return next((h for h in self.heights_px if h >= needed), self.full_height_px)
@@ -80,6 +88,6 @@ class PeopleSizedInput:
         self._smallest_last_px = smallest
         if input_height_px >= self.full_height_px:
             self._frames_since_full = 0
-            self._smallest_at_full_px = smallest
+            self._smallest_at_full_px.append(smallest)
         else:
             self._frames_since_full += 1
