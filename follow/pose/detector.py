@@ -153,6 +153,10 @@ class PoseDetector:
         self._input_buffers: dict[tuple, np.ndarray] = {}
         self._frame_filter = FrameFilter.from_config(self.config)
         self.reset_input_sizing()
+        if self.input_sizing is not None:
+            log.info("pose: input height from the people in view: %s px, the full %d px "
+                     "every %d frames", "/".join(map(str, self.input_sizing.heights_px)),
+                     config.input_height_px, config.full_input_every_frames)  # fmt: skip
         self.last_input_height_px = config.input_height_px
         self.warm_up(frame_size)
 
