@@ -133,3 +133,23 @@ def test_the_detector_runs_a_person_seen_large_at_a_smaller_input(model_path, da
     for _ in range(3):
         fixed.detect(frame)
         assert fixed.last_input_height_px == 368
+
+
+def test_a_frame_of_another_size_runs_at_the_full_height(model_path, data_path):
+    """People measured in the pixels of frames of one size do not size the input of a
+    frame of another: a person 760 px tall in a 1280x960 frame would ask only 58 px of
+    input height of a 480 px frame, whose own people may be far smaller."""
+    from follow.pose.detector import PoseDetector
+
+    crop = cv2.imread(str(data_path("ccf_crops/p01.jpg")))
+    crop = cv2.resize(crop, (round(380 * crop.shape[1] / crop.shape[0]), 380))
+    small = np.full((480, 640, 3), 128, np.uint8)
+    small[50:430, 250 : 250 + crop.shape[1]] = crop
+    large = cv2.resize(small, (1280, 960))
+    config = PoseConfig(provider="cpu", precision="fp32", input_height_px=368, warmup_runs=0)
+    detector = PoseDetector(config, model_path("pose/human-pose-estimation-0001.onnx"))
+    heights = []
+    for frame in (large, large, small, small):
+        assert len([s for s in detector.detect(frame) if s.has(NECK)]) == 1
+        heights.append(detector.last_input_height_px)
+    assert heights == [368, 256, 368, 256]
