@@ -32,6 +32,13 @@ def test_people_stand_at_their_distances_in_the_image(data_root):
     assert (frame[y0 + height // 2, x0 + width // 2] != 128).any()  # the target is there
 
 
+@pytest.mark.parametrize(("people", "far_m", "distances_m"), [
+    (1, 8.0, [2.5]), (2, 8.0, [2.5, 8.0]), (3, 8.0, [2.5, 3.0, 8.0]),
+])  # fmt: skip
+def test_the_farthest_person_stands_at_far_m(data_root, people, far_m, distances_m):
+    assert RobotScene(data_root, people=people, far_m=far_m).distances_m == distances_m
+
+
 def test_people_walk_side_to_side(data_root):
     scene = RobotScene(data_root, people=1)
     assert scene.person_box_px(0, 0)[0] != scene.person_box_px(0, 20)[0]

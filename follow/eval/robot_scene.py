@@ -65,7 +65,8 @@ class RobotScene:
         self.camera = CameraModel.from_fov(FRAME_SIZE, HORIZONTAL_FOV_DEG,
                                            CameraPose(height_m=CAMERA_HEIGHT_M))  # fmt: skip
         self.sequence = self  # what the benchmark reads frames from
-        others = np.linspace(3.0, far_m, people - 1) if people > 1 else np.zeros(0)
+        # one other person stands at far_m: the farthest, as with more
+        others = np.linspace(3.0, far_m, people - 1) if people > 2 else np.full(people - 1, far_m)
         self.distances_m = [TARGET_DISTANCE_M, *others.tolist()]
         crops = scene_crop_files(Path(data_dir))[:people]
         self._crops = [[self._read(p) for p in files] for files in crops]
