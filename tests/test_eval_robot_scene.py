@@ -69,6 +69,23 @@ def test_bench_on_the_robot_scene_runs_the_target_alone_at_smaller_inputs(data_r
     assert result["people_in_view_max"] == 1
 
 
+def test_each_bench_pass_starts_its_input_heights_afresh(data_root, model_path):
+    """The stages and the runner each play the frames from the first on, on one
+    detector: a pass sizes its first frames from its own, not from the last pass's."""
+    from follow.config import Config
+    from follow.eval import bench
+    from follow.pose.detector import PoseDetector
+
+    model_path("pose/human-pose-estimation-0001.onnx")
+    scene = RobotScene(data_root, people=1, frame_count=7)
+    config = Config().replace("pose", warmup_runs=0)
+    detector = PoseDetector(config.pose)
+    first, second = (bench.stage_times(config, detector, scene, 7, 0, True) for _ in range(2))
+    # full height on the first frame and the 7th, whichever pass it is
+    assert first["input_height_px_shares"] == second["input_height_px_shares"]
+    assert first["input_height_px_shares"][368] == pytest.approx(2 / 7, abs=1e-3)
+
+
 def test_pose_scene_compares_people_sized_with_fixed_input(data_root, monkeypatch, model_path):
     from follow.eval import pose_scene
 

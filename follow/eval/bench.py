@@ -306,9 +306,12 @@ class _SelectsSomeone:
 
 
 def _learning_perception(config, setup, detector):
-    """The stack on `detector`, with an identifier that learns someone."""
+    """The stack on `detector`, with an identifier that learns someone; the detector
+    forgets the people of an earlier pass over the frames (each pass starts again at the
+    first frame)."""
     from follow.run import build_perception
 
+    detector.reset_input_sizing()
     perception = build_perception(config, setup.camera, lambda frame: detector.detect(frame.image),
                                   detector.backend_name)  # fmt: skip
     perception.identifier = _SelectsSomeone(perception.identifier)
