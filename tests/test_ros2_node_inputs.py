@@ -231,3 +231,31 @@ def test_a_target_unseen_longer_than_the_target_timeout_is_not_published_for_nav
     finally:
         node.shutdown()
         node.destroy_node()
+
+
+def test_the_pose_network_is_warmed_up_at_the_camera_s_image_size(monkeypatch):
+    """A runtime that compiles one model per input shape (OpenVINO) does it for every
+    input height before the first image, not on the images of each height as it comes."""
+    from pathlib import Path
+
+    from follow.pose import detector as detector_module
+
+    sizes = []
+
+    class Detector:
+        model_path = Path("pose.onnx")
+        backend_name = "openvino:CPU"
+
+        def __init__(self, config, model_path=None, frame_size=(640, 480)):
+            sizes.append(frame_size)
+
+        def detect(self, image):
+            return []
+
+    monkeypatch.setattr(detector_module, "PoseDetector", Detector)
+    made = FollowNode(Config().replace("identify", identifier="channels"), CAMERA)
+    try:
+        assert sizes == [CAMERA.image_size] == [(320, 240)]
+    finally:
+        made.shutdown()
+        made.destroy_node()

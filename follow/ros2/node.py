@@ -157,7 +157,9 @@ class FollowNode(Node):
             from follow.pose.detector import PoseDetector
             from follow.pose.input_size import pose_config_for_camera
 
-            detector = PoseDetector(pose_config_for_camera(self.config.pose, mounted))
+            # warmed up at the camera's image size, every input height it may run at
+            detector = PoseDetector(pose_config_for_camera(self.config.pose, mounted),
+                                    frame_size=mounted.image_size)  # fmt: skip
             self.model_name = f"{detector.model_path.name} on {detector.backend_name}"
             self._pose_backend = detector.backend_name
 
