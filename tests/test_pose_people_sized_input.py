@@ -38,6 +38,12 @@ def schedule(every: int = 6) -> PeopleSizedInput:
 
 def test_heights_are_few_fixed_steps_up_to_the_full_one():
     assert schedule().heights_px == [256, 288, 320, 352, 368]
+    assert PeopleSizedInput(376, 85.0, 6).heights_px == [256, 288, 320, 352, 376]
+
+
+def test_a_wide_camera_s_full_height_takes_wider_steps_not_more_shapes():
+    assert PeopleSizedInput(576, 85.0, 6).heights_px == [256, 336, 416, 496, 576]
+    assert PeopleSizedInput(192, 85.0, 6).heights_px == [192]  # under 256: one height
 
 
 def test_a_fragment_has_no_size_and_a_skeleton_its_keypoints_extent():

@@ -22,6 +22,7 @@ from collections import deque
 import numpy as np
 
 from follow.pose.input_size import MIN_INPUT_HEIGHT_PX
+from follow.pose.preprocess import NETWORK_STRIDE_PX
 from follow.types import Skeleton
 
 # The smaller heights are steps of this many pixels from MIN_INPUT_HEIGHT_PX up: few
@@ -29,6 +30,9 @@ from follow.types import Skeleton
 # model per shape), 25-30 MiB of memory; steps of 64 px saved 50 MB there but ran five
 # people within 5 m 4-5 ms a frame slower (320 px where 288 px did).
 HEIGHT_STEP_PX = 32
+# At most this many smaller heights: a wide camera's 576 px full height takes wider
+# steps rather than eleven shapes (eleven compiled models with OpenVINO).
+MAX_SMALLER_HEIGHTS = 4
 # A person found at one full-height frame and missed at the next is still looked for at
 # a height that finds them until this many full-height frames have missed them: a far
 # person the full height finds 9 times in 10 is otherwise lost for a whole schedule
@@ -66,7 +70,9 @@ class PeopleSizedInput:
         self.full_height_px = full_height_px
         self.min_person_input_px = min_person_input_px
         self.full_input_every_frames = full_input_every_frames
-        self.heights_px = sorted({*range(MIN_INPUT_HEIGHT_PX, full_height_px, HEIGHT_STEP_PX),
+        step = max(HEIGHT_STEP_PX, NETWORK_STRIDE_PX * math.ceil(
+            (full_height_px - MIN_INPUT_HEIGHT_PX) / MAX_SMALLER_HEIGHTS / NETWORK_STRIDE_PX))
+        self.heights_px = sorted({*range(MIN_INPUT_HEIGHT_PX, full_height_px, step),
                                   full_height_px})  # fmt: skip
         self._frames_since_full = math.inf
         self._smallest_last_px: float | None = None
