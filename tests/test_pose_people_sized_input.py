@@ -57,54 +57,63 @@ def test_the_first_frame_runs_at_the_full_height():
 
 def test_large_people_run_the_smallest_input_that_keeps_them_85_px_tall():
     sizing = schedule()
-    sizing.observe([person(50, 400), person(100, 300)], 368)
+    sizing.observe([person(50, 400), person(100, 300)], 368, FRAME_HEIGHT_PX)
     # 300 px of 480 needs 480 * 85 / 300 = 136 px: the smallest step
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 256
-    sizing.observe([person(50, 400), person(150, 150)], 256)
+    sizing.observe([person(50, 400), person(150, 150)], 256, FRAME_HEIGHT_PX)
     # 150 px of 480 needs 272 px: the next step up
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 288
 
 
 def test_a_far_person_keeps_the_full_height():
     sizing = schedule()
-    sizing.observe([person(50, 400), person(200, 110)], 368)  # needs 371 px
+    sizing.observe([person(50, 400), person(200, 110)], 368, FRAME_HEIGHT_PX)  # needs 371 px
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 368
 
 
 def test_a_far_person_seen_at_the_last_full_height_counts_though_missed_since():
     sizing = schedule()
-    sizing.observe([person(50, 400), person(200, 150)], 368)
-    sizing.observe([person(50, 400)], 288)  # the far one missed at the smaller input
+    sizing.observe([person(50, 400), person(200, 150)], 368, FRAME_HEIGHT_PX)
+    # the far one missed at the smaller input
+    sizing.observe([person(50, 400)], 288, FRAME_HEIGHT_PX)
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 288  # not 256: it may still be there
 
 
 def test_a_far_person_missed_by_one_full_height_frame_is_still_looked_for():
     sizing = schedule(every=2)
-    sizing.observe([person(50, 400), person(200, 110)], 368)  # the far one: full height
-    sizing.observe([person(50, 400)], 368)  # a full-height frame missed the far one
+    # the far one found at the full height, then a full-height frame missed it
+    sizing.observe([person(50, 400), person(200, 110)], 368, FRAME_HEIGHT_PX)
+    sizing.observe([person(50, 400)], 368, FRAME_HEIGHT_PX)
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 368
-    sizing.observe([person(50, 400)], 368)  # and a second one: it has gone
+    sizing.observe([person(50, 400)], 368, FRAME_HEIGHT_PX)  # and a second one: it has gone
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 256
 
 
 def test_an_empty_frame_and_the_schedule_bring_the_full_height_back():
     sizing = schedule(every=3)
-    sizing.observe([person(50, 400)], 368)
+    sizing.observe([person(50, 400)], 368, FRAME_HEIGHT_PX)
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 256
-    sizing.observe([], 256)  # nobody found at the small input: look at full size
+    sizing.observe([], 256, FRAME_HEIGHT_PX)  # nobody found at the small input: look at full size
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 368
-    sizing.observe([person(50, 400)], 368)
+    sizing.observe([person(50, 400)], 368, FRAME_HEIGHT_PX)
     heights = []
     for _ in range(6):
         height = sizing.next_height_px(FRAME_HEIGHT_PX)
         heights.append(height)
-        sizing.observe([person(50, 400)], height)
+        sizing.observe([person(50, 400)], height, FRAME_HEIGHT_PX)
     assert heights == [256, 256, 368, 256, 256, 368]
+
+
+def test_sizes_seen_in_frames_of_another_size_are_forgotten():
+    sizing = schedule()
+    sizing.observe([person(50, 760)], 368, 960)
+    assert sizing.next_height_px(960) == 256
+    assert sizing.next_height_px(480) == 368  # 760 px of a 960 px frame says nothing here
 
 
 def test_every_frame_full_with_a_schedule_of_one():
     sizing = schedule(every=1)
-    sizing.observe([person(50, 400)], 368)
+    sizing.observe([person(50, 400)], 368, FRAME_HEIGHT_PX)
     assert sizing.next_height_px(FRAME_HEIGHT_PX) == 368
 
 

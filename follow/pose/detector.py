@@ -164,7 +164,6 @@ class PoseDetector:
         """Forget the people of earlier frames (before another video): the next frame
         runs at the full input height."""
         config = self.config
-        self._sized_frame_height_px: int | None = None  # the frames the sizes were seen in
         self.input_sizing = (
             PeopleSizedInput(config.input_height_px, config.min_person_input_px,
                              config.full_input_every_frames)
@@ -212,15 +211,11 @@ class PoseDetector:
         t0 = time.perf_counter()
         height = None
         if self.input_sizing is not None and isinstance(image_bgr, np.ndarray) and image_bgr.ndim:
-            if self._sized_frame_height_px not in (None, image_bgr.shape[0]):
-                # people's heights in px of frames of another size say nothing of this one's
-                self.reset_input_sizing()
             height = self.input_sizing.next_height_px(image_bgr.shape[0])
         heatmaps, pafs, plan = self.infer(image_bgr, height)
         skeletons = self.decode(heatmaps, pafs, plan)
         self.last_input_height_px = plan.input_size[1]
         if self.input_sizing is not None:
-            self.input_sizing.observe(skeletons, plan.input_size[1])
-            self._sized_frame_height_px = plan.original_size[1]
+            self.input_sizing.observe(skeletons, plan.input_size[1], plan.original_size[1])
         self.last_timing_ms["total"] = (time.perf_counter() - t0) * 1e3
         return skeletons

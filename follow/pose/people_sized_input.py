@@ -70,27 +70,37 @@ class PeopleSizedInput:
         self.full_height_px = full_height_px
         self.min_person_input_px = min_person_input_px
         self.full_input_every_frames = full_input_every_frames
-        step = max(HEIGHT_STEP_PX, NETWORK_STRIDE_PX * math.ceil(
-            (full_height_px - MIN_INPUT_HEIGHT_PX) / MAX_SMALLER_HEIGHTS / NETWORK_STRIDE_PX))
+        strides = math.ceil((full_height_px - MIN_INPUT_HEIGHT_PX) / MAX_SMALLER_HEIGHTS
+                            / NETWORK_STRIDE_PX)  # fmt: skip
+        step = max(HEIGHT_STEP_PX, strides * NETWORK_STRIDE_PX)
         self.heights_px = sorted({*range(MIN_INPUT_HEIGHT_PX, full_height_px, step),
                                   full_height_px})  # fmt: skip
+        self._forget()
+
+    def _forget(self) -> None:
+        """No earlier frames: the next one runs at the full height."""
+        self._frame_height_px: int | None = None  # of the frames the sizes were seen in
         self._frames_since_full = math.inf
         self._smallest_last_px: float | None = None
         self._smallest_at_full_px: deque[float | None] = deque(maxlen=FULL_FRAMES_REMEMBERED)
 
     def next_height_px(self, frame_height_px: int) -> int:
         """The input height for the next frame, `frame_height_px` tall."""
+        if self._frame_height_px not in (None, frame_height_px):
+            self._forget()  # sizes in px of frames of another size say nothing of this one's
         if self._frames_since_full + 1 >= self.full_input_every_frames:
             return self.full_height_px
-        sizes = [s for s in (self._smallest_last_px, *self._smallest_at_full_px) if s is not None]
         if self._smallest_last_px is None:
             return self.full_height_px  # nobody found last frame: look at full size
+        sizes = [s for s in (self._smallest_last_px, *self._smallest_at_full_px) if s is not None]
         needed = frame_height_px * self.min_person_input_px / min(sizes)
         return next((h for h in self.heights_px if h >= needed), self.full_height_px)
 
-    def observe(self, skeletons: list[Skeleton], input_height_px: int) -> None:
-        """What a frame run at `input_height_px` found."""
+    def observe(self, skeletons: list[Skeleton], input_height_px: int,
+                frame_height_px: int) -> None:  # fmt: skip
+        """What a frame `frame_height_px` tall, run at `input_height_px`, found."""
         smallest = smallest_person_px(skeletons)
+        self._frame_height_px = frame_height_px
         self._smallest_last_px = smallest
         if input_height_px >= self.full_height_px:
             self._frames_since_full = 0
