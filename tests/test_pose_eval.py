@@ -153,3 +153,21 @@ def test_near_people_under_sensor_noise(data_path, model_path, capsys):
     assert by_variant["noise"]["neck"] + 0.2 < by_variant["original"]["neck"], by_variant
     assert cli.main(["eval", "pose-near", "--variants", "offset50"]) != 0
     assert "pose-near has no sequence" in capsys.readouterr().err
+
+
+def test_a_person_is_found_by_a_neck_in_the_upper_part_and_an_ankle_in_the_lower():
+    """The rule `follow eval pose-near` and `pose-scene` share: box (100, 50, 60, 200)."""
+    import numpy as np
+
+    from follow.eval.pose_near import ankle_found, observations_on_person
+    from follow.types import Observation
+
+    box = (100, 50, 60, 200)
+    on = Observation(np.array([130.0, 90.0]), np.array([130.0, 240.0]))
+    neck_too_low = Observation(np.array([130.0, 140.0]), np.array([130.0, 240.0]))  # 0.45 h
+    beside = Observation(np.array([170.0, 90.0]))
+    ankle_too_high = Observation(np.array([120.0, 80.0]), np.array([120.0, 190.0]))  # 0.7 h
+    found = observations_on_person([on, neck_too_low, beside, ankle_too_high], box)
+    assert found == [on, ankle_too_high]
+    assert ankle_found(found, box)
+    assert not ankle_found([ankle_too_high], box)

@@ -81,6 +81,20 @@ def frames_with_people(crop_paths, person_height_px: int):
     return out
 
 
+def observations_on_person(observations, box) -> list:
+    """The observations whose neck lies on the person of `box` (x0, y0, w, h): within its
+    width, in the upper NECK_ZONE of its height."""
+    x0, y0, w, h = box
+    return [o for o in observations
+            if x0 <= o.neck_px[0] <= x0 + w and y0 <= o.neck_px[1] <= y0 + NECK_ZONE * h]  # fmt: skip
+
+
+def ankle_found(on_person, box) -> bool:
+    """Whether one of the person's observations has its ankle in the lower part of `box`."""
+    _, y0, _, h = box
+    return any(o.ankle_px is not None and o.ankle_px[1] >= y0 + ANKLE_ZONE * h for o in on_person)
+
+
 def detection_rates(detector, frames) -> tuple[float, float, float]:
     """(share with the neck found, share with neck and ankle found, extra skeletons
     on the person per person)."""
@@ -89,16 +103,14 @@ def detection_rates(detector, frames) -> tuple[float, float, float]:
     from follow.pose.observations import skeletons_to_observations
 
     necks = ankles = extra = 0
-    for frame, (x0, y0, w, h) in tqdm(frames, desc=f"pose-near h={detector.config.input_height_px}",
-                                      unit="frame", leave=False):  # fmt: skip
+    for frame, box in tqdm(frames, desc=f"pose-near h={detector.config.input_height_px}",
+                           unit="frame", leave=False):  # fmt: skip
         observations = skeletons_to_observations(detector.detect(frame), FRAME_SIZE,
                                                  detector.config)  # fmt: skip
-        on_person = [o for o in observations
-                     if x0 <= o.neck_px[0] <= x0 + w and y0 <= o.neck_px[1] <= y0 + NECK_ZONE * h]  # fmt: skip
+        on_person = observations_on_person(observations, box)
         necks += bool(on_person)
         extra += max(len(on_person) - 1, 0)
-        ankles += any(o.ankle_px is not None and o.ankle_px[1] >= y0 + ANKLE_ZONE * h
-                      for o in on_person)  # fmt: skip
+        ankles += ankle_found(on_person, box)
     return necks / len(frames), ankles / len(frames), extra / len(frames)
 
 

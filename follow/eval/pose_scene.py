@@ -46,7 +46,7 @@ def person_rates(detector, scene, frames: int) -> dict:
     """Per person: neck and ankle found shares; input height shares; mean network ms."""
     from tqdm import tqdm
 
-    from follow.eval.pose_near import ANKLE_ZONE, NECK_ZONE
+    from follow.eval.pose_near import ankle_found, observations_on_person
     from follow.eval.robot_scene import FRAME_SIZE
     from follow.pose.observations import skeletons_to_observations
 
@@ -59,12 +59,10 @@ def person_rates(detector, scene, frames: int) -> dict:
         inference_ms.append(detector.last_timing_ms["inference"])
         observations = skeletons_to_observations(skeletons, FRAME_SIZE, detector.config)
         for person in range(people):
-            x0, y0, w, h = scene.person_box_px(person, index)
-            on = [o for o in observations if x0 <= o.neck_px[0] <= x0 + w
-                  and y0 <= o.neck_px[1] <= y0 + NECK_ZONE * h]  # fmt: skip
-            necks[person] += bool(on)
-            ankles[person] += any(o.ankle_px is not None and o.ankle_px[1] >= y0 + ANKLE_ZONE * h
-                                  for o in on)  # fmt: skip
+            box = scene.person_box_px(person, index)
+            on_person = observations_on_person(observations, box)
+            necks[person] += bool(on_person)
+            ankles[person] += ankle_found(on_person, box)
     return {
         "neck": np.round(necks / frames, 3).tolist(),
         "ankle": np.round(ankles / frames, 3).tolist(),
