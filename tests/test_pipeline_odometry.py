@@ -51,15 +51,23 @@ def _tracking(stamp_s: float, robot: Odometry | None = None) -> FrameResult:
                        TargetEstimate(TargetStatus.TRACKING, 1, {1: 0.9}, stamp_s))  # fmt: skip
 
 
-def test_no_fresh_odometry_stops_logs_once_and_resumes(caplog):
-    now = [0.0]
-    base, slot = _Base(), LatestSlot()
+def _following(base, now: list[float], frame_at=_tracking):
+    """A control loop on `base` (clock `now[0]`) after ten 15 Hz frames that see the
+    target ahead (`frame_at(stamp)`): (loop, its slot, the last command)."""
+    slot = LatestSlot()
     loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=15.0,
                        perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
     for _ in range(10):
         now[0] += 1 / 15
-        slot.put(_tracking(now[0]))
+        slot.put(frame_at(now[0]))
         moving = loop.tick()
+    return loop, slot, moving
+
+
+def test_no_fresh_odometry_stops_logs_once_and_resumes(caplog):
+    now = [0.0]
+    base = _Base()
+    loop, slot, moving = _following(base, now)
     assert moving.forward_mps > 0.5
     base.fresh = False
     with caplog.at_level(logging.WARNING, logger="follow.control.odometry"):
@@ -183,13 +191,7 @@ def test_odometry_that_jumped_since_the_frame_drives_nothing():
     def tracking(stamp_s: float) -> FrameResult:  # captured at the robot's pose then
         return _tracking(stamp_s, dataclasses.replace(pose[0], stamp_s=stamp_s))
 
-    base, slot = StampedBase(), LatestSlot()
-    loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=15.0,
-                       perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
-    for _ in range(10):
-        now[0] += 1 / 15
-        slot.put(tracking(now[0]))
-        moving = loop.tick()
+    loop, slot, moving = _following(StampedBase(), now, tracking)
     assert moving.forward_mps > 0.5 and moving.yaw_rate_radps == 0.0
     pose[0] = Odometry(0.0, 0.0, 1.5, 0.0)  # the heading "changed" by 86 degrees at once
     for _ in range(3):
