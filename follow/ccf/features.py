@@ -15,6 +15,7 @@ from typing import Protocol, runtime_checkable
 import cv2
 import numpy as np
 
+from follow.ccf.roi import clip_roi
 from follow.types import InvalidInput
 
 Roi = tuple[int, int, int, int]
@@ -134,7 +135,7 @@ def cut_crops(image_bgr: np.ndarray, rois: Sequence[Roi], crop_size: tuple[int, 
     out = np.empty((len(rois), height, width, 3), dtype=np.uint8)
     for i, roi in enumerate(rois):
         x0, y0, x1, y1 = (int(v) for v in roi)
-        cx0, cy0, cx1, cy1 = max(0, x0), max(0, y0), min(iw, x1), min(ih, y1)
+        cx0, cy0, cx1, cy1 = clip_roi((x0, y0, x1, y1), (iw, ih))
         if cx1 - cx0 < 1 or cy1 - cy0 < 1:
             raise InvalidInput(f"ROI {roi} is empty inside a {iw}x{ih} image")
         crop = image_bgr[cy0:cy1, cx0:cx1]
