@@ -7,6 +7,7 @@ rover, or a malformed connection string, is refused by name. Conventions (setpoi
 frame and mask, yaw-rate sign, NED to odom) are checked by hand-computed examples."""
 
 import math
+import random
 import re
 import time
 
@@ -242,37 +243,139 @@ def test_telemetry_held_by_the_link_and_delivered_late_is_not_fresh_odometry(veh
         assert base.odometry().x_m == 0.0  # the live pose, the rover's
 
 
-def test_a_vehicle_clock_slower_than_ours_or_paused_a_while_still_gives_fresh_odometry(
-    vehicle,
+PERIOD_S = 1 / 30  # telemetry at 30 Hz
+SETTLE_S = FAST["odometry_timeout_s"]
+SETTLE_FRAMES = math.ceil(SETTLE_S / PERIOD_S) + 1  # frames received after the settle time
+
+
+class Telemetry:
+    """The driver on a fake clock, its LOCAL_POSITION_NED and ATTITUDE handed to it by
+    the test as its receiver would (the vehicle sends heartbeats only). `at_s` and
+    `boot_ms` are our clock and the vehicle's when the newest frame was produced."""
+
+    def __init__(self, base, now):
+        self.base, self.now = base, now
+        self.header = base._heartbeat._header
+        self.at_s, self.boot_ms = now[0], 600_000.0
+
+    def deliver(self, received_s, boot_ms, north=0.0):
+        """One frame (a LOCAL_POSITION_NED and an ATTITUDE of vehicle time boot_ms)
+        received at received_s; the odometry then."""
+        self.now[0] = received_s
+        for msg in (mavlink.MAVLink_local_position_ned_message(round(boot_ms), north, 0, 0, 0, 0, 0),
+                    mavlink.MAVLink_attitude_message(round(boot_ms), 0, 0, 0, 0, 0, 0)):  # fmt: skip
+            msg._header = self.header
+            self.base._on_message(msg)
+        return self.odometry()
+
+    def odometry(self):
+        odo = self.base.odometry()
+        assert odo is None or odo.stamp_s <= self.now[0]  # never produced after its receipt
+        return odo
+
+    def produce(self, seconds, rate=1.0):
+        """The vehicle's frames over the next `seconds` of our clock, its clock running at
+        `rate` times ours: [(produced at on our clock, boot_ms)]."""
+        frames = []
+        for _ in range(round(seconds / PERIOD_S)):
+            self.at_s += PERIOD_S
+            self.boot_ms += rate * PERIOD_S * 1000
+            frames.append((self.at_s, self.boot_ms))
+        return frames
+
+    def live(self, seconds, rate=1.0, jitter_s=0.0, rng=None):
+        """Live telemetry for `seconds`, each frame received up to jitter_s early or late:
+        for each frame, whether odometry was fresh on its receipt and until just before
+        the next one's."""
+        frames = self.produce(seconds, rate)
+        received = [at + (rng.uniform(-jitter_s, jitter_s) if rng else 0.0) for at, _ in frames]
+        fresh = []
+        for k, (_, boot_ms) in enumerate(frames):
+            ok = self.deliver(received[k], boot_ms) is not None
+            if k + 1 < len(frames):
+                self.now[0] = received[k + 1] - 1e-6
+                ok = ok and self.odometry() is not None
+            fresh.append(ok)
+        return fresh
+
+    def pause(self, seconds, rate=0.0):
+        """Nothing arrives for `seconds`; the vehicle's clock runs at `rate` times ours."""
+        self.at_s += seconds
+        self.boot_ms += rate * seconds * 1000
+        self.now[0] = self.at_s
+
+
+@pytest.fixture
+def telemetry(vehicle):
+    vehicle.rover.telemetry = lambda: None  # only what the test hands the driver
+    now = [1000.0]
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST),
+                     clock=lambda: now[0]) as base:  # fmt: skip
+        yield Telemetry(base, now)
+
+
+def test_a_held_backlog_delivered_in_bursts_is_not_fresh_odometry(telemetry):
+    """A link holds 1.5 s of telemetry while it is down and delivers it when it is back as
+    15 radio frames 40 ms apart, each packing three frames of telemetry (six messages):
+    the newest message of each burst is 1.4 s to 0.56 s old, and none may count as
+    fresh (from the second burst on they did: its first message after the 40 ms pause
+    looked live and the offset was learnt again from it). Live telemetry afterwards is
+    fresh at once: nothing of the backlog moved the offset."""
+    assert all(telemetry.live(1.0)[SETTLE_FRAMES:])
+    held = telemetry.produce(1.5)  # the link is down: these wait in it
+    back_s = telemetry.at_s
+    for k in range(15):
+        received_s = back_s + 0.04 * k
+        burst = held[3 * k : 3 * k + 3]
+        assert received_s - burst[-1][0] > SETTLE_S  # older than odometry_timeout_s
+        for _, boot_ms in burst:
+            assert telemetry.deliver(received_s, boot_ms, north=5.0) is None, f"burst {k}"
+    telemetry.pause(0.56, rate=1.0)  # what the vehicle sent while the link drained is lost
+    fresh = telemetry.live(1.0)
+    assert all(fresh), fresh
+    assert telemetry.odometry().x_m == 0.0  # the live pose
+
+
+def test_a_vehicle_clock_at_half_our_rate_gives_odometry_throughout(telemetry):
+    # A simulator at half real time: the offset of its clock to ours grows all the time,
+    # and is followed after at most the settle time from the first message.
+    fresh = telemetry.live(5.0, rate=0.5)
+    assert all(fresh[SETTLE_FRAMES:]), fresh
+
+
+@pytest.mark.parametrize("jitter_s", [0.0, 0.01])
+def test_a_simulator_paused_and_resumed_gives_odometry_again_after_the_settle_time(
+    telemetry, jitter_s
 ):
-    """Telemetry is timed by the vehicle's own clock, which need not run at our rate: a
-    simulator at half real time, or paused and resumed, still gives fresh odometry (the
-    first message after the pause aside, which is as old as the pause)."""
-    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
-        assert wait_for(lambda: base.odometry() is not None, 1.0)
-        vehicle.rover.silent = True  # from here on only the messages below
-        header, boot = base._heartbeat._header, [base._newest["ATTITUDE"][0].time_boot_ms]
+    """A simulator paused for 2 s: its first messages afterwards could as well be a
+    backlog 2 s old, so they are not fresh; once they have come steadily for the settle
+    time (odometry_timeout_s, 0.3 s here) they are, at most one frame later (each frame
+    received on time, or up to 10 ms early or late)."""
+    rng = random.Random(3)
+    assert all(telemetry.live(1.0, jitter_s=jitter_s, rng=rng)[SETTLE_FRAMES:])
+    telemetry.pause(2.0)
+    assert telemetry.odometry() is None
+    fresh = telemetry.live(1.0, jitter_s=jitter_s, rng=rng)
+    back_after_s = fresh.index(True) * PERIOD_S  # from the first frame after the pause
+    assert SETTLE_S - 2 * jitter_s <= back_after_s <= SETTLE_S + PERIOD_S + 0.001, fresh
+    assert all(fresh[SETTLE_FRAMES:]), fresh
 
-        def telemetry(advance_ms):
-            boot[0] += advance_ms
-            for msg in (mavlink.MAVLink_local_position_ned_message(boot[0], 0, 0, 0, 0, 0, 0),
-                        mavlink.MAVLink_attitude_message(boot[0], 0, 0, 0, 0, 0, 0)):  # fmt: skip
-                msg._header = header
-                base._on_message(msg)
 
-        fresh = []
-        for _ in range(25):  # 1 s at half real time
-            time.sleep(0.04)
-            telemetry(20)
-            fresh.append(base.odometry() is not None)
-        assert all(fresh[5:]), fresh
-        time.sleep(0.8)  # paused: the vehicle's clock stands still
-        fresh = []
-        for _ in range(10):
-            telemetry(20)
-            fresh.append(base.odometry() is not None)
-            time.sleep(0.04)
-        assert not fresh[0] and all(fresh[3:]), fresh
+@pytest.mark.parametrize("rate", [1.0, 0.98, 0.5])
+def test_receive_jitter_never_loses_odometry(telemetry, rate):
+    # Each frame received up to 10 ms early or late, for 20 s: with the vehicle's clock at
+    # our rate, a little slower (raised now and then), or at half of it.
+    fresh = telemetry.live(20.0, rate=rate, jitter_s=0.01, rng=random.Random(7))
+    assert all(fresh[SETTLE_FRAMES:]), fresh.index(False, SETTLE_FRAMES)
+
+
+def test_a_vehicle_reboot_learns_the_offset_anew(telemetry):
+    assert all(telemetry.live(1.0)[SETTLE_FRAMES:])
+    telemetry.pause(3.0)  # rebooting
+    telemetry.boot_ms = 2_000.0  # its boot clock starts again
+    fresh = telemetry.live(1.0)
+    assert all(fresh), fresh
+    assert telemetry.odometry().stamp_s == pytest.approx(telemetry.now[0])
 
 
 def test_attitude_from_another_component_is_not_odometry(vehicle):

@@ -17,6 +17,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 
 from pymavlink import mavutil
@@ -30,6 +31,12 @@ mavlink = mavutil.mavlink
 
 # Boot-time counters that jump back by more than this are a vehicle reboot, not reordering.
 _REBOOT_JUMP_MS = 10_000
+# How far the vehicle's clock may seem to run ahead of ours across a window of telemetry
+# through receive jitter alone (the window's first message late, its last one early).
+_TELEMETRY_JITTER_S = 0.03
+# Messages of one type kept for that window, at most (it spans odometry_timeout_s: 400 at
+# 200 Hz over 2 s). Past it the oldest go, and a window too short raises nothing.
+_TELEMETRY_WINDOW_MAX = 1024
 # Vehicles that run Rover firmware (ArduPilot Rover drives boats too; a PX4 rover is a
 # ground rover): another type's mode numbers mean other modes (ArduCopter's 15 is
 # AUTOTUNE, not GUIDED), so it is refused.
@@ -90,6 +97,8 @@ class MavlinkBase:
         # type -> (message, its time on our clock, received at)
         self._newest: dict[str, tuple[object, float, float]] = {}
         self._boot_offset_s: float | None = None  # our clock minus the vehicle's boot clock
+        # type -> (received at, time_boot_ms in s) of its recent messages, oldest first
+        self._telemetry_windows: dict[str, deque[tuple[float, float]]] = {}
         self._acks: dict[int, tuple[int, float]] = {}  # command id -> (result, received at)
         self._command: tuple[VelocityCommand, float] | None = None
         self._engaged = False  # we have put the vehicle in our mode
@@ -395,33 +404,58 @@ class MavlinkBase:
                     back_ms = previous[0].time_boot_ms - msg.time_boot_ms
                     if 0 <= back_ms < _REBOOT_JUMP_MS:
                         return  # reordered or repeated: keep the newer one
-                stamp = self._telemetry_stamp_locked(msg, now, previous)
+                stamp = self._telemetry_stamp_locked(kind, msg, now, previous)
                 self._newest[kind] = (msg, stamp, now)
             else:
                 return
             self._changed.notify_all()
 
-    def _telemetry_stamp_locked(self, msg, received_s: float, previous) -> float:
+    def _telemetry_stamp_locked(self, kind: str, msg, received_s: float, previous) -> float:
         """When `msg` was produced, on our clock: its `time_boot_ms` plus the offset of
-        the vehicle's clock to ours. Its receipt time would make a backlog (messages
-        held by a link while it was down, delivered all at once when it is back) as
-        fresh as live data. The offset is taken from live telemetry: a message that came
-        within odometry_timeout_s of the one before it of its type, with the vehicle's
-        clock advanced no more than ours between them (a backlog arrives faster than it
-        was produced); from any message with a smaller offset (a shorter way here); and
-        anew after a vehicle reboot. A clock running slow (a simulator below real time)
-        is followed that way; a link that steadily falls further behind cannot be told
-        from one, and its telemetry counts as live."""
+        the vehicle's clock to ours (our clock minus its boot clock). Its receipt time
+        would make a backlog (messages a link held while it was down) as fresh as live
+        data. The offset is
+        - learnt from the first message, and anew after a vehicle reboot;
+        - lowered by any message with a smaller offset: it came here a shorter way, so
+          the offset is at most that;
+        - raised (a vehicle clock slower than ours: a simulator below real time, or
+          paused and resumed) only to the smallest offset among the recent messages of
+          this type, and only once they make a window that spans at least the settle
+          time (`odometry_timeout_s`) on our clock, with no gap longer than
+          `odometry_timeout_s` between two of them, across which the vehicle's clock
+          advanced no more than ours (plus `_TELEMETRY_JITTER_S`).
+        A backlog being drained arrives faster than it was produced, its delay
+        shrinking, so no window over it qualifies, whether it comes at once or in bursts
+        (a radio packing several messages a frame): a rule over one pair of messages
+        was fooled by the first message after each pause between bursts, which looks
+        live. The smallest offset of the window is taken, not the newest: the window's
+        quickest message counts as undelayed, each other one as late as it was behind
+        it. The settle time is `odometry_timeout_s`: the window lags a vehicle clock
+        running at a fraction r of our rate by (1 - r) of it, so a simulator at half
+        real time stays well within the time-out; a shorter one would let slower drains
+        pass (a drain is refused when it outruns our clock by more than
+        `_TELEMETRY_JITTER_S` per settle time), a longer one would keep odometry away
+        longer after a pause. What is left is what no receiver can tell without a round
+        trip (MAVLink TIMESYNC): a link whose delay has stayed steady, or grown, for the
+        settle time counts as live, however long the delay; and the first message, or
+        the first after a reboot, is taken as live."""
         boot_s = msg.time_boot_ms / 1000.0
         offset_s = received_s - boot_s
-        live = previous is not None and (
-            received_s - previous[2] <= self.config.odometry_timeout_s
-            and boot_s - previous[0].time_boot_ms / 1000.0 <= received_s - previous[2]
-        )  # fmt: skip
-        if self._boot_offset_s is None or live or offset_s < self._boot_offset_s or (
-            previous is not None and previous[0].time_boot_ms > msg.time_boot_ms  # rebooted
-        ):
+        settle_s = timeout_s = self.config.odometry_timeout_s
+        rebooted = previous is not None and previous[0].time_boot_ms > msg.time_boot_ms
+        window = self._telemetry_windows.setdefault(kind, deque(maxlen=_TELEMETRY_WINDOW_MAX))
+        if rebooted or (window and received_s - window[-1][0] > timeout_s):
+            window.clear()  # a new vehicle clock, or a gap: the steady run starts again
+        window.append((received_s, boot_s))
+        while len(window) > 1 and window[1][0] <= received_s - settle_s:
+            window.popleft()  # keep one message at least settle_s old, none older
+        if self._boot_offset_s is None or rebooted or offset_s < self._boot_offset_s:
             self._boot_offset_s = offset_s
+        first_received_s, first_boot_s = window[0]
+        ours_s = received_s - first_received_s
+        if ours_s >= settle_s and boot_s - first_boot_s <= ours_s + _TELEMETRY_JITTER_S:
+            smallest_s = min(r - b for r, b in window)
+            self._boot_offset_s = max(self._boot_offset_s, smallest_s)
         return boot_s + self._boot_offset_s
 
     def _on_heartbeat_locked(self) -> None:
