@@ -298,6 +298,23 @@ class Telemetry:
             fresh.append(ok)
         return fresh
 
+    def held_and_delivered_in_bursts(self):
+        """The link holds 1.5 s of telemetry and delivers it as 15 radio frames 40 ms
+        apart, each packing three frames of telemetry (six messages), the newest 1.4 s to
+        0.56 s old; what the vehicle sends meanwhile is lost. Whether odometry came from
+        each burst."""
+        held = self.produce(1.5)
+        back_s = self.at_s
+        odometry = []
+        for k in range(15):
+            received_s = back_s + 0.04 * k
+            burst = held[3 * k : 3 * k + 3]
+            assert received_s - burst[-1][0] > SETTLE_S  # older than odometry_timeout_s
+            odometry.append([self.deliver(received_s, boot_ms, north=5.0) is not None
+                             for _, boot_ms in burst])  # fmt: skip
+        self.pause(0.56, rate=1.0)
+        return [any(burst) for burst in odometry]
+
     def pause(self, seconds, rate=0.0):
         """Nothing arrives for `seconds`; the vehicle's clock runs at `rate` times ours."""
         self.at_s += seconds
@@ -315,25 +332,33 @@ def telemetry(vehicle):
 
 
 def test_a_held_backlog_delivered_in_bursts_is_not_fresh_odometry(telemetry):
-    """A link holds 1.5 s of telemetry while it is down and delivers it when it is back as
-    15 radio frames 40 ms apart, each packing three frames of telemetry (six messages):
-    the newest message of each burst is 1.4 s to 0.56 s old, and none may count as
-    fresh (from the second burst on they did: its first message after the 40 ms pause
-    looked live and the offset was learnt again from it). Live telemetry afterwards is
-    fresh at once: nothing of the backlog moved the offset."""
+    """A link holds 1.5 s of telemetry while it is down and delivers it when it is back in
+    15 bursts 40 ms apart: none of it may count as fresh (from the second burst on it
+    did: its first message after the 40 ms pause looked live and the offset was learnt
+    again from it). Live telemetry afterwards is fresh at once: nothing of the backlog
+    moved the offset."""
     assert all(telemetry.live(1.0)[SETTLE_FRAMES:])
-    held = telemetry.produce(1.5)  # the link is down: these wait in it
-    back_s = telemetry.at_s
-    for k in range(15):
-        received_s = back_s + 0.04 * k
-        burst = held[3 * k : 3 * k + 3]
-        assert received_s - burst[-1][0] > SETTLE_S  # older than odometry_timeout_s
-        for _, boot_ms in burst:
-            assert telemetry.deliver(received_s, boot_ms, north=5.0) is None, f"burst {k}"
-    telemetry.pause(0.56, rate=1.0)  # what the vehicle sent while the link drained is lost
+    assert not any(telemetry.held_and_delivered_in_bursts())
     fresh = telemetry.live(1.0)
     assert all(fresh), fresh
     assert telemetry.odometry().x_m == 0.0  # the live pose
+
+
+@pytest.mark.parametrize("after_reboot", [False, True])
+def test_a_backlog_as_the_first_telemetry_heard_is_not_fresh_odometry(telemetry, after_reboot):
+    """The first telemetry the driver hears, or the first after the vehicle rebooted, may
+    be a backlog too (a router that kept the vehicle's messages, a radio that held them):
+    in bursts it is no odometry (it was, the offset learnt from its first message and
+    lowered by each later one), nor are the live messages after it until they have come
+    steadily for the settle time."""
+    if after_reboot:
+        assert all(telemetry.live(1.0)[SETTLE_FRAMES:])
+        telemetry.pause(3.0)  # rebooting
+        telemetry.boot_ms = 2_000.0  # its boot clock starts again
+    assert not any(telemetry.held_and_delivered_in_bursts())
+    fresh = telemetry.live(1.0)
+    assert not any(fresh[: SETTLE_FRAMES - 2]) and all(fresh[SETTLE_FRAMES:]), fresh
+    assert telemetry.odometry().x_m == 0.0
 
 
 def test_a_vehicle_clock_at_half_our_rate_gives_odometry_throughout(telemetry):
@@ -370,11 +395,13 @@ def test_receive_jitter_never_loses_odometry(telemetry, rate):
 
 
 def test_a_vehicle_reboot_learns_the_offset_anew(telemetry):
+    # Its boot clock starts again: the offset is learnt from it, and odometry comes back
+    # once its telemetry has come steadily for the settle time, stamped on its new clock.
     assert all(telemetry.live(1.0)[SETTLE_FRAMES:])
     telemetry.pause(3.0)  # rebooting
-    telemetry.boot_ms = 2_000.0  # its boot clock starts again
+    telemetry.boot_ms = 2_000.0
     fresh = telemetry.live(1.0)
-    assert all(fresh), fresh
+    assert not any(fresh[: SETTLE_FRAMES - 2]) and all(fresh[SETTLE_FRAMES:]), fresh
     assert telemetry.odometry().stamp_s == pytest.approx(telemetry.now[0])
 
 

@@ -99,6 +99,7 @@ class MavlinkBase:
         self._boot_offset_s: float | None = None  # our clock minus the vehicle's boot clock
         # type -> (received at, time_boot_ms in s) of its recent messages, oldest first
         self._telemetry_windows: dict[str, deque[tuple[float, float]]] = {}
+        self._boot_offset_proven = False  # a steady window came since it was learnt
         self._acks: dict[int, tuple[int, float]] = {}  # command id -> (result, received at)
         self._command: tuple[VelocityCommand, float] | None = None
         self._engaged = False  # we have put the vehicle in our mode
@@ -156,11 +157,13 @@ class MavlinkBase:
         """Pose from the newest LOCAL_POSITION_NED and ATTITUDE, stamped with the older
         time of the two (their own time, `_telemetry_stamp_locked`); None when either is
         missing, older than odometry_timeout_s or not finite (an estimator without a
-        solution)."""
+        solution), or while the vehicle's clock is not yet known (until telemetry has
+        come steadily for odometry_timeout_s, at the start and after a reboot)."""
         with self._lock:
             pos = self._newest.get("LOCAL_POSITION_NED")
             att = self._newest.get("ATTITUDE")
-        if pos is None or att is None:
+            proven = self._boot_offset_proven
+        if pos is None or att is None or not proven:
             return None
         stamp = min(pos[1], att[1])
         if self._clock() - stamp > self.config.odometry_timeout_s:
@@ -415,7 +418,9 @@ class MavlinkBase:
         the vehicle's clock to ours (our clock minus its boot clock). Its receipt time
         would make a backlog (messages a link held while it was down) as fresh as live
         data. The offset is
-        - learnt from the first message, and anew after a vehicle reboot;
+        - learnt from the first message, and anew after a vehicle reboot, but trusted
+          (`odometry` gives nothing before) only once a window, as below, has come:
+          the first messages heard may be a backlog too;
         - lowered by any message with a smaller offset: it came here a shorter way, so
           the offset is at most that;
         - raised (a vehicle clock slower than ours: a simulator below real time, or
@@ -437,25 +442,30 @@ class MavlinkBase:
         `_TELEMETRY_JITTER_S` per settle time), a longer one would keep odometry away
         longer after a pause. What is left is what no receiver can tell without a round
         trip (MAVLink TIMESYNC): a link whose delay has stayed steady, or grown, for the
-        settle time counts as live, however long the delay; and the first message, or
-        the first after a reboot, is taken as live."""
+        settle time counts as live, however long the delay."""
         boot_s = msg.time_boot_ms / 1000.0
         offset_s = received_s - boot_s
         settle_s = timeout_s = self.config.odometry_timeout_s
         rebooted = previous is not None and previous[0].time_boot_ms > msg.time_boot_ms
+        if rebooted:  # a new vehicle clock: no window of the old one proves it
+            for window in self._telemetry_windows.values():
+                window.clear()
         window = self._telemetry_windows.setdefault(kind, deque(maxlen=_TELEMETRY_WINDOW_MAX))
-        if rebooted or (window and received_s - window[-1][0] > timeout_s):
-            window.clear()  # a new vehicle clock, or a gap: the steady run starts again
+        if window and received_s - window[-1][0] > timeout_s:
+            window.clear()  # a gap: the steady run starts again
         window.append((received_s, boot_s))
         while len(window) > 1 and window[1][0] <= received_s - settle_s:
             window.popleft()  # keep one message at least settle_s old, none older
-        if self._boot_offset_s is None or rebooted or offset_s < self._boot_offset_s:
+        if self._boot_offset_s is None or rebooted:
+            self._boot_offset_s, self._boot_offset_proven = offset_s, False
+        elif offset_s < self._boot_offset_s:
             self._boot_offset_s = offset_s
         first_received_s, first_boot_s = window[0]
         ours_s = received_s - first_received_s
         if ours_s >= settle_s and boot_s - first_boot_s <= ours_s + _TELEMETRY_JITTER_S:
             smallest_s = min(r - b for r, b in window)
             self._boot_offset_s = max(self._boot_offset_s, smallest_s)
+            self._boot_offset_proven = True
         return boot_s + self._boot_offset_s
 
     def _on_heartbeat_locked(self) -> None:
