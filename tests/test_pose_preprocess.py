@@ -118,3 +118,22 @@ def test_the_unsharp_mask_steepens_a_soft_edge_and_leaves_flat_areas():
     assert np.abs(np.diff(sharp[10, :, 0].astype(int))).max() > slope
     np.testing.assert_array_equal(sharp[:, :20], soft[:, :20])
     np.testing.assert_array_equal(sharp[:, 45:], soft[:, 45:])
+
+
+@pytest.mark.parametrize(("frame_size", "input_height_px", "interpolation"), [
+    ((640, 480), 368, "INTER_LINEAR"),  # a robot camera's frame to the robot input: 0.77x
+    ((640, 480), 256, "INTER_LINEAR"),  # the smallest people-sized input: 0.53x
+    ((1920, 1080), 368, "INTER_AREA"),  # a 1080p frame: 0.34x, bilinear would skip pixels
+    ((320, 240), 368, "INTER_LINEAR"),  # enlarged
+])  # fmt: skip
+def test_a_frame_is_shrunk_bilinearly_down_to_half_size_and_area_averaged_below(
+    frame_size, input_height_px, interpolation
+):
+    import cv2
+
+    width, height = frame_size
+    rng = np.random.default_rng(0)
+    frame = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)  # every pixel its own
+    tensor, plan = prepare_frame(frame, input_height_px)
+    expected = cv2.resize(frame, plan.resized_size, interpolation=getattr(cv2, interpolation))
+    np.testing.assert_array_equal(tensor[0, :, : plan.resized_size[0]], expected)

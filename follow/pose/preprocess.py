@@ -133,8 +133,16 @@ def _resized(
         image_bgr = frame_filter(image_bgr)
     height, width = image_bgr.shape[:2]
     plan = plan_letterbox((width, height), input_height_px)
-    interpolation = cv2.INTER_AREA if plan.scale_xy[1] < 1 else cv2.INTER_LINEAR
-    return cv2.resize(image_bgr, plan.resized_size, interpolation=interpolation), plan
+    return cv2.resize(image_bgr, plan.resized_size, interpolation=_interpolation(plan)), plan
+
+
+def _interpolation(plan: Letterbox) -> int:
+    """Bilinear down to half size, area averaging below. Bilinear still reads every
+    pixel at half size or more, and is 5-8x faster: 0.2-0.3 ms against 1.4-2.1 ms for
+    a 640x480 frame to 256-368 px, a 20th of a 30 fps frame; the robot scene's and the
+    robot-camera crops' recall did not change (docs/pose.md). Smaller than half, it
+    would skip pixels and alias."""
+    return cv2.INTER_AREA if plan.scale_xy[1] < 0.5 else cv2.INTER_LINEAR
 
 
 def _padded_buffer(buffers, image_bgr, shape, dtype) -> np.ndarray:
