@@ -282,8 +282,11 @@ class IdentifyConfig:
     reid_similarity_scale: float = 0.25  # similarity span mapped to confidence +-1
     reid_weight: float = 0.5  # weight of the re-id confidence in a fused confidence
     reid_threads: int = 1  # onnxruntime threads of the re-id network
-    # Where the re-id network runs: "cpu", "cuda", or "auto" = CUDA when onnxruntime
-    # offers it. The CPU by default: on CUDA it gained nothing measurable (docs/pose.md).
+    # Where the re-id network runs: "cpu" = on OpenVINO where the openvino package is
+    # installed (1.5x onnxruntime's speed, the same embeddings), else on onnxruntime;
+    # "onnxruntime" (its CPU provider always), "openvino", "cuda", or "auto" = CUDA when
+    # onnxruntime offers it, else as "cpu". The CPU by default: on CUDA it gained nothing
+    # measurable (docs/pose.md).
     reid_provider: str = "cpu"
 
 

@@ -21,7 +21,7 @@ POSE_PRECISIONS = ("auto", "fp32", "int8")
 # A rule of the identifier that may apply only beside a re-id cue
 # (follow.identify.appearance.reid_rule_applies).
 REID_RULE_CHOICES = ("with_reid", "always", "never")
-REID_PROVIDERS = ("auto", "cpu", "cuda")
+REID_PROVIDERS = ("auto", "cpu", "cuda", "openvino", "onnxruntime")
 IDENTIFIERS = ("ccf10", "ccf25", "channels", "reid", "ccf10+reid", "ccf25+reid", "channels+reid")
 AUTOPILOTS = ("ardupilot", "px4")
 # Text keys with free values (a model name is checked by the model registry, a file

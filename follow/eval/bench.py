@@ -103,7 +103,9 @@ def bench_config(args) -> Config:
         config = Config.load(args.config) if args.config else Config()
     if args.provider:
         config = config.replace("pose", provider=args.provider)
-        if args.provider not in ("auto", *GPU_PROVIDERS):  # a CPU cell: all on the CPU
+        if args.provider == "cpu":  # the plain install's runtime for both networks
+            config = config.replace("identify", reid_provider="onnxruntime")
+        elif args.provider not in ("auto", *GPU_PROVIDERS):  # a CPU cell: all on the CPU
             config = config.replace("identify", reid_provider="cpu")
     return config
 
