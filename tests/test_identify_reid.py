@@ -203,6 +203,30 @@ def test_openvino_gives_the_embeddings_onnxruntime_gives(model_path, data_path):
     assert np.all(cosine > 0.995), cosine
 
 
+@pytest.mark.parametrize("provider", ["openvino", "onnxruntime"])
+def test_a_reid_model_with_a_free_batch_dimension_loads_on_either_runtime(
+    model_path, data_path, tmp_path, provider
+):
+    """The network exported with a named batch dimension gives the embeddings of the
+    fixed-batch one on both runtimes (OpenVINO refused it: its input shape was read as a
+    static shape)."""
+    if provider == "openvino":
+        pytest.importorskip("openvino")
+    import cv2
+    import onnx
+
+    model = model_path("reid/person-reidentification-retail-0248.onnx")
+    graph = onnx.load(str(model))
+    for value in (graph.graph.input[0], graph.graph.output[0]):
+        value.type.tensor_type.shape.dim[0].dim_param = "batch"
+    free_batch = tmp_path / "reid_free_batch.onnx"
+    onnx.save(graph, str(free_batch))
+    crops = [cv2.imread(str(data_path(f"ccf_crops/{n}.jpg"))) for n in ("p01", "n01-01")]
+    fixed = ReidEmbedder(model, provider=provider).embed_crops(crops)
+    free = ReidEmbedder(free_batch, provider=provider).embed_crops(crops)
+    np.testing.assert_allclose(free, fixed, atol=1e-4)
+
+
 def test_a_reid_provider_outside_the_choices_is_refused_by_the_configuration(tmp_path):
     from follow.config import Config
 

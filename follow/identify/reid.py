@@ -107,7 +107,10 @@ class ReidEmbedder:
 
         core = openvino_core()
         model = core.read_model(str(model_path))
-        _check_input_shape(model_path, list(model.inputs[0].get_partial_shape().to_shape()))
+        shape = model.inputs[0].get_partial_shape()
+        _check_input_shape(model_path, [d.get_length() if d.is_static else str(d) for d in shape])
+        if shape.is_dynamic:  # a free batch dimension (onnxruntime takes it): one crop
+            model.reshape([1, REID_INPUT_SIZE[1], REID_INPUT_SIZE[0], 3])
         steps = PrePostProcessor(model)
         steps.input().tensor().set_element_type(ov.Type.u8)
         config = {"PERFORMANCE_HINT": "LATENCY", "INFERENCE_NUM_THREADS": max(1, int(threads))}
