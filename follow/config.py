@@ -281,7 +281,7 @@ class IdentifyConfig:
     reid_same_similarity: float = 0.5  # cosine similarity mapped to confidence 0
     reid_similarity_scale: float = 0.25  # similarity span mapped to confidence +-1
     reid_weight: float = 0.5  # weight of the re-id confidence in a fused confidence
-    reid_threads: int = 1  # onnxruntime threads of the re-id network
+    reid_threads: int = 1  # CPU threads of the re-id network (onnxruntime or OpenVINO)
     # Where the re-id network runs: "cpu" = on OpenVINO where the openvino package is
     # installed (1.5x onnxruntime's speed, the same embeddings), else on onnxruntime;
     # "onnxruntime" (its CPU provider always), "openvino", "cuda", or "auto" = CUDA when
