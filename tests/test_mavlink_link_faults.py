@@ -258,12 +258,14 @@ class Telemetry:
         self.header = base._heartbeat._header
         self.at_s, self.boot_ms = now[0], 600_000.0
 
-    def deliver(self, received_s, boot_ms, north=0.0):
-        """One frame (a LOCAL_POSITION_NED and an ATTITUDE of vehicle time boot_ms)
-        received at received_s; the odometry then."""
+    def deliver(self, received_s, boot_ms, north=0.0, position=True):
+        """One frame (a LOCAL_POSITION_NED, unless not `position`, and an ATTITUDE of
+        vehicle time boot_ms) received at received_s; the odometry then."""
         self.now[0] = received_s
         for msg in (mavlink.MAVLink_local_position_ned_message(round(boot_ms), north, 0, 0, 0, 0, 0),
                     mavlink.MAVLink_attitude_message(round(boot_ms), 0, 0, 0, 0, 0, 0)):  # fmt: skip
+            if msg.get_type() == "LOCAL_POSITION_NED" and not position:
+                continue
             msg._header = self.header
             self.base._on_message(msg)
         return self.odometry()
@@ -283,7 +285,7 @@ class Telemetry:
             frames.append((self.at_s, self.boot_ms))
         return frames
 
-    def live(self, seconds, rate=1.0, jitter_s=0.0, rng=None):
+    def live(self, seconds, rate=1.0, jitter_s=0.0, rng=None, position=True):
         """Live telemetry for `seconds`, each frame received up to jitter_s early or late:
         for each frame, whether odometry was fresh on its receipt and until just before
         the next one's."""
@@ -291,7 +293,7 @@ class Telemetry:
         received = [at + (rng.uniform(-jitter_s, jitter_s) if rng else 0.0) for at, _ in frames]
         fresh = []
         for k, (_, boot_ms) in enumerate(frames):
-            ok = self.deliver(received[k], boot_ms) is not None
+            ok = self.deliver(received[k], boot_ms, position=position) is not None
             if k + 1 < len(frames):
                 self.now[0] = received[k + 1] - 1e-6
                 ok = ok and self.odometry() is not None
@@ -402,6 +404,21 @@ def test_a_vehicle_reboot_learns_the_offset_anew(telemetry):
     telemetry.boot_ms = 2_000.0
     fresh = telemetry.live(1.0)
     assert not any(fresh[: SETTLE_FRAMES - 2]) and all(fresh[SETTLE_FRAMES:]), fresh
+    assert telemetry.odometry().stamp_s == pytest.approx(telemetry.now[0])
+
+
+def test_after_a_reboot_a_position_back_later_than_the_attitude_is_fresh_at_once(telemetry):
+    """After a reboot the vehicle's attitude comes back before its position (its
+    estimator has no position yet): the attitude proves the new clock, and the position
+    is fresh from its first message. Its own message before the reboot, of the old
+    clock, made that first message a second reboot, and odometry waited the settle time
+    again."""
+    assert all(telemetry.live(1.0)[SETTLE_FRAMES:])
+    telemetry.pause(3.0)  # rebooting
+    telemetry.boot_ms = 2_000.0
+    assert not any(telemetry.live(2.0, position=False))  # no position: no odometry
+    fresh = telemetry.live(1.0)
+    assert all(fresh), fresh
     assert telemetry.odometry().stamp_s == pytest.approx(telemetry.now[0])
 
 

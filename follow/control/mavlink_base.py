@@ -100,6 +100,7 @@ class MavlinkBase:
         # type -> (received at, time_boot_ms in s) of its recent messages, oldest first
         self._telemetry_windows: dict[str, deque[tuple[float, float]]] = {}
         self._boot_offset_proven = False  # a steady window came since it was learnt
+        self._boot_clock_since_s = -math.inf  # when the vehicle's current clock was learnt
         self._acks: dict[int, tuple[int, float]] = {}  # command id -> (result, received at)
         self._command: tuple[VelocityCommand, float] | None = None
         self._engaged = False  # we have put the vehicle in our mode
@@ -446,7 +447,14 @@ class MavlinkBase:
         boot_s = msg.time_boot_ms / 1000.0
         offset_s = received_s - boot_s
         settle_s = timeout_s = self.config.odometry_timeout_s
-        rebooted = previous is not None and previous[0].time_boot_ms > msg.time_boot_ms
+        # A jump back from a message of the current clock; one from a message heard before
+        # it was learnt (a position back after the reboot that the attitude told of) is
+        # that reboot, already known.
+        rebooted = (
+            previous is not None
+            and previous[0].time_boot_ms > msg.time_boot_ms
+            and previous[2] >= self._boot_clock_since_s
+        )
         if rebooted:  # a new vehicle clock: no window of the old one proves it
             for window in self._telemetry_windows.values():
                 window.clear()
@@ -458,6 +466,7 @@ class MavlinkBase:
             window.popleft()  # keep one message at least settle_s old, none older
         if self._boot_offset_s is None or rebooted:
             self._boot_offset_s, self._boot_offset_proven = offset_s, False
+            self._boot_clock_since_s = received_s
         elif offset_s < self._boot_offset_s:
             self._boot_offset_s = offset_s
         first_received_s, first_boot_s = window[0]
