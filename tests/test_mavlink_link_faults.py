@@ -370,6 +370,13 @@ def test_a_vehicle_clock_at_half_our_rate_gives_odometry_throughout(telemetry):
     assert all(fresh[SETTLE_FRAMES:]), fresh
 
 
+def test_a_vehicle_clock_faster_than_ours_gives_no_odometry(telemetry):
+    # A simulator above real time delivers telemetry faster than our clock runs, as a
+    # backlog being drained does: it never proves the offset, and the robot stays still
+    # (docs/control.md) rather than trusting what could be old.
+    assert not any(telemetry.live(3.0, rate=2.0))
+
+
 @pytest.mark.parametrize("jitter_s", [0.0, 0.01])
 def test_a_simulator_paused_and_resumed_gives_odometry_again_after_the_settle_time(
     telemetry, jitter_s
