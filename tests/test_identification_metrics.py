@@ -147,6 +147,28 @@ def test_the_target_is_selected_only_where_a_click_would_pick_out_its_track():
     assert _pick(TargetPicker(1), tracks, returning, (3, 11), returning[11]) == 31
 
 
+def test_a_track_whose_neck_is_at_the_targets_waist_is_not_picked_for_it():
+    """Under JPEG 75, PETS target 4's companion was detected as a broken skeleton whose
+    neck lay at the target's waist: its track was picked out for the target alone (the
+    target's own was not yet confirmed) and followed for the rest of the run. A click on
+    the target's neck, at the top of its box (100 px tall from y = 50), gets the track
+    whose neck is there."""
+    import dataclasses
+
+    import numpy as np
+
+    from follow.eval.identification import TargetPicker
+    from follow.types import Observation
+
+    people = {4: _annotated(0.0, 100.0)}
+    at_waist = dataclasses.replace(
+        _track(27, 0.3, 120.0), observation=Observation(np.array([120.0, 95.0]))
+    )
+    assert _pick(TargetPicker(1), [at_waist], people, (4,), people[4]) is None
+    at_neck = _track(29, 0.1, 118.0)  # neck at y = 70, a fifth of the box down
+    assert _pick(TargetPicker(1), [at_waist, at_neck], people, (4,), people[4]) == 29
+
+
 def test_the_target_is_selected_on_a_track_picked_out_for_a_steady_second():
     """PETS person 3 walks inside person 4's box for 20 frames before the annotation
     gives him a box of his own: a single frame in which his track is the only neck in
