@@ -464,6 +464,8 @@ class ThreadedRunner:
         for error in (self.capture_error, self.pose_error):
             if error is not None:
                 raise error
+        if self.control.error is not None:  # failed after the last frame was looked at
+            raise RuntimeError("control loop failed") from self.control.error
 
     @property
     def dropped_frames(self) -> int:

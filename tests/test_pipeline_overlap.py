@@ -335,3 +335,36 @@ def test_without_a_stall_limit_a_pause_in_the_source_is_waited_out():
     runner = _runner(_TimedPerception(0.005), overlap=False)
     runner.run(pausing_file())
     assert runner.captured == 6
+
+
+@pytest.mark.parametrize("overlap", [False, True])
+def test_a_control_loop_failure_after_the_last_frame_is_still_raised(overlap):
+    """The control thread fails once the last frame has been concluded (the source then
+    ends): the run must end with the error, not report a clean end of input."""
+    failing = threading.Event()
+
+    class _Controller(FollowingController):
+        def update(self, target, now_s):
+            if failing.is_set():
+                raise ZeroDivisionError("controller broke")
+            return super().update(target, now_s)
+
+    perception = _TimedPerception(0.005)
+
+    def frames_then_failure():
+        yield from _frames(3)
+        deadline = time.monotonic() + 5.0
+        while 2 not in perception.concluded and time.monotonic() < deadline:
+            time.sleep(0.005)
+        time.sleep(0.1)  # the runner has looked at the control loop after the last frame
+        failing.set()
+        time.sleep(0.3)  # the control loop ticks (and fails) before the source ends
+
+    base = NullBase()
+    control = ControlLoop(_Controller(ControlConfig()), base, LatestSlot(), rate_hz=50.0,
+                          perception_timeout_s=0.5)  # fmt: skip
+    runner = ThreadedRunner(perception, control, base, overlap_stages=overlap)
+    with pytest.raises(RuntimeError, match="control loop failed") as failure:
+        runner.run(frames_then_failure())
+    assert isinstance(failure.value.__cause__, ZeroDivisionError)
+    assert base.commands[-1].is_stop
