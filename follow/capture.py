@@ -19,6 +19,8 @@ log = logging.getLogger(__name__)
 
 # Containers may count a frame more than they decode; fewer than this is a short file.
 EARLY_END_TOLERANCE_FRAMES = 1
+# Failed reads in a row skipped as damaged frames before a file counts as cut short.
+MAX_UNDECODABLE_RUN = 30
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
 
@@ -86,6 +88,7 @@ class FrameSource:
                 yield frame
             return
         index = 0
+        position = 0  # a file's frames read or found undecodable: their time
         start = time.monotonic()
         failures = 0
         while True:
@@ -99,15 +102,32 @@ class FrameSource:
                         f"source {self.spec}: the camera delivered no frame after {index} "
                         "frames (every read since failed: disconnected or stalled?)"
                     )
-                self._warn_if_short(index)
+                if self._frames_announced_after(position) and failures < MAX_UNDECODABLE_RUN:
+                    failures += 1  # a damaged frame, or the end of a file cut short
+                    position += 1
+                    continue
+                self._warn_if_short(position - failures)
                 return
+            if failures and not self.live:  # frames after them: they were damaged
+                first = position - failures
+                log.warning("source %s: frame%s %s cannot be decoded: skipped", self.spec,
+                            "s" if failures > 1 else "",
+                            first if failures == 1 else f"{first}-{position - 1}")  # fmt: skip
             failures = 0
-            stamp = time.monotonic() - start if self.live else index / self.fps
+            stamp = time.monotonic() - start if self.live else position / self.fps
             index += 1
+            position += 1
             try:
                 yield Frame(image, stamp)
             except InvalidInput as exc:  # pragma: no cover - decoder gave something odd
                 log.warning("skipping frame %d: %s", index, exc)
+
+    def _frames_announced_after(self, position: int) -> bool:
+        """Whether a file's header announces frames beyond `position`: a read that fails
+        before them is a damaged frame, not the end of the file."""
+        if self.frame_count is None:
+            return False
+        return position < self.frame_count - EARLY_END_TOLERANCE_FRAMES
 
     def _warn_if_short(self, read: int) -> None:
         """A file that ends before the frame count its header announces is truncated or

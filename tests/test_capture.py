@@ -117,3 +117,23 @@ def test_an_unusable_image_in_a_folder_is_skipped_by_name(tmp_path, caplog):
     frames = list(FrameSource(str(tmp_path)))
     assert [int(f.image[0, 0, 0]) for f in frames] == [0, 40, 80]
     assert "001b.png" in caplog.text and "too small" in caplog.text
+
+
+def test_an_undecodable_frame_in_a_video_is_skipped_not_the_end_of_the_file(tmp_path, caplog):
+    path = tmp_path / "v.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
+    for i in range(30):
+        image = np.full((48, 64, 3), 90, np.uint8)
+        cv2.rectangle(image, (5 + i, 5), (20 + i, 40), (30, 60, 200), -1)
+        writer.write(image)
+    writer.release()
+    data = bytearray(path.read_bytes())
+    starts = [i for i in range(len(data) - 1) if data[i : i + 2] == b"\xff\xd8"]
+    assert len(starts) == 30  # one JPEG per frame
+    data[starts[15] + 2 : starts[15] + 400] = bytes(398)  # frame 15's picture destroyed
+    path.write_bytes(bytes(data))
+    frames = list(FrameSource(str(path)))
+    assert len(frames) == 29  # the frames after the damaged one are not lost
+    stamps = [f.stamp_s for f in frames]
+    assert stamps[14:16] == pytest.approx([1.4, 1.6])  # the gap keeps its time
+    assert "frame 15" in caplog.text and "cannot be decoded" in caplog.text
