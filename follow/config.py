@@ -11,6 +11,7 @@ unknown section or key, a value of the wrong type, or one outside its allowed ra
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -464,7 +465,10 @@ def _build_section(defaults, values: dict, where: str):
             raise ConfigError(f"{where}: unknown key '{key}'; known: {sorted(known)}")
         expected = field_types(section_cls, key, type(getattr(defaults, key)))
         if float in expected and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
+            try:
+                value = float(value)
+            except OverflowError:  # TOML integers are unbounded: past a float, infinite
+                value = math.inf if value > 0 else -math.inf
         if not isinstance(value, expected) or (bool not in expected and isinstance(value, bool)):
             names = " or ".join(t.__name__ for t in expected)
             raise ConfigError(f"{where}: '{key}' must be {names}, got {type(value).__name__}")

@@ -43,7 +43,7 @@ class Range:
     multiple_of: int = 0  # integers only: the value must be a multiple of this
 
     def contains(self, value: float) -> bool:
-        if not math.isfinite(value):
+        if isinstance(value, float) and not math.isfinite(value):  # an int may exceed floats
             return False
         above = value > self.lo if self.lo_open else value >= self.lo
         below = value < self.hi if self.hi_open else value <= self.hi

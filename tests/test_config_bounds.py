@@ -1,5 +1,6 @@
 import dataclasses
 import math
+import re
 
 import pytest
 
@@ -119,3 +120,17 @@ def test_a_classifier_shape_the_booster_cannot_build_is_refused_at_load():
     with pytest.raises(ConfigError, match="weak_classifiers_per_selector"):
         Config.from_dict({"identify": {"weak_classifiers_per_selector": 1}})
     assert Config.from_dict({"identify": {"weak_classifiers_per_selector": 2}})
+
+
+@pytest.mark.parametrize(
+    "section,key", [("control", "max_forward_speed_mps"), ("identify", "seed")]
+)
+def test_an_integer_too_large_for_a_float_is_refused_by_name(tmp_path, section, key):
+    """TOML integers have no size limit in the reader: one past a float's range is an
+    out-of-range value like any other, not an OverflowError from inside the check."""
+    path = tmp_path / "c.toml"
+    path.write_text(f"[{section}]\n{key} = 1{'0' * 400}\n")
+    with pytest.raises(
+        ConfigError, match=rf"^config {re.escape(str(path))}: \[{section}\] {key} = .* out of range"
+    ):
+        Config.load(path)
