@@ -321,10 +321,11 @@ class CameraModel:
         single = pix.ndim == 1
         rays = self.pixel_rays_base(pix)
         dz = rays[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):  # a ray along the plane: inf * 0
             t = (plane_height_m - self._t[2]) / dz
+            pts = self._t + t[:, None] * rays
         ok = np.isfinite(t) & (t > 0) & (np.abs(dz) > _HORIZON_EPS)
-        pts = np.where(ok[:, None], self._t + t[:, None] * rays, np.nan)
+        pts = np.where(ok[:, None], pts, np.nan)
         return pts[0] if single else pts
 
     def back_project_to_ground(self, pixels: np.ndarray) -> np.ndarray:

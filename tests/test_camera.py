@@ -1,5 +1,6 @@
 import json
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -80,6 +81,17 @@ def test_pixels_above_horizon_have_no_ground_point():
     assert g is not None and g[0] > 5.0  # far away, just under the horizon
     assert a * below[0] + b * below[1] + c > 0 > a * above[0] + b * above[1] + c
     assert cam.is_below_horizon(np.array([below, above])).tolist() == [True, False]
+
+
+def test_a_pixel_on_the_horizon_has_no_ground_point_and_no_warning():
+    """The ray through it runs parallel to the floor: NaN, quietly (no RuntimeWarning
+    from numpy printed among a command's output)."""
+    cam = make_camera(pitch_deg=0.0)
+    on_horizon = np.array([100.0, cam.K[1, 2]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isnan(cam.back_project_to_ground(on_horizon)).all()
+        assert cam.ground_point(on_horizon) is None
 
 
 def test_points_behind_camera_project_to_nan():
