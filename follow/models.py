@@ -183,6 +183,14 @@ def get_spec(name: str) -> ModelSpec:
         raise ModelError(f"unknown model '{name}'; known: {sorted(REGISTRY)}") from None
 
 
+def model_root(spec: ModelSpec) -> Path | None:
+    """The first search folder that holds every file of `spec`: a model is loaded from
+    one folder, never pieced together from several."""
+    return next(
+        (d for d in search_dirs() if all((d / f.relpath).exists() for f in spec.files)), None
+    )
+
+
 def resolve(name: str, verify: bool = True) -> Path:
     """The path of a model's main file (or weight folder), hash-checked.
 
@@ -190,17 +198,17 @@ def resolve(name: str, verify: bool = True) -> Path:
     the file when its hash does not match.
     """
     spec = get_spec(name)
-    for root in search_dirs():
-        if all((root / f.relpath).exists() for f in spec.files):
-            if verify:
-                for f in spec.files:
-                    actual = sha256_of(root / f.relpath)
-                    if actual != f.sha256:
-                        raise ModelError(
-                            f"model '{name}': {root / f.relpath} has sha256 {actual}, "
-                            f"expected {f.sha256}; refusing to load it"
-                        )
-            return root / spec.main_file
+    root = model_root(spec)
+    if root is not None:
+        if verify:
+            for f in spec.files:
+                actual = sha256_of(root / f.relpath)
+                if actual != f.sha256:
+                    raise ModelError(
+                        f"model '{name}': {root / f.relpath} has sha256 {actual}, "
+                        f"expected {f.sha256}; refusing to load it"
+                    )
+        return root / spec.main_file
     looked = ", ".join(str(d) for d in search_dirs())
     raise ModelError(f"model '{name}' not found (looked in: {looked}); set $FOLLOW_MODEL_DIR")
 
@@ -217,13 +225,23 @@ class FileStatus:
 
 
 def verify(name: str) -> list[FileStatus]:
-    """Each file of model `name`: the first copy found and whether its sha256 matches."""
+    """Each file of model `name` as `resolve` would load it (from the first folder that
+    holds them all), else the first copy found, and whether its sha256 matches."""
     spec = get_spec(name)
+    root = model_root(spec)
     out = []
     for f in spec.files:
-        found = next((d / f.relpath for d in search_dirs() if (d / f.relpath).exists()), None)
+        if root is not None:
+            found = root / f.relpath
+        else:
+            found = next((d / f.relpath for d in search_dirs() if (d / f.relpath).exists()), None)
         if found is None:
             out.append(FileStatus(name, f.relpath, None, False, "missing"))
+            continue
+        if root is None and len(spec.files) > 1:
+            out.append(FileStatus(name, f.relpath, found, False,
+                                  "not with the model's other files: they must all sit "
+                                  "under one folder"))  # fmt: skip
             continue
         if found.is_dir():
             out.append(FileStatus(name, f.relpath, found, False, "a folder, not a file"))

@@ -167,3 +167,24 @@ def test_verify_reports_a_folder_in_place_of_a_model_file_and_goes_on(mirror, ca
     by_path = {f["path"].rsplit("/", 1)[-1]: f for f in report["files"]}
     assert not by_path["conv_t1"]["ok"] and "folder" in by_path["conv_t1"]["detail"]
     assert by_path["conv_t2"]["ok"]
+
+
+def test_verify_checks_the_copy_that_resolve_loads(mirror, cache, monkeypatch):
+    """A model's files are loaded from one folder: files split between $FOLLOW_MODEL_DIR
+    and the cache are no usable model, and a partial copy in the first folder does not
+    hide the whole one in the next."""
+    monkeypatch.setenv("FOLLOW_MODEL_DIR", str(mirror))
+    (cache / "ccf/ccf10").mkdir(parents=True)
+    shutil.move(mirror / "ccf/ccf10/conv_t2", cache / "ccf/ccf10/conv_t2")
+    with pytest.raises(models.ModelError, match="not found"):
+        models.resolve("ccf10")
+    statuses = models.verify("ccf10")
+    assert not all(s.ok for s in statuses)
+    assert "one folder" in " ".join(s.detail for s in statuses)
+
+    shutil.copy(mirror / "ccf/ccf10/conv_t1", cache / "ccf/ccf10/conv_t1")
+    (mirror / "ccf/ccf10/conv_t1").write_bytes(b"a partial, corrupt copy")
+    assert models.resolve("ccf10") == cache / "ccf/ccf10"
+    statuses = models.verify("ccf10")
+    assert all(s.ok for s in statuses)
+    assert {s.path.parent for s in statuses} == {cache / "ccf/ccf10"}
