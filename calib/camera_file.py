@@ -1,7 +1,8 @@
 """Reading and writing the camera file, with a record of how it was calibrated.
 
 The file is `follow.camera.CameraModel`'s YAML/JSON; a `calibration` section is added
-that `follow` ignores and people read: which command measured what, and its quality.
+that people read: which command measured what, and its quality. `follow` reads one note
+of it (`follow.camera.has_placeholder_pose`): a pose never measured drives no base.
 Files are replaced whole (`write_file_atomic`): a failed write never leaves a measured
 camera file half-written.
 """
@@ -16,21 +17,7 @@ from pathlib import Path
 
 import yaml
 
-from follow.camera import CameraModel
-
-
-def read_calibration_notes(path: str | Path) -> dict:
-    """The `calibration` section of an existing camera file ({} if none)."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-        data = (
-            yaml.safe_load(text) if path.suffix.lower() in (".yaml", ".yml") else json.loads(text)
-        )
-    except (OSError, ValueError, yaml.YAMLError):
-        return {}
-    notes = data.get("calibration") if isinstance(data, dict) else None
-    return dict(notes) if isinstance(notes, dict) else {}
+from follow.camera import CameraModel, read_calibration_notes
 
 
 def write_image_atomic(path: str | Path, image) -> None:

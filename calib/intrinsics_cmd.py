@@ -13,7 +13,7 @@ from calib import intrinsics as intr
 from calib.camera_file import write_camera_file
 from calib.chessboard import ImageInputError, iter_video_frames, list_inputs, read_image
 from calib.cmd_common import add_board_arguments, refuse_videos_among_images, video_source
-from follow.camera import CameraFileError, CameraModel, CameraPose
+from follow.camera import PLACEHOLDER_POSE_NOTE, CameraFileError, CameraModel, CameraPose
 from follow.cli_args import non_negative_float, positive_float
 
 log = logging.getLogger(__name__)
@@ -150,7 +150,7 @@ def main(args: argparse.Namespace) -> dict:
     pose_kept = kept_pose is not None
     pose = kept_pose if pose_kept else CameraPose(PLACEHOLDER_HEIGHT_M)
     if not pose_kept:
-        notes["pose"] = "placeholder: measure it with `follow-calib ground`"
+        notes["pose"] = PLACEHOLDER_POSE_NOTE  # `follow run` drives no base on it
     model = CameraModel(result.K, result.dist, result.image_size, pose)
     write_camera_file(args.output, model, notes)
     out = {

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +42,10 @@ def undistort_points(pixels: np.ndarray, K: np.ndarray, dist: np.ndarray, criter
 
 class CameraFileError(ValueError):
     """A camera file that cannot be read: the message names the file and the field."""
+
+
+class PlaceholderPoseError(ValueError):
+    """A base would be driven on a camera pose that was never measured."""
 
 
 def _rot_x(a: float) -> np.ndarray:
@@ -76,6 +81,10 @@ POSE_BOUNDS: dict[str, tuple[float, float]] = {
 # The keys of a camera file (docs/calibration.md); `calibration` is follow-calib's record
 # of how the file was measured (calib/camera_file.py), for people: follow ignores it.
 FILE_KEYS = ("image_width", "image_height", "camera_matrix", "distortion", "pose", "calibration")
+
+# The `calibration` note on a pose nobody measured: `follow-calib intrinsics` gives a new
+# camera file a level camera 1 m high with it, and `follow-calib ground` replaces it.
+PLACEHOLDER_POSE_NOTE = "placeholder: measure it with `follow-calib ground`"
 
 
 def _unique_keys(pairs: list[tuple]) -> dict:
@@ -486,3 +495,46 @@ class CameraModel:
         except Exception as exc:  # yaml and json raise different types
             raise CameraFileError(f"camera file {path}: not valid YAML/JSON ({exc})") from None
         return cls.from_dict(data, source=f"camera file {path}")
+
+
+def read_calibration_notes(path: str | Path) -> dict:
+    """The `calibration` section of a camera file ({} if none, or if the file cannot be
+    read: `CameraModel.load` is what reports a broken file)."""
+    import yaml
+
+    path = Path(path)
+    try:
+        text = path.read_text()
+        data = (
+            yaml.safe_load(text) if path.suffix.lower() in (".yaml", ".yml") else json.loads(text)
+        )
+    except (OSError, ValueError, yaml.YAMLError):
+        return {}
+    notes = data.get("calibration") if isinstance(data, dict) else None
+    return dict(notes) if isinstance(notes, dict) else {}
+
+
+def has_placeholder_pose(path: str | Path) -> bool:
+    """Whether the camera file's notes say its pose is a placeholder, not measured (see
+    `PLACEHOLDER_POSE_NOTE`). A file without notes (written by hand, imported, saved by
+    `CameraModel.save`) has a pose someone chose: it is taken as measured."""
+    note = read_calibration_notes(path).get("pose")
+    return isinstance(note, str) and note.strip().lower().startswith("placeholder")
+
+
+def check_pose_measured(path: str | Path, drives_base: bool, warn: Callable[[str], None]) -> None:
+    """Refuse (`PlaceholderPoseError`) to drive a base with a camera file whose pose is a
+    placeholder: every distance to a person would be wrong. Without a base, `warn` says so
+    and the run goes on."""
+    if not has_placeholder_pose(path):
+        return
+    if drives_base:
+        raise PlaceholderPoseError(
+            f"camera file {path}: the camera's pose on the robot is a placeholder, not "
+            "measured; run `follow-calib ground` before driving a base (or, having measured "
+            "the pose by hand, delete the `pose` note of its `calibration` section)"
+        )
+    warn(
+        f"camera file {path}: the camera's pose is a placeholder (run `follow-calib ground`): "
+        "distances to people are not measured"
+    )

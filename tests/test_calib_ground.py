@@ -10,7 +10,7 @@ from calib.camera_file import read_calibration_notes, write_camera_file
 from calib.chessboard import BoardNotFoundError, ImageInputError, detect_chessboard
 from calib.ground import GroundPoseError, average_frames, estimate_ground_pose, pitch_roll_from_up
 from calib.synthetic import BoardSpec, render_floor_board
-from follow.camera import CameraModel, CameraPose
+from follow.camera import PLACEHOLDER_POSE_NOTE, CameraModel, CameraPose, has_placeholder_pose
 
 # A 75 deg wide camera with noticeable barrel distortion, as on small robots.
 DIST = np.array([-0.18, 0.04, 0.001, -0.0005, 0.0])
@@ -194,6 +194,21 @@ def test_ground_command_to_another_file_keeps_the_intrinsics_notes(board_scene):
         notes = read_calibration_notes(folder / output)
         assert notes.items() >= {**measured, "pose": "follow-calib ground"}.items()
         assert "lens" not in notes and notes["pose_board_rms_px"] < 0.5
+
+
+def test_ground_command_measures_a_placeholder_pose(board_scene):
+    """The placeholder pose of `follow-calib intrinsics`, which `follow run` drives no base
+    on, is measured: in place, and into another file."""
+    _, folder = board_scene
+    notes = {"intrinsics": "follow-calib intrinsics", "pose": PLACEHOLDER_POSE_NOTE}
+    write_camera_file(folder / "cam.yaml", CameraModel.load(folder / "cam.yaml"), notes)
+    assert has_placeholder_pose(folder / "cam.yaml")
+    assert ground_command(folder / "board0.png", folder, "-o", str(folder / "new.json")) == 0
+    assert not has_placeholder_pose(folder / "new.json")
+    assert has_placeholder_pose(folder / "cam.yaml")  # the input is left as it was
+    assert ground_command(folder / "board0.png", folder) == 0
+    assert not has_placeholder_pose(folder / "cam.yaml")
+    assert read_calibration_notes(folder / "cam.yaml")["intrinsics"] == notes["intrinsics"]
 
 
 def test_ground_command_without_board_fails_cleanly(board_scene, capsys):

@@ -15,7 +15,7 @@ from calib.synthetic import (
     render_board,
     rotation_from_euler_deg,
 )
-from follow.camera import CameraModel, CameraPose
+from follow.camera import CameraModel, CameraPose, has_placeholder_pose
 
 BOARD = BoardSpec((9, 6), 0.03)
 TRUE_CAMERA = CameraModel.from_fov(
@@ -163,10 +163,12 @@ def test_intrinsics_command_on_a_folder(views, tmp_path, capsys):
     assert model.K[0, 0] == pytest.approx(TRUE_CAMERA.K[0, 0], rel=0.01)
     assert result["per_view_rms_px"].keys() == {f"synthetic_{i:02d}.png" for i in range(6)}
     assert result["pose_kept"] is False
+    assert has_placeholder_pose(out)  # `follow run` drives no base on it
     # Running again keeps a pose measured in between.
     model.with_pose(CameraPose(0.7, 0.2)).save(out)
     assert cli.main(argv + ["-o", str(out), "--json"]) == 0
     assert CameraModel.load(out).pose.height_m == pytest.approx(0.7)
+    assert not has_placeholder_pose(out)
     # A camera file that cannot be read is refused, not replaced: its pose would be lost.
     broken = out.read_text().replace("height_m: 0.7", "height_m: -0.7")
     out.write_text(broken)

@@ -200,3 +200,41 @@ def test_a_wide_lens_polynomial_never_folds_points_outside_the_view_into_the_ima
     assert (np.diff(uv[:, 0]) < 0).all()  # ever farther left
     inside = camera.project(np.array([3.0, 0.5, 0.9]))  # within the view: unchanged
     assert camera.in_image(inside)[0]
+
+
+@pytest.mark.parametrize(
+    "calibration, placeholder",
+    [
+        ({"pose": "placeholder: measure it with `follow-calib ground`"}, True),
+        ({"pose": "  Placeholder (edited by hand)"}, True),
+        ({"pose": "follow-calib ground"}, False),
+        ({"pose": "follow-calib import-tsai View_001.xml"}, False),
+        ({"intrinsics": "follow-calib intrinsics"}, False),
+        ({"pose": ["placeholder"]}, False),
+        (None, False),
+    ],
+)
+def test_a_placeholder_pose_is_told_by_the_calibration_notes(tmp_path, calibration, placeholder):
+    """A file without notes (by hand, `CameraModel.save`) or with a measured pose is
+    taken as measured, in YAML and JSON alike; a file that cannot be read is no
+    placeholder (`CameraModel.load` reports it)."""
+    from follow.camera import check_pose_measured, has_placeholder_pose
+
+    data = make_camera().to_dict()
+    if calibration is not None:
+        data["calibration"] = calibration
+    for name in ("cam.yaml", "cam.json"):
+        path = tmp_path / name
+        path.write_text(json.dumps(data))  # JSON is YAML too
+        assert has_placeholder_pose(path) is placeholder
+        warned = []
+        check_pose_measured(path, False, warned.append)
+        assert len(warned) == int(placeholder)
+        if placeholder:
+            with pytest.raises(ValueError, match=f"camera file {path}: .*follow-calib ground"):
+                check_pose_measured(path, True, warned.append)
+        else:
+            check_pose_measured(path, True, warned.append)
+    assert not has_placeholder_pose(tmp_path / "missing.yaml")
+    (tmp_path / "broken.yaml").write_text("calibration: [")
+    assert not has_placeholder_pose(tmp_path / "broken.yaml")
