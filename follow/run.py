@@ -5,7 +5,10 @@ drives a base (`--mavlink`, a file then plays at its frame rate) run capture,
 perception and control in their own threads on the wall clock, with the perception
 watchdog. A file without a base and without `--realtime` is processed frame by frame,
 every frame, reproducibly. Ctrl-C, SIGTERM, SIGHUP or an error send the base a zero
-command, flush the log and finalise the video (see `follow/shutdown.py`).
+command, flush the log and finalise the video (see `follow/shutdown.py`). A camera file
+whose pose is still the placeholder of `follow-calib intrinsics` (not yet measured by
+`follow-calib ground`) drives no base: such a run is refused, and one without a base
+warned.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from follow.camera import CameraModel
+from follow.camera import CameraModel, check_pose_measured
 from follow.capture import open_source
 from follow.cli_args import non_negative_int
 from follow.config import Config
@@ -271,6 +274,9 @@ def main(args) -> dict:
     config = Config.load(args.config) if args.config else Config()
     if args.mavlink:
         config = config.replace("mavlink", connection=args.mavlink)
+    # a replay opens no base; any MAVLink connection (the simulated rover's too) is one
+    drives_base = bool(config.mavlink.connection) and not args.replay
+    check_pose_measured(args.camera, drives_base, log.warning)
     if args.replay:
         return replay(args, config)
     source = open_source(args.source, args.image_topic, args.odom_topic, args.camera_info_topic,
