@@ -10,8 +10,8 @@ from follow.ros2 import node as node_module
 
 
 class StubNode(node_module.FollowNode):
-    def __init__(self, config, camera):
-        super().__init__(config, camera, detect=lambda frame: [])
+    def __init__(self, config, camera, **kwargs):
+        super().__init__(config, camera, detect=lambda frame: [], **kwargs)
 
     def _publish_twist(self, command):
         print(f"cmd_vel {command.forward_mps} {command.yaw_rate_radps}", flush=True)

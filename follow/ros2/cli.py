@@ -29,7 +29,7 @@ def main(args) -> dict:
     from follow.ros2.node import run
 
     config = Config.load(args.config) if args.config else Config()
-    summary = run(config, CameraModel.load(args.camera), args.ros_args or [])
+    summary = run(config, CameraModel.load(args.camera), args.ros_args or [], args.camera)
     if not args.json:
         print(f"{summary.get('frames', 0)} frames; the base was left stopped")
     return summary

@@ -9,7 +9,8 @@ newest image, and (with `[control] overlap_stages`) tracking, identification and
 publishers of the previous image beside it, in order. Safety as in
 `follow run`: an image older than `max_image_age_s`, odometry older than
 `max_odometry_age_s`, a lost target or a stop request give a zero cmd_vel, and so does
-shutdown (SIGINT or SIGTERM).
+shutdown (SIGINT or SIGTERM); a camera file whose pose is a placeholder, not measured,
+publishes no cmd_vel at all (the node refuses to start with `ros.publish_cmd_vel`).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from std_msgs.msg import Int32, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from follow.camera import CameraModel
+from follow.camera import CameraModel, check_pose_measured
 from follow.capture import LatestSlot
 from follow.config import Config, ConfigError
 from follow.freshness import is_ahead
@@ -145,11 +146,13 @@ def perception_status(processed_recently: bool, failed_frames: int,
 class FollowNode(Node):
     """Subscribes, runs perception and control, publishes (see the module doc)."""
 
-    def __init__(self, config: Config, mounted: CameraModel, detect=None):
+    def __init__(self, config: Config, mounted: CameraModel, detect=None, camera_file=None):
         super().__init__(NODE_NAME)
         self.config = parameters_over(self, config)
         ros = self.config.ros
         check_ros_config(ros)
+        if camera_file is not None:  # the file `mounted` was read from: a measured pose?
+            check_pose_measured(camera_file, ros.publish_cmd_vel, self.get_logger().warning)
         self.mounted = mounted
         self.model_name = "given detector"
         self._pose_backend: str | None = None
@@ -529,8 +532,10 @@ class FollowNode(Node):
         super().destroy_node()
 
 
-def run(config: Config, camera: CameraModel, ros_args: list[str]) -> dict:
-    """Spin the node until SIGINT, SIGTERM or SIGHUP, then stop the base and shut down."""
+def run(config: Config, camera: CameraModel, ros_args: list[str], camera_file=None) -> dict:
+    """Spin the node until SIGINT, SIGTERM or SIGHUP, then stop the base and shut down.
+    `camera_file`, the file `camera` was read from, must have a measured pose for the node
+    to publish cmd_vel (`follow.camera.check_pose_measured`)."""
     rclpy.init(args=["follow", "--ros-args", *ros_args] if ros_args else ["follow"],
                signal_handler_options=SignalHandlerOptions.NO)  # fmt: skip
     stop = threading.Event()
@@ -539,7 +544,7 @@ def run(config: Config, camera: CameraModel, ros_args: list[str]) -> dict:
     node = None
     summary: dict = {}
     try:
-        node = FollowNode(config, camera)
+        node = FollowNode(config, camera, camera_file=camera_file)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         while not stop.is_set() and rclpy.ok():
