@@ -51,6 +51,26 @@ def test_connect_sets_guided_requests_streams_and_never_arms_by_itself():
             assert rover.true_velocity() == (0.0, 0.0) and not rover.armed
 
 
+def test_connecting_returns_with_odometry_ready():
+    """The driver trusts the vehicle's clock only after a settle time of steady
+    telemetry; connecting waits for it, so that a control loop started at once does not
+    begin with the robot stopped for want of odometry."""
+    with SimRover(heartbeat_rate_hz=5) as rover:
+        with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:
+            assert base.odometry() is not None
+
+
+def test_connecting_to_a_vehicle_without_telemetry_gives_up_waiting_and_stays_still(caplog):
+    with SimRover(heartbeat_rate_hz=5) as rover:
+        rover.telemetry_paused = True
+        started = time.monotonic()
+        with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:
+            waited_s = time.monotonic() - started
+            assert base.odometry() is None
+            assert "no steady LOCAL_POSITION_NED and ATTITUDE" in caplog.text
+            assert waited_s < base.config.odometry_timeout_s + 1.0 + 2.0  # the wait is bounded
+
+
 def test_arms_only_when_configured():
     with SimRover(heartbeat_rate_hz=5, armed=False) as rover:
         cfg = MavlinkConfig(connection=rover.connection, arm=True, **FAST)

@@ -29,6 +29,9 @@ from follow.types import Odometry, VelocityCommand
 log = logging.getLogger(__name__)
 mavlink = mavutil.mavlink
 
+# How much longer than the settle time (odometry_timeout_s) connecting waits for steady
+# telemetry before it leaves the robot to stand until odometry comes.
+ODOMETRY_WAIT_MARGIN_S = 1.0
 # Boot-time counters that jump back by more than this are a vehicle reboot, not reordering.
 _REBOOT_JUMP_MS = 10_000
 # How far the vehicle's clock may seem to run ahead of ours across a window of telemetry
@@ -312,6 +315,27 @@ class MavlinkBase:
         log.info(
             "vehicle in %s; streaming velocity setpoints", "OFFBOARD" if self._px4 else "GUIDED"
         )
+        self._wait_for_odometry()
+
+    def _wait_for_odometry(self) -> None:
+        """Wait, at most `odometry_timeout_s` + ODOMETRY_WAIT_MARGIN_S, until the
+        vehicle's telemetry has proven its clock (`_telemetry_stamp_locked`), so that the
+        caller's first `odometry()` is not None: a control loop started sooner stops the
+        robot and reports odometry lost at every start, and sets off behind the target.
+        A vehicle that does not stream telemetry is logged and left to the control loop,
+        which keeps the robot still without odometry."""
+        # Real time, whatever clock stamps the telemetry (a test's may stand still).
+        deadline = time.monotonic() + self.config.odometry_timeout_s + ODOMETRY_WAIT_MARGIN_S
+        with self._lock:
+            while not (self._boot_offset_proven and len(self._newest) == 2):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    log.warning(
+                        "no steady LOCAL_POSITION_NED and ATTITUDE from the vehicle yet: "
+                        "the robot stays still until there is odometry"
+                    )
+                    return
+                self._changed.wait(timeout=remaining)
 
     def _require(self, command: int, what: str, *params: float) -> None:
         result = self._command_long(command, *params)
