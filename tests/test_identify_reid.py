@@ -172,18 +172,31 @@ def test_the_reid_network_goes_to_the_gpu_where_allowed_else_to_the_fastest_cpu_
 ):
     from follow.identify.reid import reid_runtime
 
-    assert reid_runtime(provider, offered, openvino_here) == expected
+    assert reid_runtime(provider, offered, lambda: openvino_here) == expected
+
+
+@pytest.mark.parametrize("provider", ["onnxruntime", "cuda"])
+def test_onnxruntime_is_chosen_without_asking_whether_openvino_is_installed(provider):
+    """Asking imports openvino, about 16 MB of memory on the plain runtime's process."""
+    from follow.identify.reid import reid_runtime
+
+    def asked():
+        raise AssertionError("openvino was asked for")
+
+    assert reid_runtime(provider, _CUDA if provider == "cuda" else _CPU, asked) in (
+        "cuda", "onnxruntime"
+    )
 
 
 def test_a_reid_runtime_asked_for_but_missing_runs_on_onnxruntime_saying_so(caplog):
     from follow.identify.reid import reid_runtime
 
-    assert reid_runtime("cuda", _CPU, openvino_here=False) == "onnxruntime"
+    assert reid_runtime("cuda", _CPU, lambda: False) == "onnxruntime"
     assert "reid_provider 'cuda' is not available" in caplog.text
-    assert reid_runtime("openvino", _CPU, openvino_here=False) == "onnxruntime"
+    assert reid_runtime("openvino", _CPU, lambda: False) == "onnxruntime"
     assert "reid_provider 'openvino' is not available" in caplog.text
     with pytest.raises(ValueError, match="reid_provider 'tpu' unknown"):
-        reid_runtime("tpu", _CPU, openvino_here=True)
+        reid_runtime("tpu", _CPU, lambda: True)
 
 
 def test_openvino_gives_the_embeddings_onnxruntime_gives(model_path, data_path):

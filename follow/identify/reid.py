@@ -16,7 +16,7 @@ Elsewhere it computes in float32, 5-8 % faster than onnxruntime, the same embedd
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -32,11 +32,15 @@ REID_INPUT_SIZE = (128, 256)  # (width, height) of the network input
 EMBEDDING_SIZE = 256
 
 
-def reid_runtime(provider: str, available: Sequence[str], openvino_here: bool) -> str:
+def reid_runtime(
+    provider: str, available: Sequence[str], openvino_here: Callable[[], bool]
+) -> str:
     """Which runtime `provider` puts the network on: "cuda" (onnxruntime's CUDA provider:
     with `cuda`, or `auto` where it is offered), "openvino" (with `cpu`, `openvino` or
     `auto` without CUDA, where the openvino package is installed), else "onnxruntime"
-    (its CPU provider: always with `onnxruntime`, the plain install's runtime)."""
+    (its CPU provider: always with `onnxruntime`, the plain install's runtime).
+    `openvino_here` is asked only where the answer matters: importing openvino to ask
+    costs about 16 MB of memory, which a process on onnxruntime should not carry."""
     if provider not in REID_PROVIDERS:
         raise ValueError(
             f"reid_provider '{provider}' unknown; choose one of {', '.join(REID_PROVIDERS)}"
@@ -48,15 +52,17 @@ def reid_runtime(provider: str, available: Sequence[str], openvino_here: bool) -
             "running on the CPU",
             ", ".join(available),
         )
-    if provider == "openvino" and not openvino_here:
+    if provider in ("cuda", "auto") and cuda_here:
+        return "cuda"
+    if provider == "onnxruntime" or provider == "cuda":
+        return "onnxruntime"
+    if openvino_here():
+        return "openvino"
+    if provider == "openvino":
         log.warning(
             "re-id: reid_provider 'openvino' is not available (the openvino package is not "
             "installed); running on onnxruntime"
         )
-    if provider in ("cuda", "auto") and cuda_here:
-        return "cuda"
-    if provider != "onnxruntime" and openvino_here:
-        return "openvino"
     return "onnxruntime"
 
 
@@ -70,7 +76,7 @@ class ReidEmbedder:
 
         from follow.pose.runtime import openvino_installed
 
-        runtime = reid_runtime(provider, ort.get_available_providers(), openvino_installed())
+        runtime = reid_runtime(provider, ort.get_available_providers(), openvino_installed)
         try:
             if runtime == "openvino":
                 self._run_crop = self._openvino(model_path, threads)
