@@ -32,9 +32,7 @@ REID_INPUT_SIZE = (128, 256)  # (width, height) of the network input
 EMBEDDING_SIZE = 256
 
 
-def reid_runtime(
-    provider: str, available: Sequence[str], openvino_here: Callable[[], bool]
-) -> str:
+def reid_runtime(provider: str, available: Sequence[str], openvino_here: Callable[[], bool]) -> str:
     """Which runtime `provider` puts the network on: "cuda" (onnxruntime's CUDA provider:
     with `cuda`, or `auto` where it is offered), "openvino" (with `cpu`, `openvino` or
     `auto` without CUDA, where the openvino package is installed), else "onnxruntime"
