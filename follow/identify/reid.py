@@ -52,7 +52,7 @@ def reid_runtime(provider: str, available: Sequence[str], openvino_here: Callabl
         )
     if provider in ("cuda", "auto") and cuda_here:
         return "cuda"
-    if provider == "onnxruntime" or provider == "cuda":
+    if provider in ("onnxruntime", "cuda"):
         return "onnxruntime"
     if openvino_here():
         return "openvino"
@@ -77,9 +77,11 @@ class ReidEmbedder:
         runtime = reid_runtime(provider, ort.get_available_providers(), openvino_installed)
         try:
             if runtime == "openvino":
-                self._run_crop = self._openvino(model_path, threads)
+                self._run_crop, self.backend_name = _openvino(model_path, threads)
             else:
-                self._run_crop = self._onnxruntime(model_path, threads, runtime == "cuda")
+                self._run_crop, self.backend_name = _onnxruntime(
+                    model_path, threads, runtime == "cuda"
+                )
         except ValueError:
             raise
         except Exception as exc:  # the runtimes raise their own exception types
@@ -87,45 +89,6 @@ class ReidEmbedder:
         log.info("re-id: network on %s", self.backend_name)
         if runtime != "onnxruntime":
             self._warm_up()
-
-    def _onnxruntime(self, model_path: Path, threads: int, cuda: bool):
-        import onnxruntime as ort
-
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = max(1, int(threads))
-        options.inter_op_num_threads = 1
-        providers = (["CUDAExecutionProvider"] if cuda else []) + ["CPUExecutionProvider"]
-        session = ort.InferenceSession(str(model_path), options, providers=providers)
-        inp = session.get_inputs()[0]
-        _check_input_shape(model_path, inp.shape)
-        self.backend_name = f"onnxruntime:{session.get_providers()[0]}"
-        name = inp.name
-        return lambda crop: session.run(None, {name: crop[None].astype(np.float32)})[0]
-
-    def _openvino(self, model_path: Path, threads: int):
-        """A compiled model that takes the uint8 crop (its conversion to float inside)."""
-        import openvino as ov
-        from openvino.preprocess import PrePostProcessor
-
-        from follow.pose.runtime import openvino_core
-
-        core = openvino_core()
-        model = core.read_model(str(model_path))
-        shape = model.inputs[0].get_partial_shape()
-        _check_input_shape(model_path, [d.get_length() if d.is_static else str(d) for d in shape])
-        if shape.is_dynamic:  # a free batch dimension (onnxruntime takes it): one crop
-            model.reshape([1, REID_INPUT_SIZE[1], REID_INPUT_SIZE[0], 3])
-        steps = PrePostProcessor(model)
-        steps.input().tensor().set_element_type(ov.Type.u8)
-        config = {"PERFORMANCE_HINT": "LATENCY", "INFERENCE_NUM_THREADS": max(1, int(threads))}
-        request = core.compile_model(steps.build(), "CPU", config).create_infer_request()
-        self.backend_name = "openvino:CPU"
-
-        def run(crop: np.ndarray) -> np.ndarray:
-            request.infer({0: np.ascontiguousarray(crop[None])})
-            return request.get_output_tensor(0).data
-
-        return run
 
     def _warm_up(self) -> None:
         """One crop through the network now: on CUDA the first run searches cuDNN's
@@ -149,6 +112,50 @@ class ReidEmbedder:
     def embed_crops(self, crops_bgr: Sequence[np.ndarray]) -> np.ndarray:
         """(N, 256) unit embeddings of whole BGR uint8 crops."""
         return self._embed(resize_crops(crops_bgr, REID_INPUT_SIZE))
+
+
+def _onnxruntime(model_path: Path, threads: int, cuda: bool) -> tuple[Callable, str]:
+    """A crop -> embedding runner on onnxruntime (CUDA first with `cuda`), and its name."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = max(1, int(threads))
+    options.inter_op_num_threads = 1
+    providers = (["CUDAExecutionProvider"] if cuda else []) + ["CPUExecutionProvider"]
+    session = ort.InferenceSession(str(model_path), options, providers=providers)
+    inp = session.get_inputs()[0]
+    _check_input_shape(model_path, inp.shape)
+    name = inp.name
+    return (
+        lambda crop: session.run(None, {name: crop[None].astype(np.float32)})[0],
+        f"onnxruntime:{session.get_providers()[0]}",
+    )
+
+
+def _openvino(model_path: Path, threads: int) -> tuple[Callable, str]:
+    """A crop -> embedding runner on a compiled model that takes the uint8 crop (its
+    conversion to float inside), and its name."""
+    import openvino as ov
+    from openvino.preprocess import PrePostProcessor
+
+    from follow.pose.runtime import openvino_core
+
+    core = openvino_core()
+    model = core.read_model(str(model_path))
+    shape = model.inputs[0].get_partial_shape()
+    _check_input_shape(model_path, [d.get_length() if d.is_static else str(d) for d in shape])
+    if shape.is_dynamic:  # a free batch dimension (onnxruntime takes it): one crop
+        model.reshape([1, REID_INPUT_SIZE[1], REID_INPUT_SIZE[0], 3])
+    steps = PrePostProcessor(model)
+    steps.input().tensor().set_element_type(ov.Type.u8)
+    config = {"PERFORMANCE_HINT": "LATENCY", "INFERENCE_NUM_THREADS": max(1, int(threads))}
+    request = core.compile_model(steps.build(), "CPU", config).create_infer_request()
+
+    def run(crop: np.ndarray) -> np.ndarray:
+        request.infer({0: np.ascontiguousarray(crop[None])})
+        return request.get_output_tensor(0).data
+
+    return run, "openvino:CPU"
 
 
 def _check_input_shape(model_path: Path, shape) -> None:
