@@ -259,3 +259,33 @@ def test_the_pose_network_is_warmed_up_at_the_camera_s_image_size(monkeypatch):
     finally:
         made.shutdown()
         made.destroy_node()
+
+
+def test_selecting_another_target_stops_the_base_until_a_frame_is_concluded_for_it(
+    monkeypatch,
+):
+    """The newest result tracks the target chosen before `~/select_target`: driving on it
+    would take the robot toward the person the operator just chose against, until the
+    next frame (up to `ros.max_image_age_s` on a slow pipeline)."""
+    from std_msgs.msg import Int32
+
+    from follow import pipeline
+    from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
+
+    monkeypatch.setattr(pipeline.ControlLoop, "_run", lambda loop: loop._stop.wait())  # tick here
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", publish_cmd_vel=True), CAMERA, detect=lambda f: [])
+    seen = Observation(np.array([160.0, 100.0]), np.array([160.0, 200.0]))
+    try:
+        now = node.now_s()
+        node._on_odometry(_odometry(now))
+        track = TrackState(7, np.array([4.0, 0.0, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, now,
+                           observation=seen)  # fmt: skip
+        node.results.put(pipeline.FrameResult(0, now, Odometry.origin(now), [], [track],
+                         TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, now)))  # fmt: skip
+        assert node.control.tick().forward_mps > 0  # following track 7
+        node._on_select_target(Int32(data=3))
+        assert node.control.tick().is_stop and node.gate.last_sent.is_stop
+    finally:
+        node.shutdown()
+        node.destroy_node()

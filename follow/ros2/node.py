@@ -294,8 +294,12 @@ class FollowNode(Node):
             self.gate.update_odometry(pose)
 
     def _on_select_target(self, msg) -> None:
-        """A track id to follow; a negative id: the nearest person again."""
+        """A track id to follow; a negative id: the nearest person again. The newest
+        result tracks the target chosen before: it is dropped (the base stops) until a
+        frame is concluded with the new choice, so the robot never drives on toward the
+        person the operator just chose against."""
         with self._lock:
+            self.results.put(None)
             self.following = True
             if self.gate is not None:
                 self.gate.following = True
@@ -442,12 +446,12 @@ class FollowNode(Node):
         return frame, robot, perception.detect_people(frame), msg.header
 
     def _conclude(self, frame: Frame, robot: Odometry, detections, image_header) -> None:
-        with self._lock:
+        with self._lock:  # a result concluded before a selection is not put after it
             result = self.perception.conclude(frame, robot, self.frames, detections)
             following = self.following
+            self.results.put(result)
         self.frames += 1
         self._recent.append((time.monotonic(), result.timing_ms))
-        self.results.put(result)
         if self.control is not None:
             self.control.notify()
         self._publish(result, frame.image, following, image_header)
