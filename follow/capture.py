@@ -5,6 +5,7 @@ backlog of stale images."""
 from __future__ import annotations
 
 import logging
+import re
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -47,7 +48,8 @@ class FrameSource:
             raise SourceError("source is empty: give a video file, camera index, folder or bag")
         path = Path(spec)
         if path.is_dir():
-            self._folder = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            images = (p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            self._folder = sorted(images, key=_frame_order)
             if not self._folder:
                 raise SourceError(f"source {spec}: folder holds no images ({IMAGE_SUFFIXES})")
             self.fps = folder_fps
@@ -143,6 +145,13 @@ class FrameSource:
     def close(self) -> None:
         if self._cap is not None:
             self._cap.release()
+
+
+def _frame_order(path: Path) -> tuple:
+    """Sort key of an image file in a folder: the numbers in its name compared as numbers,
+    so that frame_2 comes before frame_10 (as text it would come after frame_19)."""
+    parts = re.split(r"(\d+)", path.name)
+    return [int(p) if i % 2 else p for i, p in enumerate(parts)], path.name
 
 
 def _truncated_jpeg(path: Path, data: bytes) -> bool:

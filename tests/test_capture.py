@@ -137,3 +137,12 @@ def test_an_undecodable_frame_in_a_video_is_skipped_not_the_end_of_the_file(tmp_
     stamps = [f.stamp_s for f in frames]
     assert stamps[14:16] == pytest.approx([1.4, 1.6])  # the gap keeps its time
     assert "frame 15" in caplog.text and "cannot be decoded" in caplog.text
+
+
+def test_folder_frames_numbered_without_leading_zeros_play_in_number_order(tmp_path):
+    # frame_2 before frame_10: sorted as text, frame_10 would come second, and every
+    # person would jump back and forth between frames 1-9 and 10-12.
+    for i in range(1, 13):
+        cv2.imwrite(str(tmp_path / f"frame_{i}.png"), np.full((20, 30, 3), i * 10, np.uint8))
+    frames = list(FrameSource(str(tmp_path), folder_fps=10.0))
+    assert [int(f.image[0, 0, 0]) // 10 for f in frames] == list(range(1, 13))
