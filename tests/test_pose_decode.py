@@ -14,6 +14,7 @@ from follow.pose.decode import (
     match_limb,
     suppress_duplicates,
 )
+from follow.types import Skeleton
 
 H, W = 40, 60
 
@@ -159,3 +160,19 @@ def test_neighbours_and_overlapping_people_at_other_places_are_kept():
     c = person(13, 8)  # overlapping both boxes but no keypoint near theirs
     kept = suppress_duplicates([_decoded(a), _decoded(b), _decoded(c)], DecodeParams())
     assert len(kept) == 3
+
+
+def test_non_finite_network_outputs_count_as_nothing():
+    # A back-end fault (an FP16 overflow) can put inf or NaN in the maps: the frame
+    # decodes into finite skeletons, rather than into confidences a Skeleton refuses.
+    heatmaps, pafs = render([person(15.2, 10.4), person(40.0, 12.0)])
+    heatmaps[1, 10, 15] = np.inf
+    heatmaps[4, 30, 50] = np.inf
+    heatmaps[7, 5, 5] = np.nan
+    pafs[12, 10, 14] = np.inf
+    pafs[0, 20, 20] = -np.inf
+    found = decode(heatmaps, pafs, DecodeParams())
+    assert found
+    for p in found:
+        assert np.isfinite(p.confidences).all() and np.isfinite(p.score)
+        Skeleton(p.keypoints_cells, p.confidences, p.score)

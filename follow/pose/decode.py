@@ -178,6 +178,7 @@ def match_limb(scores: np.ndarray) -> list[tuple[int, int, float]]:
 
 def decode(heatmaps: np.ndarray, pafs: np.ndarray, params: DecodeParams) -> list[DecodedPerson]:
     """Skeletons from one image's (>=18, h, w) heatmaps and (38, h, w) PAFs."""
+    heatmaps, pafs = _finite(heatmaps), _finite(pafs)
     peaks = find_peaks(heatmaps, params.peak_threshold)
     # Each person: slot per keypoint holding a candidate index (-1 = none), and a score.
     slots: list[np.ndarray] = []
@@ -219,6 +220,16 @@ def decode(heatmaps: np.ndarray, pafs: np.ndarray, params: DecodeParams) -> list
             conf[k] = peaks[k][slot[k], 2]
         people.append(DecodedPerson(kps, conf, float(scores[p])))
     return suppress_duplicates(people, params)
+
+
+def _finite(maps: np.ndarray) -> np.ndarray:
+    """The maps with NaN and infinite values set to 0: a back-end fault (an FP16
+    overflow) is no evidence of a keypoint or a limb, and an infinite peak would give a
+    skeleton an infinite confidence."""
+    maps = np.asarray(maps)
+    if np.isfinite(maps).all():
+        return maps
+    return np.where(np.isfinite(maps), maps, 0).astype(maps.dtype, copy=False)
 
 
 def suppress_duplicates(people: list[DecodedPerson], params: DecodeParams) -> list[DecodedPerson]:
