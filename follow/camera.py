@@ -175,6 +175,17 @@ def _radial_fold_r2(dist: np.ndarray) -> float:
     return math.inf if not len(turns) else float(r[turns[0]] ** 2)
 
 
+def _check_principal_point(K: np.ndarray, width: int, height: int) -> None:
+    """Refuse a principal point outside the image: the matrix was calibrated for frames of
+    another size (1920x1080 in a file for 640x360), and every ground point would be off."""
+    cx, cy = K[0, 2], K[1, 2]
+    if not (-0.5 <= cx <= width - 0.5 and -0.5 <= cy <= height - 0.5):
+        raise ValueError(
+            f"camera principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} "
+            "image: a camera_matrix for another image size?"
+        )
+
+
 @dataclass(frozen=True)
 class CameraModel:
     """Intrinsics, distortion, image size and mounting pose of one camera."""
@@ -205,6 +216,7 @@ class CameraModel:
         w, h = (int(v) for v in self.image_size)
         if w <= 0 or h <= 0:
             raise ValueError(f"camera image_size must be positive, got {self.image_size}")
+        _check_principal_point(K, w, h)
         if not (self.pose.height_m > 0 and math.isfinite(self.pose.height_m)):
             raise ValueError(f"camera height_m must be positive, got {self.pose.height_m}")
         object.__setattr__(self, "K", K)

@@ -131,3 +131,13 @@ def test_a_key_given_twice_is_refused_not_left_to_the_last_one(tmp_path, name):
     with pytest.raises(CameraFileError, match="duplicate key 'pitch_rad'") as err:
         CameraModel.load(path)
     assert str(path) in str(err.value)
+
+
+def test_a_camera_matrix_for_another_image_size_is_refused(tmp_path):
+    """A matrix calibrated on 1920x1080 frames in a file for 640x360 ones puts the
+    principal point outside the image: every distance would be wrong, without a word."""
+    data = CameraModel.from_fov((1920, 1080), 70.0, CameraPose(height_m=0.9)).to_dict()
+    data["image_width"], data["image_height"] = 640, 360
+    path = _write(tmp_path, data)
+    with pytest.raises(CameraFileError, match="principal point .* outside the 640x360 image"):
+        CameraModel.load(path)
