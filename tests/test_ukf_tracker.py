@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 from follow.camera import CameraModel, CameraPose
-from follow.config import TrackerConfig
+from follow.config import PoseConfig, TrackerConfig
 from follow.frames import odom_to_base
-from follow.types import Observation, Odometry
+from follow.pose.observations import skeletons_to_observations
+from follow.types import L_ANKLE, NECK, R_ANKLE, Observation, Odometry, Skeleton
 from follow.ukf.direct import DirectBaseline
 from follow.ukf.models import MeasurementModel, process_noise
 from follow.ukf.person import ground_and_height, initial_state_base
-from follow.ukf.tracker import PeopleTracker
+from follow.ukf.tracker import PeopleTracker, _single_ankle
 
 FPS = 15.0
 
@@ -394,3 +395,19 @@ def test_a_stranger_on_a_hidden_persons_neck_pixel_starts_its_own_track(camera):
         assert len(new) == 1 and np.linalg.norm(new[0].position_m - (3.0, 0.1125)) < 0.3
     finally:
         logging.disable(logging.NOTSET)
+
+
+def test_an_ankle_point_on_one_ankle_alone_gets_the_single_ankle_noise():
+    # The second ankle was found (confidence 0.04, over PETS's peak threshold of 0.03)
+    # but too faint for the observation (keypoint_min_confidence 0.05): the ankle point
+    # is the first ankle alone, and strays from the body as one ankle does.
+    kps, conf = np.full((18, 2), np.nan), np.zeros(18)
+    kps[NECK], kps[R_ANKLE], kps[L_ANKLE] = (320, 100), (310, 300), (335, 296)
+    conf[NECK], conf[R_ANKLE], conf[L_ANKLE] = 0.9, 0.6, 0.04
+    faint, both = Skeleton(kps, conf), Skeleton(kps, np.where(conf > 0, 0.6, 0.0))
+    pose = PoseConfig(keypoint_min_confidence=0.05)
+    (one,) = skeletons_to_observations([faint], (640, 360), pose)
+    (two,) = skeletons_to_observations([both], (640, 360), pose)
+    np.testing.assert_array_equal(one.ankle_px, kps[R_ANKLE])
+    assert _single_ankle(one)
+    assert not _single_ankle(two)

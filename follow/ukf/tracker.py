@@ -69,9 +69,17 @@ def check_observation(
 
 def _single_ankle(obs: Observation) -> bool:
     """Whether the observation's ankle point is one ankle alone (known only when the
-    observation carries its skeleton)."""
+    observation carries its skeleton): the skeleton's only ankle, or one of its two
+    ankles itself where the other was too faint for the observation (found over the
+    detector's peak threshold, under `keypoint_min_confidence`)."""
     sk = obs.skeleton
-    return sk is not None and obs.has_ankle and (sk.has(R_ANKLE) != sk.has(L_ANKLE))
+    if sk is None or not obs.has_ankle:
+        return False
+    ankles = [sk.keypoints_px[k] for k in (R_ANKLE, L_ANKLE) if sk.has(k)]
+    if len(ankles) != 2:
+        return len(ankles) == 1
+    apart = not np.array_equal(ankles[0], ankles[1])
+    return apart and any(np.array_equal(obs.ankle_px, a) for a in ankles)
 
 
 class PeopleTracker:
