@@ -106,3 +106,21 @@ def test_an_empty_gallery_and_bad_crops_are_errors():
     with pytest.raises(ValueError, match="uint8 crops"):
         part_colours(np.zeros((2, H, W), np.uint8), CFG)
     assert part_colours(np.zeros((0, H, W, 3), np.uint8), CFG).shape == (0, 2, PART_BINS)
+
+
+@pytest.mark.parametrize(
+    "geometry",
+    [
+        {"roi_height_per_neck_ankle": 0.8},  # the crop shorter than neck to ankle
+        {"roi_center_offset_per_neck_ankle": 1.0},  # the body above the crop
+        {"roi_center_offset_per_neck_ankle": -1.0},  # the body below it
+    ],
+)
+def test_a_crop_that_holds_only_part_of_the_body_still_gives_each_part_colours(geometry):
+    """A crop geometry the configuration accepts may put a band partly or wholly outside
+    the crop: each part's histogram comes from the rows of its band inside the crop, or
+    the crop's edge row, never from an empty slice (which OpenCV refuses)."""
+    config = IdentifyConfig(**geometry)
+    colours = part_colours(np.stack([crop(RED, BLUE), crop(BLUE, WHITE)]), config)
+    assert colours.shape == (2, len(PARTS), PART_BINS)
+    assert np.allclose(colours.sum(axis=2), 1.0)

@@ -46,9 +46,11 @@ def part_colours(crops_bgr: np.ndarray, config: IdentifyConfig) -> np.ndarray:
 
 
 def _span(start: float, end: float, size: int) -> tuple[int, int]:
-    """Pixel indices [first, last) of the fractions `start`-`end` of `size`, at least one."""
-    first = int(round(start * size))
-    return first, max(first + 1, int(round(end * size)))
+    """Pixel indices [first, last) of the fractions `start`-`end` of `size`, within it and
+    at least one: a crop geometry the configuration accepts (one shorter than neck to
+    ankle, or shifted far) can put part of a band, or all of it, outside the crop."""
+    first = min(max(int(round(start * size)), 0), size - 1)
+    return first, min(size, max(first + 1, int(round(end * size))))
 
 
 def _histograms(hsv: np.ndarray) -> np.ndarray:
