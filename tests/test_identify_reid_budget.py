@@ -199,3 +199,26 @@ def test_skipping_the_embeddings_changes_no_decision(monkeypatch):
     full = _stranger_then_target(identifier, reid)
     assert [p[:2] for p in lazy.values()] == [p[:2] for p in full.values()]
     assert full["stranger"][2] == 8  # forced: the stranger embedded in each of 8 frames
+
+
+class NanReid(CountingReid):
+    """Gives a NaN embedding for the ROI starting at x0 = 1 (a faulty network run)."""
+
+    def embed(self, image_bgr, rois):
+        out = super().embed(image_bgr, rois)
+        for k, roi in enumerate(rois):
+            if int(roi[0]) == 1:
+                out[k] = np.nan
+        return out
+
+
+def test_a_non_finite_embedding_is_neither_used_nor_learnt():
+    model = AppearanceModel(IdentifyConfig(), extractor=None, reid=NanReid())
+    rois = [(0, 0, 10, 20), (1, 0, 11, 20)]
+    good, faulty = model.describe(IMAGE, rois)
+    assert faulty.embedding is None and good.embedding is not None
+    model.learn([faulty], [])  # the target's frame with the faulty run: nothing to learn
+    model.learn([good], [])
+    similarity = model.similarity([good, faulty])
+    assert similarity[0] == pytest.approx(1.0) and np.isnan(similarity[1])
+    assert np.isfinite(model.confidence([good])).all()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -23,6 +24,8 @@ from follow.ccf.features import FeatureExtractor, FeatureMaps, Roi, cut_crops, r
 from follow.config import IdentifyConfig
 from follow.identify.parts import PartGallery, part_colours
 from follow.identify.reid import ReidEmbedder, ReidGallery
+
+log = logging.getLogger(__name__)
 
 PART_GALLERY_SIZE = 32  # the target's part colours kept (the most alike one goes)
 
@@ -134,12 +137,18 @@ class AppearanceModel:
         return self._embedded(image_bgr, rois, appearances, missing)
 
     def _embedded(self, image_bgr, rois, appearances, indices: list[int]) -> list[Appearance]:
-        """The appearances with the re-id embeddings of those at `indices` (one batch)."""
+        """The appearances with the re-id embeddings of those at `indices` (one batch). A
+        non-finite embedding (a faulty run of the network) is left out: learnt, one NaN
+        would make every later similarity to the gallery NaN, and the target could never
+        be re-identified again."""
         out = list(appearances)
         if indices:
             found = self.reid.embed(image_bgr, [rois[i] for i in indices])
             for i, embedding in zip(indices, found, strict=True):
-                out[i] = dataclasses.replace(out[i], embedding=embedding)
+                if np.all(np.isfinite(embedding)):
+                    out[i] = dataclasses.replace(out[i], embedding=embedding)
+                else:
+                    log.warning("re-id: the network gave a non-finite embedding; not used")
         return out
 
     @property
@@ -199,7 +208,8 @@ class AppearanceModel:
             )
         if self.gallery is not None:
             for a in positives:
-                self.gallery.add(a.embedding)
+                if a.embedding is not None:  # none where the network's output was unusable
+                    self.gallery.add(a.embedding)
         for a in positives:
             if a.parts is not None:
                 self.part_gallery.add(a.parts)
