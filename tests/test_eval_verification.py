@@ -19,6 +19,20 @@ def test_operating_figures_count_accepts_at_zero_and_at_each_false_accept_rate()
     assert figures["auc"] == pytest.approx((0.5 + 3) / 4, abs=1e-3)  # -0.5 beats half the negatives
 
 
+def test_true_accepts_at_a_false_accept_rate_let_through_no_more_negatives_than_it():
+    # The robot crops' 28 negatives: at FAR 1 % not one of them may pass the bar, so a
+    # target crop scoring below the highest negative is not accepted there.
+    neg = np.append(np.linspace(-1.0, -0.1, 27), -0.01)
+    pos = np.array([-0.02, 0.5, 0.6])
+    figures = operating_figures(pos, neg)
+    assert figures["tar_at_far_0.01"] == pytest.approx(2 / 3)
+    assert figures["tar_at_far_0.001"] == pytest.approx(2 / 3)
+    # With 1000 negatives, 1 % is 10 of them: the bar is the 11th highest.
+    neg = np.linspace(-1.0, 0.0, 1000, endpoint=False)
+    pos = np.array([neg[-11] + 1e-4, neg[-12] + 1e-4])
+    assert operating_figures(pos, neg)["tar_at_far_0.01"] == 0.5
+
+
 def test_cuhk03_reader_groups_views_by_camera(data_path):
     people = load_cuhk03(data_path("cuhk03_val"), limit=3)
     assert [p.identity for p in people] == sorted(p.identity for p in people)
