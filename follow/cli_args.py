@@ -43,6 +43,24 @@ positive_float = _at_least(float, 0.0, True, "a positive number")
 non_negative_float = _at_least(float, 0.0, False, "a number >= 0")
 
 
+def identifier_list(text: str) -> str:
+    """An argparse type: comma-separated identifier names (`ccf10,ccf10+reid`), each one
+    the identifier factory understands, at least one; the text is kept as given. An
+    evaluation runs its identifiers in turn, so a misspelt one found only there fails
+    after the others have run."""
+    from follow.identify.factory import parse_identifier
+
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"{text!r} names no identifier")
+    for name in names:
+        try:
+            parse_identifier(name)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def picture_path(suffixes: tuple[str, ...], kind: type = str):
     """An argparse type for a picture to write once the work is done: its suffix and
     folder checked now, so that a typo does not throw the finished work away."""

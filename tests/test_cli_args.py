@@ -65,6 +65,22 @@ def test_a_plot_path_that_cannot_be_written_is_refused_before_the_evaluation(
     assert plot_path(str(tmp_path / "plot.png")).endswith("plot.png")
 
 
+@pytest.mark.parametrize("command", ["identification", "identification-sim", "verification",
+                                     "crops"])  # fmt: skip
+@pytest.mark.parametrize("names, message", [("ccf10,cff10", "'cff10' not understood"),
+                                            (",", "names no identifier")])  # fmt: skip
+def test_identifier_lists_are_refused_before_the_evaluation(monkeypatch, capsys, command, names,
+                                                            message):  # fmt: skip
+    """A misspelt name used to fail only once the identifiers before it had run (on PETS
+    after the whole tracker run), and an empty list ran none and reported nothing."""
+    monkeypatch.delenv("FOLLOW_DATA_DIR", raising=False)
+    with pytest.raises(SystemExit) as exit_:
+        main(["eval", command, "--identifiers", names])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --identifiers" in err and message in err
+
+
 def test_bench_matrix_runs_the_runtimes_providers_names(monkeypatch, capsys):
     """`--providers cpu,cuda`: one process per settings x runtime, the table naming the
     back-end each actually ran on (a GPU runtime that falls back shows as the CPU)."""

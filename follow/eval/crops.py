@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from follow.cli_args import plot_path
+from follow.cli_args import identifier_list, plot_path
 from follow.config import Config, IdentifyConfig
 
 log = logging.getLogger(__name__)
@@ -33,7 +33,7 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--crops-dir", help="folder of p*.jpg / n*.jpg (default $FOLLOW_DATA_DIR/ccf_crops)"
     )
-    p.add_argument("--identifiers", default=",".join(IDENTIFIERS),
+    p.add_argument("--identifiers", default=",".join(IDENTIFIERS), type=identifier_list,
                    help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
     p.add_argument("--train-steps", type=int, default=DEFAULT_TRAIN_STEPS,
                    help="steps learnt online before scoring the rest (default 7)")  # fmt: skip

@@ -27,7 +27,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from follow.cli_args import non_negative_float, non_negative_int, plot_path, positive_float
+from follow.cli_args import (
+    identifier_list,
+    non_negative_float,
+    non_negative_int,
+    plot_path,
+    positive_float,
+)
 from follow.config import Config
 from follow.eval.identification_metrics import OUTCOMES, OutcomeTally, classify
 from follow.eval.perturb import add_perturb_arguments, plot_spread, print_suite, run_suite
@@ -61,7 +67,7 @@ class Annotated(NamedTuple):
 
 def add_arguments(p) -> None:
     add_evaluation_arguments(p)
-    p.add_argument("--identifiers", default=",".join(IDENTIFIERS),
+    p.add_argument("--identifiers", default=",".join(IDENTIFIERS), type=identifier_list,
                    help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
     p.add_argument("--min-visible-s", type=non_negative_float, default=20.0,
                    help="people visible at least this long become targets")  # fmt: skip

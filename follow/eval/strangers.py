@@ -27,7 +27,7 @@ import logging
 
 import numpy as np
 
-from follow.cli_args import non_negative_int
+from follow.cli_args import identifier_list, non_negative_int
 from follow.config import Config
 from follow.eval.perturb import (
     Variant,
@@ -59,7 +59,7 @@ SUITE_METRICS = {"wrong_person_s": False, "driving_toward_stranger_s": False,
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--identifiers", default="ccf10,ccf10+reid",
+    p.add_argument("--identifiers", default="ccf10,ccf10+reid", type=identifier_list,
                    help="comma-separated identifier configurations (default ccf10,ccf10+reid)")  # fmt: skip
     p.add_argument("--strangers", type=non_negative_int, default=5, help="people who walk in (default 5)")
     p.add_argument("--seed", type=non_negative_int, default=0,

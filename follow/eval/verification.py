@@ -37,6 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from follow.cli_args import identifier_list
 from follow.config import Config, IdentifyConfig
 from follow.eval.crops import roc_auc
 from follow.eval.perturb import (
@@ -61,7 +62,7 @@ SUITE_METRICS = {"auc": True, "tar_at_far_0.01": True, "shipped_tar": True,
 def add_arguments(p) -> None:
     p.add_argument("--data-dir", help="folder holding cuhk03_val/ and ccf_crops/ "
                    "(default $FOLLOW_DATA_DIR)")  # fmt: skip
-    p.add_argument("--identifiers", default=",".join(IDENTIFIERS),
+    p.add_argument("--identifiers", default=",".join(IDENTIFIERS), type=identifier_list,
                    help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
     p.add_argument("--identities", type=int,
                    help=f"use only the first N CUHK03 identities, N >= {MIN_IDENTITIES} "
