@@ -28,6 +28,9 @@ from follow.cli_args import (
         (["eval", "tracking", "--match-threshold-m", "-1"], "--match-threshold-m"),
         (["eval", "following", "--latency-s", "-0.1"], "--latency-s"),
         (["run", "video.mp4", "--target-id", "-1"], "--target-id"),
+        (["eval", "pose", "--sizes", "368", "100"], "--sizes"),  # not a multiple of 8
+        (["eval", "pose", "--sizes", "0"], "--sizes"),
+        (["eval", "pose-near", "--sizes", "256", "260"], "--sizes"),
     ],
 )
 def test_out_of_range_options_are_refused_by_name(argv, option, capsys):

@@ -144,6 +144,19 @@ def evaluate_size(
     }
 
 
+def input_height(text: str) -> int:
+    """An argparse type: a network input height `[pose] input_height_px` takes. The
+    detector refuses any other only when its size's turn comes, after the sizes before it
+    have run."""
+    from follow.config_bounds import BOUNDS
+
+    value = positive_int(text)
+    allowed = BOUNDS["pose"]["input_height_px"]
+    if not allowed.contains(value):
+        raise argparse.ArgumentTypeError(f"expected {allowed.describe()}, got {text!r}")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--frames", type=positive_int, default=DEFAULT_FRAMES, help="evenly spaced frames to use"
@@ -156,7 +169,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "are chosen on)")  # fmt: skip
     parser.add_argument(
         "--sizes",
-        type=int,
+        type=input_height,
         nargs="+",
         default=list(DEFAULT_SIZES),
         help="network input heights in px (multiples of 8)",

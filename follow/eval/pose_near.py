@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from follow.cli_args import non_negative_int, positive_int
+from follow.eval.pose import input_height
 
 FRAME_SIZE = (640, 480)
 NECK_ZONE = 0.4  # upper share of the person where the neck must lie
@@ -30,7 +31,7 @@ ANKLE_ZONE = 0.75  # the ankle must lie below this share of the person's height
 def add_arguments(p) -> None:
     p.add_argument("--person-heights", type=positive_int, nargs="+", default=[192, 320, 432],
                    help="heights in px the crops are scaled to (frame 640x480)")  # fmt: skip
-    p.add_argument("--sizes", type=positive_int, nargs="+", default=[256, 368, 576],
+    p.add_argument("--sizes", type=input_height, nargs="+", default=[256, 368, 576],
                    help="network input heights in px (multiples of 8)")  # fmt: skip
     p.add_argument("--stages", type=int, nargs="+", default=[1, 2], help="network_stages")
     p.add_argument("--config", help="TOML configuration (pose settings)")
