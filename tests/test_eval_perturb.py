@@ -270,6 +270,28 @@ def test_an_unknown_variant_is_a_clear_error(small_pose, capsys):
     assert "unknown perturbation variant 'fog'" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("command, window, runner", [
+    (["eval", "tracking", "--frames", "12", "--score-until-frame", "30"], "--score-until-frame 30",
+     "variant_inputs"),
+    (["eval", "pose", "--frames", "3", "--sizes", "256", "--until-frame", "80"],
+     "no frames from 100 until 80", "evaluate_size"),
+])  # fmt: skip
+def test_frames_a_later_start_cannot_score_are_refused_before_any_variant_runs(
+    small_pose, capsys, monkeypatch, command, window, runner
+):
+    """offset100 starts after the frames asked for: said before the variants ahead of it
+    have run, not after."""
+    from importlib import import_module
+
+    module = import_module(f"follow.eval.{command[1]}")
+    ran = []
+    monkeypatch.setattr(module, runner, lambda *a, **k: ran.append(a) or 1 / 0)
+    capsys.readouterr()
+    assert cli.main([*command, "--variants", "jpeg50,offset100"]) == 1
+    err = capsys.readouterr().err
+    assert "offset100" in err and window in err and not ran
+
+
 def test_scoring_can_stop_before_the_end_of_the_run(small_pose, capsys):
     args = ["eval", "tracking", "--frames", "12", "--config", small_pose, "--json"]
     whole = _run(capsys, *args)

@@ -264,11 +264,12 @@ def main_perturbed(args: argparse.Namespace, base: PoseConfig, sequence, variant
     from follow.eval.perturb import run_suite
 
     frames_run: dict[str, int] = {}
+    frames_of = {v.name: variant_frames(sequence.frame_count, args.frames, v, args.from_frame,
+                                        args.until_frame) for v in variants}  # fmt: skip
 
     def one(variant) -> dict:
         seen = PerturbedSequence(sequence, variant) if variant.changes_pixels else sequence
-        frames = variant_frames(sequence.frame_count, args.frames, variant, args.from_frame,
-                                args.until_frame)  # fmt: skip
+        frames = frames_of[variant.name]
         frames_run[variant.name] = len(frames)
         out = {}
         for height in args.sizes:

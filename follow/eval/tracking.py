@@ -139,6 +139,16 @@ def plot(results: dict, path: str) -> None:
 def evaluate(args, config: Config, setup: PetsSetup, variant=None) -> tuple[dict, list[int]]:
     """Every method's figures on the sequence (seen through `variant`), and the frames."""
     setup, frames, skeletons = variant_inputs(args, config, setup, variant)
+    check_scored_frames(args, frames)
+    hypotheses = run_methods(setup, frames, skeletons, config)
+    results = score(setup, frames, hypotheses, args.match_threshold_m, args.score_from_frame,
+                    args.score_until_frame)  # fmt: skip
+    return results, frames
+
+
+def check_scored_frames(args, frames: list[int]) -> None:
+    """Refuse `--score-from-frame` / `--score-until-frame` that leave the run `frames`
+    nothing to score."""
     if args.score_from_frame and not frames[0] <= args.score_from_frame <= frames[-1]:
         raise ValueError(
             f"--score-from-frame {args.score_from_frame} is outside {frames[0]}..{frames[-1]}"
@@ -146,9 +156,6 @@ def evaluate(args, config: Config, setup: PetsSetup, variant=None) -> tuple[dict
     end = args.score_until_frame
     if end is not None and not max(frames[0], args.score_from_frame) < end:
         raise ValueError(f"--score-until-frame {end} leaves no frame to score")
-    hypotheses = run_methods(setup, frames, skeletons, config)
-    results = score(setup, frames, hypotheses, args.match_threshold_m, args.score_from_frame, end)
-    return results, frames
 
 
 def main(args) -> dict:
@@ -183,6 +190,11 @@ def _scored_frames(args) -> str:
 
 def main_perturbed(args, config: Config, setup: PetsSetup, variants) -> dict:
     frames_run: dict[str, int] = {}
+    for v in variants:  # every variant's window, before any of them runs
+        try:
+            check_scored_frames(args, v.frame_range(setup.frame_count, args.frames))
+        except ValueError as error:
+            raise ValueError(f"variant {v.name}: {error}") from None
 
     def one(variant) -> dict:
         results, frames = evaluate(args, config, setup, variant)
