@@ -581,3 +581,31 @@ def test_an_autopilot_other_than_the_configured_one_is_refused(configured, heard
         assert v.rover.mode == MANUAL
     finally:
         v.close()
+
+
+def test_a_message_the_driver_cannot_handle_is_dropped_and_receiving_goes_on(
+    vehicle, monkeypatch, caplog
+):
+    """Whatever goes wrong handling one message is logged by its type and that message is
+    dropped; the receiver thread goes on, so the telemetry after it is odometry again
+    (it ended the thread: the link looked lost while it worked)."""
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        assert wait_for(lambda: base.odometry() is not None, 2.0)
+        stamp = base._telemetry_stamp_locked
+        failures = []
+
+        def fails_once(kind, *args):
+            if not failures:
+                failures.append(kind)
+                raise ZeroDivisionError("injected")
+            return stamp(kind, *args)
+
+        monkeypatch.setattr(base, "_telemetry_stamp_locked", fails_once)
+        assert wait_for(lambda: failures, 2.0)
+        first = base.odometry().stamp_s if base.odometry() else 0.0
+        assert wait_for(
+            lambda: base.odometry() is not None and base.odometry().stamp_s > first + 0.2, 2.0
+        )
+        assert base._receiver.is_alive()
+        assert f"MAVLink message {failures[0]} not handled" in caplog.text
+        assert base.state is LinkState.ACTIVE

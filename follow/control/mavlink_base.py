@@ -79,6 +79,14 @@ def check_mavlink_config(config: MavlinkConfig) -> None:
             raise ConfigError(f"[mavlink] {name} must be > 0, got {value}")
 
 
+def _message_type(msg) -> str:
+    """A message's type for a log line, whatever the message object is."""
+    try:
+        return str(msg.get_type())
+    except Exception:
+        return type(msg).__name__
+
+
 class MavlinkBase:
     """A `Base` over MAVLink. Connects, sets the mode and starts streaming on construction;
     raises MavlinkError when the vehicle does not answer or refuses the mode."""
@@ -381,7 +389,21 @@ class MavlinkBase:
                     time.sleep(0.05)
                 continue
             if msg is not None:
-                self._on_message(msg)
+                self._handle(msg)
+
+    def _handle(self, msg) -> None:
+        """One message through `_on_message`; one it cannot handle is dropped with an
+        error naming it, and the receiver goes on. An exception here used to end the
+        receiver thread: the heartbeat and odometry went stale (the robot stopped) and
+        the log said only "link lost" seconds later, for a link still working."""
+        try:
+            self._on_message(msg)
+        except Exception as exc:
+            now = time.monotonic()
+            if now - self._receive_error_logged_s >= _ERROR_LOG_S:
+                self._receive_error_logged_s = now
+                log.error("MAVLink message %s not handled, dropped: %s: %s",
+                          _message_type(msg), type(exc).__name__, exc)  # fmt: skip
 
     def _on_message(self, msg) -> None:
         kind = msg.get_type()
