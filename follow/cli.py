@@ -110,18 +110,27 @@ def main(argv: list[str] | None = None) -> int:
     if isinstance(result, int):
         return result
     if getattr(args, "json", False) and result is not None:
-        print(json.dumps(result, default=_json_default))
+        print(json.dumps(_strict_json(result), allow_nan=False))
     return 0
 
 
-def _json_default(value):
+def _strict_json(value):
+    """`value` with numpy scalars and arrays as Python values and every non-finite
+    number (a MOTA with nothing matched, a precision with nothing detected) as None:
+    printed as `null`, where `NaN` is no JSON and strict parsers (jq) refuse the line."""
+    import math
+
     import numpy as np
 
+    if isinstance(value, dict):
+        return {k: _strict_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [_strict_json(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
     if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 if __name__ == "__main__":

@@ -18,3 +18,22 @@ def test_a_command_group_without_its_command_is_an_error(group, one_of_them, cap
     out = capsys.readouterr()
     assert code == 2
     assert one_of_them in out.err and "Traceback" not in out.err
+
+
+def test_json_output_is_strict_json_with_no_figure_as_null(monkeypatch, capsys):
+    """A figure that does not exist (MOTA with nothing matched: NaN) is printed as null;
+    `NaN` is no JSON and a strict parser refuses the whole line."""
+    import json
+
+    import numpy as np
+
+    import follow.eval.walking_accel as command
+
+    result = {"mota": float("nan"), "recall": np.float32(0.5), "spread": np.array([np.inf, 1.0]),
+              "rows": [(1, np.nan)], "frames": np.int64(3)}  # fmt: skip
+    monkeypatch.setattr(command, "main", lambda args: result)
+    assert main(["eval", "walking-accel", "--json"]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    parsed = json.loads(line, parse_constant=lambda name: pytest.fail(f"{name} in the output"))
+    assert parsed == {"mota": None, "recall": 0.5, "spread": [None, 1.0], "rows": [[1, None]],
+                      "frames": 3}  # fmt: skip
