@@ -316,7 +316,8 @@ def _run_source(args, config: Config, source) -> dict:
     if args.target_id is not None:
         perception.identifier.select_target(args.target_id)
     header = {"source": args.source, "camera": str(args.camera), "config": args.config,
-              "image_size": [width, height], "target_id": args.target_id}  # fmt: skip
+              "image_size": [width, height], "target_id": args.target_id,
+              "odom_topic": args.odom_topic}  # fmt: skip
     summary = RunSummary()
     watch = TargetIdWatch(args.target_id, config.control.missing_target_warn_s)
     started = time.perf_counter()
@@ -441,8 +442,10 @@ def replay(args, config: Config) -> dict:
     check_replay_source(header, args.replay, args.source)
     target_id = replay_target_id(header, args.replay, args.target_id)
     by_index = {r.frame_index: r for r in records}
-    source = open_source(args.source, args.image_topic, None, args.camera_info_topic,
-                         config.ros.max_odometry_age_s)  # the log holds the robot's poses
+    # The log holds the robot's poses; a bag's odometry is read again only so that the
+    # images the run skipped for want of it are skipped again, and frame numbers agree.
+    source = open_source(args.source, args.image_topic, header.get("odom_topic"),
+                         args.camera_info_topic, config.ros.max_odometry_age_s)
     camera = None
     perception = None
     agree = total = 0

@@ -256,3 +256,44 @@ def test_a_bag_whose_writing_fails_part_way_is_not_left_as_a_shorter_valid_bag(
                     raise RuntimeError("disk full")
                 bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
     assert not path.exists()
+
+
+def test_a_bag_run_replays_each_record_on_its_own_image(
+    tmp_path, small_frames, small_camera, capsys, monkeypatch
+):
+    """Images without odometry are skipped in the run but not in the replay (which reads
+    no odometry): each record must still meet the image it was made from, not the one
+    at its position among all the bag's images."""
+    from types import SimpleNamespace
+
+    from follow import run as run_module
+
+    path = tmp_path / "late_odometry.mcap"
+    with BagWriter(path) as bag:
+        for frame in small_frames:
+            bag.write_string("/skeletons", frame.stamp_s, "[]")
+            bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+        for pose in odometry_track(small_frames[4].stamp_s, small_frames[-1].stamp_s):
+            bag.write_odometry("/odom", pose)  # none near the first two images
+    small_camera.save(tmp_path / "cam.yaml")
+    common = [str(path), "--camera", str(tmp_path / "cam.yaml"),
+              "--image-topic", "/camera/image_raw"]  # fmt: skip
+    ran = _run(["run", *common, "--odom-topic", "/odom", "--skeletons-topic", "/skeletons",
+                "--log", str(tmp_path / "run.jsonl")], capsys)  # fmt: skip
+    assert ran["frames_without_odometry"] == 2
+
+    seen = []
+
+    class Recorder:
+        identifier = None
+
+        def process(self, frame, robot, index):
+            seen.append((frame.stamp_s, frame.image))
+            return SimpleNamespace(target=SimpleNamespace(target_id=None))
+
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recorder())
+    replayed = _run(["run", *common, "--replay", str(tmp_path / "run.jsonl")], capsys)
+    assert replayed["frames"] == ran["frames"] == len(seen)
+    images = {round(f.stamp_s, 6): f.image for f in small_frames}
+    for stamp, image in seen:
+        assert np.array_equal(image, images[round(stamp, 6)])
