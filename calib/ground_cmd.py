@@ -94,6 +94,7 @@ def main(args: argparse.Namespace) -> dict:
     overlay = calibration_overlay(
         image, calibrated.scaled(w, h), result.corners_px, args.pattern, lines=lines
     )
+    output.parent.mkdir(parents=True, exist_ok=True)  # the default overlay goes beside it
     write_image_atomic(overlay_path, overlay)  # before the camera file
     write_camera_file(output, calibrated, notes, notes_from=args.camera)  # its intrinsics' notes
     warnings = []

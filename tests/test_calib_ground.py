@@ -344,3 +344,13 @@ def test_an_image_too_small_for_a_board_is_no_board_not_a_traceback(board_scene,
     cv2.imwrite(str(folder / "thumb.png"), np.full((9, 12), 100, np.uint8))
     assert ground_command(folder / "thumb.png", folder) == 2
     assert "no 7x5 chessboard" in capsys.readouterr().err
+
+
+def test_ground_command_to_a_new_folder_writes_the_file_and_its_overlay(board_scene, capsys):
+    """The camera file's missing folders are made (as for `intrinsics`), the default
+    overlay beside it included, rather than failing after the measurement."""
+    _, folder = board_scene
+    output = folder / "robot" / "cam.yaml"
+    assert ground_command(folder / "board0.png", folder, "-o", str(output)) == 0
+    assert CameraModel.load(output).pose.height_m == pytest.approx(0.8, abs=0.01)
+    assert cv2.imread(str(folder / "robot" / "cam_ground.png")).shape == (480, 640, 3)
