@@ -66,3 +66,21 @@ def test_follow_run_replays_the_demo_bag_to_the_same_targets(tmp_path, capsys):
     track = next(t for t in last.tracks if t["id"] == last.target_id)
     error_m = np.linalg.norm(np.array(track["mean"][:2]) - truth[-1][str(TARGET_ID)])
     assert last.target_status == "tracking" and error_m < 0.5
+
+
+def test_a_demo_that_fails_before_it_runs_leaves_no_bag(tmp_path, monkeypatch):
+    """A simulated rover that cannot start (its port taken) ends the demo before its first
+    frame: no unfinished bag is left, which a second try would refuse to overwrite."""
+    import pytest
+
+    from follow.sim import rover
+
+    def no_rover(*args, **kwargs):
+        raise RuntimeError("address already in use")
+
+    monkeypatch.setattr(rover, "SimRover", no_rover)
+    for name in ("demo.bag", "demo.mcap", "demo_ros2"):
+        with pytest.raises(RuntimeError, match="already in use"):
+            run_demo(seconds=1.0, seed=0, identifier="channels", write_video=False,
+                     bag_path=tmp_path / name)  # fmt: skip
+        assert not (tmp_path / name).exists()

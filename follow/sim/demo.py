@@ -271,10 +271,6 @@ def run_demo(
             log_path=output / "demo.jsonl",
         )
     bag = None
-    if bag_path:
-        from follow.sim.demo_bag import DemoBag
-
-        bag = DemoBag(bag_path, camera, ident_name, seed)
     timing = []
     with SimRover(seed=seed) as rover:
         mav = dataclasses.replace(config.mavlink or MavlinkConfig(), connection=rover.connection)
@@ -297,6 +293,10 @@ def run_demo(
                     bag.write(frame, result.skeletons, result.robot, wf.robot,
                               {p.person_id: tuple(p.position_m) for p in wf.people})  # fmt: skip
 
+            if bag_path:  # once the rover runs: a demo that cannot start leaves no bag
+                from follow.sim.demo_bag import DemoBag
+
+                bag = DemoBag(bag_path, camera, ident_name, seed)
             failed = True
             try:
                 runner.run(frames, pace_hz=DEMO_CAMERA.fps, on_result=on_result)
