@@ -71,6 +71,17 @@ def test_missing_data_is_a_clear_error(tmp_path):
         load_cuhk03(tmp_path)
 
 
+@pytest.mark.parametrize("stray", ["a_b_c.jpg", "0001_front.jpg"])
+def test_a_stray_file_among_the_crops_is_named(tmp_path, stray):
+    import cv2
+    import numpy as np
+
+    for name in ("0001_00.jpg", "0001_05.jpg", stray):
+        cv2.imwrite(str(tmp_path / name), np.full((128, 48, 3), 90, np.uint8))
+    with pytest.raises(ValueError, match=f"{stray}: not a CUHK03 crop name"):
+        load_cuhk03(tmp_path)
+
+
 def _args(root, **given) -> argparse.Namespace:
     options = dict(data_dir=str(root), identifiers="reid", identities=8, config=None,
                    json=True, perturb=False, variants=None, only_after_learning=False)  # fmt: skip

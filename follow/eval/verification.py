@@ -94,10 +94,19 @@ def load_cuhk03(folder: Path, limit: int | None = None) -> list[Person]:
         raise ValueError(f"no CUHK03 crops (NNNN_KK.jpg) in {folder}")
     people: dict[int, tuple[list, list]] = {}
     for path in files:
-        identity, view = path.stem.split("_")
-        people.setdefault(int(identity), ([], []))[int(view) >= 5].append(_read(path))
+        identity, view = _identity_and_view(path)
+        people.setdefault(identity, ([], []))[view >= 5].append(_read(path))
     out = [Person(i, v) for i, v in sorted(people.items()) if v[0] and v[1]]
     return out[:limit] if limit else out
+
+
+def _identity_and_view(path: Path) -> tuple[int, int]:
+    """(identity, view) of a crop named `NNNN_KK.jpg`; a file named otherwise in the
+    folder is an error naming it, not a bare unpacking or int() error."""
+    parts = path.stem.split("_")
+    if len(parts) != 2 or not all(p.isdigit() for p in parts):
+        raise ValueError(f"{path}: not a CUHK03 crop name (NNNN_KK.jpg: identity, view 00-09)")
+    return int(parts[0]), int(parts[1])
 
 
 def perturbed_people(people: list[Person], variant: Variant) -> list[Person]:
