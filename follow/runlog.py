@@ -149,6 +149,10 @@ def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
         raise ValueError(f"run log {path}: line 1 (header) is not a JSON object")
     if header.get("log_version") != LOG_VERSION:
         raise ValueError(f"run log {path}: unsupported log_version {header.get('log_version')}")
+    size = header.get("image_size")
+    if size is not None and not _is_image_size(size):
+        raise ValueError(f"run log {path}: header image_size {size!r} is not [width, height] "
+                         "in pixels")  # fmt: skip
 
     def records() -> Iterator[FrameRecord]:
         for number, line in enumerate(lines[1:], start=2):
@@ -165,6 +169,11 @@ def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
                 raise ValueError(f"run log {path}: line {number}: {_problem(exc)}") from None
 
     return header, records()
+
+
+def _is_image_size(size) -> bool:
+    return (isinstance(size, list) and len(size) == 2
+            and all(type(v) is int and v > 0 for v in size))  # fmt: skip
 
 
 def _record(d: dict) -> FrameRecord:

@@ -63,6 +63,15 @@ def test_malformed_log_line_is_named(tmp_path):
         list(records)
 
 
+@pytest.mark.parametrize("size", [640, "640x480", [640], [640, -480], [640.5, 480]])
+def test_a_header_image_size_that_is_no_width_and_height_is_named(tmp_path, size):
+    path = tmp_path / "run.jsonl"
+    with RunLogWriter(path, {"image_size": size}) as log:
+        log.write_frame(0, 0.0, None, [], [], None, None)
+    with pytest.raises(ValueError, match="header image_size .* is not \\[width, height\\]"):
+        read_run_log(path)
+
+
 def test_annotation_highlights_the_target():
     image = np.zeros((240, 320, 3), np.uint8)
     tracks = [_track(1, (100, 50)), _track(2, (200, 60))]
