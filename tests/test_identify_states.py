@@ -570,3 +570,39 @@ def test_the_stature_is_not_taken_from_a_frame_in_which_another_person_covers_th
     assert ctx.model.learnt == []  # confirmed, but its crop shows the other person
     assert ctx.target_height[0] == pytest.approx(1.45)
     assert ctx.same_height(person(7, 2.5, neck_height_m=1.45))
+
+
+def test_probation_judges_no_stature_while_another_person_covers_the_candidate():
+    """Another person's box over the candidate's: its skeleton may carry that person's
+    feet, so its height that frame is no evidence against it (as tracking takes no
+    stature from such a frame), nor a frame that counts towards ending probation; once
+    clear, the stature test applies again."""
+    covered = {7: (0, 0, 100, 200), 2: (20, 0, 120, 200)}  # 80 % of the candidate covered
+    ctx = tracked_context(stamp_s=10.0, observed={7: 20, 2: 20})
+    state = Probation(7, since_s=10.5)
+    crossing = [person(7, 2.5, neck_height_m=1.65), person(2, 2.7)]
+    assert state.update(ctx, frame(crossing, 10.6, {7: 0.9, 2: -0.5}, {7: 0.9},
+                                   boxes=covered)) is state  # fmt: skip
+    assert 7 not in ctx.rejected and state.observed == 0
+    assert state.update(ctx, frame([person(7, 2.5)], 10.7, {7: 0.9}, {7: 0.9})) is state
+    assert state.observed == 1
+    taller = [person(7, 2.5, neck_height_m=1.65)]
+    assert isinstance(state.update(ctx, frame(taller, 10.8, {7: 0.9}, {7: 0.9})), Reidentification)
+    assert 7 in ctx.rejected
+
+
+def test_probation_ends_only_after_enough_frames_whose_stature_was_judged():
+    """A candidate covered by another person for the rest of its probation time is not
+    yet the target: the frames that judged its stature are too few."""
+    covered = {7: (0, 0, 100, 200), 2: (20, 0, 120, 200)}
+    ctx = tracked_context(stamp_s=10.0, observed={7: 20, 2: 20})
+    state, t = Probation(7, since_s=10.5), 10.5
+    while t < 10.5 + CFG.reid_probation_s + 0.5:
+        t += 0.1
+        together = [person(7, 2.5), person(2, 2.7)]
+        state = state.update(ctx, frame(together, t, {7: 0.9, 2: -0.5}, {7: 0.9}, boxes=covered))
+        assert isinstance(state, Probation)
+    for _ in range(CFG.min_target_observations):
+        t += 0.1
+        state = state.update(ctx, frame([person(7, 2.5)], t, {7: 0.9}, {7: 0.9}))
+    assert type(state) is Tracking and state.target_id == 7

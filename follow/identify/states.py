@@ -265,17 +265,21 @@ class Probation(Tracking):
     stature estimate starts wide and settles over its first second, so a stranger in the
     target's clothes can pass the stature test for the few frames re-identification
     needs. For `reid_probation_s`, and at least `min_target_observations` frames in which
-    the candidate is seen, the stature test runs again every frame on the settling
-    estimate (against the target's height from before, which the candidate does not
-    replace), and a failure sends the track back to re-identification, never to be
-    named again; a low confidence ends it too (a handover counts as an identity risk). Whatever ends the probation early (that, a lost track, a doubted
-    identity) also undoes what the candidate taught the model and where it walked, so a
-    wrong pick leaves nothing behind. Then it is the target: tracking."""
+    the candidate is seen clear of others, the stature test runs again every frame on
+    the settling estimate (against the target's height from before, which the candidate
+    does not replace), and a failure sends the track back to re-identification, never to
+    be named again; a low confidence ends it too (a handover counts as an identity risk).
+    A frame in which another person covers the candidate judges no stature either way
+    (as tracking takes none from it): its skeleton may carry that person's feet, and one
+    such frame must not reject the real target for good. Whatever ends the probation
+    early (that, a lost track, a doubted identity) also undoes what the candidate taught
+    the model and where it walked, so a wrong pick leaves nothing behind. Then it is the
+    target: tracking."""
 
     def __init__(self, target_id: int, since_s: float):
         super().__init__(target_id, reidentified=True)
         self.since_s = since_s
-        self.observed = 0  # frames of probation in which the candidate was seen
+        self.observed = 0  # frames of probation in which the candidate's stature was judged
         self.before: tuple | None = None  # the model and the target's whereabouts when named
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
@@ -285,20 +289,27 @@ class Probation(Tracking):
             # lead as after a crossing (and `_excused_as_turn` never excuses it).
             context.identity_risk_s = self.since_s
         track = frame.by_id.get(self.target_id)
-        if track is not None and not context.same_height(track):
+        judged = track is not None and self._stature_judged(context, frame)
+        if judged and not context.same_height(track):
             log.info("re-identified track %d is not the target's stature: re-identification",
                      self.target_id)  # fmt: skip
             context.rejected.add(self.target_id)
             return self._undo(context, frame)
         if not self._keeps(context, frame):
             return self._undo(context, frame)
-        if track is not None and track.observation is not None:
+        if judged and track.observation is not None:
             self.observed += 1
         long_enough = frame.stamp_s - self.since_s >= context.config.reid_probation_s
         if long_enough and self.observed >= context.config.min_target_observations:
             log.info("re-identified track %d kept its stature: tracking", self.target_id)
             return Tracking(self.target_id, reidentified=True)
         return self
+
+    def _stature_judged(self, context: IdentityContext, frame: FrameTracks) -> bool:
+        """Whether this frame judges the candidate's stature: not while another person
+        covers its crop."""
+        context.look(frame, only=self.target_id)  # the boxes (done once a frame)
+        return not context.crop_shows_another(self.target_id, frame)
 
     def _excused_as_turn(self, context: IdentityContext, stamp_s: float) -> bool:
         """Never: the handover is an identity risk for the whole probation, which lasts
