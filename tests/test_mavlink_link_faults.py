@@ -70,7 +70,7 @@ def test_gcs_heartbeat_is_not_taken_for_the_vehicle(vehicle):
     vehicle.extra.append(lambda: gcs.heartbeat_send(
         mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
     vehicle.rover.silent = True  # only the GCS is heard
-    with pytest.raises(MavlinkError):
+    with pytest.raises(MavlinkError, match="no vehicle heartbeat"):  # no other refusal
         MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST))
 
 
