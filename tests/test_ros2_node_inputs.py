@@ -145,7 +145,7 @@ def test_one_image_stamped_ahead_of_the_clock_does_not_block_the_images_after_it
         node.destroy_node()
 
 
-def test_images_without_a_stamp_are_refused_by_name():
+def test_images_without_a_stamp_are_refused_by_name(capfd):
     """A driver that leaves header.stamp at zero: taken, the first such image would be
     the last one processed, and every later one dropped as out of order in silence."""
     config = Config().replace("identify", identifier="channels")
@@ -153,8 +153,12 @@ def test_images_without_a_stamp_are_refused_by_name():
                                      camera_info_topic=""),
                       CAMERA, detect=lambda frame: [])  # fmt: skip
     try:
+        capfd.readouterr()
         assert node._detect_in(_image(0.0, 320, 240)) is None
         assert node.stale_frames == 1 and node._last_stamp is None
+        warning = [line for line in capfd.readouterr().err.splitlines() if "no stamp" in line]
+        assert len(warning) == 1 and "WARN" in warning[0]
+        assert "image dropped: its header has no stamp (zero)" in warning[0]
         assert node._detect_in(_image(node.now_s(), 320, 240)) is not None
     finally:
         node.shutdown()
