@@ -15,19 +15,12 @@ FRAMES = 24
 
 @pytest.fixture(scope="module")
 def pets_run(tmp_path_factory):
-    import os
-    from pathlib import Path
+    from conftest import _asset  # the model_path/data_path fixtures, at module scope
 
     from calib.tsai import TsaiCamera
 
-    data, models = os.environ.get("FOLLOW_DATA_DIR"), os.environ.get("FOLLOW_MODEL_DIR")
-    root = Path(data or "") / "pets2009_s2l1"
-    onnx = Path(models or "") / "pose/human-pose-estimation-0001.onnx"
-    if not (data and models and root.is_dir() and onnx.exists()):
-        reason = "PETS 2009 data or the pose model not found ($FOLLOW_DATA_DIR/$FOLLOW_MODEL_DIR)"
-        if os.environ.get("FOLLOW_REQUIRE_ASSETS") == "1":
-            pytest.fail(reason)
-        pytest.skip(reason)
+    _asset("FOLLOW_MODEL_DIR", "pose/human-pose-estimation-0001.onnx")
+    root = _asset("FOLLOW_DATA_DIR", "pets2009_s2l1")
     out = tmp_path_factory.mktemp("pets_run")
     camera, _ = TsaiCamera.from_xml(root / "View_001.xml").to_camera_model()
     camera.save(out / "pets.yaml")
