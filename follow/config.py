@@ -433,7 +433,13 @@ class Config:
             ) from None
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"config {path}: not valid TOML ({exc})") from None
-        return cls.from_dict(data, source=f"config {path}", base=base)
+        config = cls.from_dict(data, source=f"config {path}", base=base)
+        pose = data.get("pose")
+        model_file = pose.get("model_file") if isinstance(pose, dict) else None
+        if model_file:  # a file named by this config is found beside it, wherever one runs
+            resolved = path.parent / Path(model_file).expanduser()
+            config = config.replace("pose", model_file=str(resolved))
+        return config
 
     def replace(self, section: str, **changes) -> Config:
         """A copy with some keys of one section changed."""

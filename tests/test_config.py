@@ -62,3 +62,20 @@ def test_docs_list_every_key_with_its_range():
     assert not missing, "docs/config.md is out of date; regenerate its tables:\n" + "\n".join(
         missing
     )
+
+
+def test_a_model_file_named_by_a_config_file_is_found_beside_it(tmp_path, monkeypatch):
+    folder = tmp_path / "robot"
+    folder.mkdir()
+    config_path = folder / "robot.toml"
+    config_path.write_text('[pose]\nmodel_file = "nets/pose.onnx"\n')
+    monkeypatch.chdir(tmp_path)  # run from elsewhere: the file is still the config's
+    assert Config.load(config_path).pose.model_file == str(folder / "nets" / "pose.onnx")
+    config_path.write_text(f'[pose]\nmodel_file = "{tmp_path / "abs.onnx"}"\n')
+    assert Config.load(config_path).pose.model_file == str(tmp_path / "abs.onnx")
+    monkeypatch.setenv("HOME", str(tmp_path))
+    config_path.write_text('[pose]\nmodel_file = "~/home.onnx"\n')
+    assert Config.load(config_path).pose.model_file == str(tmp_path / "home.onnx")
+    config_path.write_text("[pose]\ninput_height_px = 320\n")
+    base = Config().replace("pose", model_file="kept.onnx")
+    assert Config.load(config_path, base=base).pose.model_file == "kept.onnx"
