@@ -317,7 +317,8 @@ def _run_source(args, config: Config, source) -> dict:
         perception.identifier.select_target(args.target_id)
     header = {"source": args.source, "camera": str(args.camera), "config": args.config,
               "image_size": [width, height], "target_id": args.target_id,
-              "odom_topic": args.odom_topic}  # fmt: skip
+              "image_topic": args.image_topic, "odom_topic": args.odom_topic,
+              "camera_info_topic": args.camera_info_topic}  # fmt: skip
     summary = RunSummary()
     watch = TargetIdWatch(args.target_id, config.control.missing_target_warn_s)
     started = time.perf_counter()
@@ -444,8 +445,11 @@ def replay(args, config: Config) -> dict:
     by_index = {r.frame_index: r for r in records}
     # The log holds the robot's poses; a bag's odometry is read again only so that the
     # images the run skipped for want of it are skipped again, and frame numbers agree.
-    source = open_source(args.source, args.image_topic, header.get("odom_topic"),
-                         args.camera_info_topic, config.ros.max_odometry_age_s)
+    # The bag's image and camera-info topics are the run's unless given again.
+    source = open_source(args.source, args.image_topic or header.get("image_topic"),
+                         header.get("odom_topic"),
+                         args.camera_info_topic or header.get("camera_info_topic"),
+                         config.ros.max_odometry_age_s)  # fmt: skip
     camera = None
     perception = None
     agree = total = 0

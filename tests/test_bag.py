@@ -297,3 +297,39 @@ def test_a_bag_run_replays_each_record_on_its_own_image(
     images = {round(f.stamp_s, 6): f.image for f in small_frames}
     for stamp, image in seen:
         assert np.array_equal(image, images[round(stamp, 6)])
+
+
+def test_a_replay_reads_the_image_topic_the_run_read(
+    tmp_path, small_frames, small_camera, capsys, monkeypatch
+):
+    """A bag with two cameras, run on the second: the replay, not told the topic again,
+    must replay the second camera's images (the log names the topic), not refuse the
+    bag or take the first."""
+    from types import SimpleNamespace
+
+    from follow import run as run_module
+
+    path = tmp_path / "two_cameras.mcap"
+    with BagWriter(path) as bag:
+        for frame in small_frames:
+            bag.write_string("/skeletons", frame.stamp_s, "[]")
+            bag.write_image("/front/image_raw", frame.stamp_s, 255 - frame.image, "front")
+            bag.write_image("/rear/image_raw", frame.stamp_s, frame.image, "rear")
+    small_camera.save(tmp_path / "cam.yaml")
+    common = [str(path), "--camera", str(tmp_path / "cam.yaml")]
+    ran = _run(["run", *common, "--image-topic", "/rear/image_raw", "--skeletons-topic",
+                "/skeletons", "--log", str(tmp_path / "run.jsonl")], capsys)  # fmt: skip
+    seen = []
+
+    class Recorder:
+        identifier = None
+
+        def process(self, frame, robot, index):
+            seen.append((frame.stamp_s, frame.image))
+            return SimpleNamespace(target=SimpleNamespace(target_id=None))
+
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recorder())
+    replayed = _run(["run", *common, "--replay", str(tmp_path / "run.jsonl")], capsys)
+    assert replayed["frames"] == ran["frames"] == len(seen) > 0
+    rear = {round(f.stamp_s, 6): f.image for f in small_frames}
+    assert all(np.array_equal(image, rear[round(stamp, 6)]) for stamp, image in seen)
