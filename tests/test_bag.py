@@ -258,16 +258,32 @@ def test_a_bag_whose_writing_fails_part_way_is_not_left_as_a_shorter_valid_bag(
     assert not path.exists()
 
 
+def _record_replayed_frames(monkeypatch) -> list:
+    """The (stamp, image) of every frame a replay hands to perception, in order (the
+    perception itself is replaced: what matters is which images the records meet)."""
+    from types import SimpleNamespace
+
+    from follow import run as run_module
+
+    seen = []
+
+    class Recorder:
+        identifier = None
+
+        def process(self, frame, robot, index):
+            seen.append((frame.stamp_s, frame.image))
+            return SimpleNamespace(target=SimpleNamespace(target_id=None))
+
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recorder())
+    return seen
+
+
 def test_a_bag_run_replays_each_record_on_its_own_image(
     tmp_path, small_frames, small_camera, capsys, monkeypatch
 ):
     """Images without odometry are skipped in the run but not in the replay (which reads
     no odometry): each record must still meet the image it was made from, not the one
     at its position among all the bag's images."""
-    from types import SimpleNamespace
-
-    from follow import run as run_module
-
     path = tmp_path / "late_odometry.mcap"
     with BagWriter(path) as bag:
         for frame in small_frames:
@@ -282,16 +298,7 @@ def test_a_bag_run_replays_each_record_on_its_own_image(
                 "--log", str(tmp_path / "run.jsonl")], capsys)  # fmt: skip
     assert ran["frames_without_odometry"] == 2
 
-    seen = []
-
-    class Recorder:
-        identifier = None
-
-        def process(self, frame, robot, index):
-            seen.append((frame.stamp_s, frame.image))
-            return SimpleNamespace(target=SimpleNamespace(target_id=None))
-
-    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recorder())
+    seen = _record_replayed_frames(monkeypatch)
     replayed = _run(["run", *common, "--replay", str(tmp_path / "run.jsonl")], capsys)
     assert replayed["frames"] == ran["frames"] == len(seen)
     images = {round(f.stamp_s, 6): f.image for f in small_frames}
@@ -305,10 +312,6 @@ def test_a_replay_reads_the_image_topic_the_run_read(
     """A bag with two cameras, run on the second: the replay, not told the topic again,
     must replay the second camera's images (the log names the topic), not refuse the
     bag or take the first."""
-    from types import SimpleNamespace
-
-    from follow import run as run_module
-
     path = tmp_path / "two_cameras.mcap"
     with BagWriter(path) as bag:
         for frame in small_frames:
@@ -319,16 +322,7 @@ def test_a_replay_reads_the_image_topic_the_run_read(
     common = [str(path), "--camera", str(tmp_path / "cam.yaml")]
     ran = _run(["run", *common, "--image-topic", "/rear/image_raw", "--skeletons-topic",
                 "/skeletons", "--log", str(tmp_path / "run.jsonl")], capsys)  # fmt: skip
-    seen = []
-
-    class Recorder:
-        identifier = None
-
-        def process(self, frame, robot, index):
-            seen.append((frame.stamp_s, frame.image))
-            return SimpleNamespace(target=SimpleNamespace(target_id=None))
-
-    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recorder())
+    seen = _record_replayed_frames(monkeypatch)
     replayed = _run(["run", *common, "--replay", str(tmp_path / "run.jsonl")], capsys)
     assert replayed["frames"] == ran["frames"] == len(seen) > 0
     rear = {round(f.stamp_s, 6): f.image for f in small_frames}
