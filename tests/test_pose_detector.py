@@ -188,3 +188,24 @@ def test_the_unsharp_mask_setting_reaches_the_network(model_path, pets):
     np.testing.assert_allclose(heatmaps, plain.infer(pets_filter(frame))[0], atol=1e-6)
     median_only = FrameFilter(median_radius_px=1)
     assert np.abs(heatmaps - plain.infer(median_only(frame))[0]).max() > 1e-3
+
+
+def test_a_keypoint_in_the_last_heatmap_column_stays_inside_the_frame():
+    """640x480 at 368 px is 491 px wide, padded to 496: the last heatmap column's centre
+    (491.5) lies in the padding, past the frame's last pixel. A person at the right edge
+    found there is at the edge, not beyond it."""
+    from follow.pose.decode import DecodedPerson
+    from follow.pose.detector import to_skeleton
+    from follow.pose.preprocess import plan_letterbox
+
+    plan = plan_letterbox((640, 480), 368)
+    assert plan.input_size[0] - plan.resized_size[0] == 5
+    last_column, last_row = plan.input_size[0] // 8 - 1, plan.input_size[1] // 8 - 1
+    cells = np.full((18, 2), np.nan)
+    cells[NECK] = (last_column, last_row)
+    confidences = np.where(np.isfinite(cells[:, 0]), 0.9, 0.0)
+    skeleton = to_skeleton(DecodedPerson(cells, confidences, 1.0), plan)
+    x, y = skeleton.keypoints_px[NECK]
+    assert -0.5 <= x <= 639.5 and -0.5 <= y <= 479.5
+    assert x == pytest.approx(639.5)
+    assert np.isnan(skeleton.keypoints_px[0]).all()  # missing keypoints stay missing

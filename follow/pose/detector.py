@@ -46,9 +46,10 @@ def decode_params(config: PoseConfig) -> DecodeParams:
 
 
 def to_skeleton(person: DecodedPerson, plan: Letterbox) -> Skeleton:
-    """A decoded person (heatmap cells) as a Skeleton in original-image pixels."""
+    """A decoded person (heatmap cells) as a Skeleton in original-image pixels, inside
+    the frame."""
     return Skeleton(
-        plan.to_original(heatmap_to_network_px(person.keypoints_cells)),
+        plan.clip_to_original(plan.to_original(heatmap_to_network_px(person.keypoints_cells))),
         person.confidences,
         person.score,
     )

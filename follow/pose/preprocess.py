@@ -41,6 +41,15 @@ class Letterbox:
         pts = np.asarray(points_net_px, dtype=np.float64)
         return np.stack([(pts[..., 0] + 0.5) / sx - 0.5, (pts[..., 1] + 0.5) / sy - 0.5], -1)
 
+    def clip_to_original(self, points_px: np.ndarray) -> np.ndarray:
+        """(..., 2) original-image pixels clipped to the frame's edges (-0.5 to size -
+        0.5; NaN stays NaN): the last heatmap column reaches into the right padding, past
+        the frame's last pixel, where nothing was seen."""
+        width, height = self.original_size
+        pts = np.asarray(points_px, dtype=np.float64)
+        return np.stack([np.clip(pts[..., 0], -0.5, width - 0.5),
+                         np.clip(pts[..., 1], -0.5, height - 0.5)], -1)  # fmt: skip
+
     def to_network(self, points_px: np.ndarray) -> np.ndarray:
         """(..., 2) original-image pixels -> network-input pixel coordinates."""
         sx, sy = self.scale_xy
