@@ -134,3 +134,25 @@ def test_a_binary_integrity_record_is_reported_not_a_codec_error(cache, tmp_path
     assert code == 1 and "FAIL" in out and cut.name in out
     assert initial_stage_file(source) == cut  # an unreadable record: cut again
     assert model_manifest.check(cut) == "ok"
+
+
+def test_an_interrupted_cut_leaves_no_half_written_file(cache, tmp_path, monkeypatch):
+    """Ctrl-C while the cut is written: nothing of it stays in the cache, and the next
+    run cuts it whole."""
+    import onnx.utils
+
+    source = tmp_path / "net.onnx"
+    _save_graph(source)
+
+    def interrupted(_source, output, *_args, **_kwargs):
+        with open(output, "wb") as f:
+            f.write(b"half a model")
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(onnx.utils, "extract_model", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            initial_stage_file(source)
+    assert [p.name for p in (cache / "pose").iterdir()] == []
+    cut = initial_stage_file(source)
+    assert model_manifest.check(cut) == "ok"

@@ -116,7 +116,12 @@ def initial_stage_file(model_path: Path) -> Path:
     inputs = [i.name for i in model.graph.input if i.name not in weights]
     target.parent.mkdir(parents=True, exist_ok=True)
     partial = target.with_suffix(f".{os.getpid()}.partial")
-    onnx.utils.extract_model(str(model_path), str(partial), inputs, list(outputs))
-    model_manifest.write_manifest(target, model_path, {"cut": "initial stage"}, written=partial)
-    partial.replace(target)  # atomic: a concurrent reader never sees half a file
+    try:
+        onnx.utils.extract_model(str(model_path), str(partial), inputs, list(outputs))
+        model_manifest.write_manifest(target, model_path, {"cut": "initial stage"},
+                                      written=partial)  # fmt: skip
+        partial.replace(target)  # atomic: a concurrent reader never sees half a file
+    except BaseException:  # an error or Ctrl-C: no half-written cut left in the cache
+        partial.unlink(missing_ok=True)
+        raise
     return target
