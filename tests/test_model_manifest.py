@@ -2,6 +2,7 @@
 
 import argparse
 
+import numpy as np
 import onnx
 import pytest
 from onnx import TensorProto, helper
@@ -156,3 +157,29 @@ def test_an_interrupted_cut_leaves_no_half_written_file(cache, tmp_path, monkeyp
     assert [p.name for p in (cache / "pose").iterdir()] == []
     cut = initial_stage_file(source)
     assert model_manifest.check(cut) == "ok"
+
+
+def test_an_interrupted_int8_model_leaves_no_half_written_file(cache, tmp_path, monkeypatch):
+    """Ctrl-C while the quantised model is copied from the temporary folder into the
+    cache (another file system: a copy, not a rename): no truncated INT8 model stays for
+    `precision = "auto"` to refuse to run; there is simply none yet."""
+    import shutil
+
+    from follow.pose.quantize import quantize_pose_model
+
+    source = tmp_path / "fp32.onnx"
+    _save_graph(source)
+    frames = [np.full((16, 16, 3), v, np.uint8) for v in (40, 200)]
+
+    def interrupted_copy(src, dst, *_args, **_kwargs):
+        with open(dst, "wb") as f:
+            f.write(open(src, "rb").read()[:100])
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(shutil, "move", interrupted_copy)
+        with pytest.raises(KeyboardInterrupt):
+            quantize_pose_model(source, frames, 16)
+    assert list(default_int8_path().parent.iterdir()) == []
+    path = quantize_pose_model(source, frames, 16)
+    assert path == default_int8_path() and model_manifest.check(path) == "ok"
