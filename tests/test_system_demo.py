@@ -53,3 +53,52 @@ def test_watchdog_stops_the_rover_when_perception_freezes():
     assert moving > 0.3
     assert loop.watchdog_trips >= 1
     assert abs(stopped) < 0.05
+
+
+def test_each_frame_shows_the_rover_where_it_was_when_the_frame_was_captured():
+    # The runner paces the source: it takes a frame from it, waits until the frame is
+    # due, then stamps it and samples the odometry. The rendered robot pose must be the
+    # one at that capture time, not one taken a frame period earlier (at 1 m/s, 7 cm).
+    import threading
+
+    import numpy as np
+
+    from follow.pipeline import ThreadedRunner
+    from follow.sim.demo import DEMO_CAMERA, sim_frames
+    from follow.sim.world import World
+    from follow.types import Odometry
+
+    t0 = time.monotonic()
+
+    class DrivingRover:  # drives along x at 1 m/s
+        def true_pose(self):
+            now = time.monotonic()
+            return Odometry(now - t0, 0.0, 0.0, now)
+
+    captured = []
+
+    class Slot:
+        def put(self, item):
+            captured.append(item)
+
+        def close(self):
+            pass
+
+    class Capture:
+        clock = staticmethod(time.monotonic)
+        _stop = threading.Event()
+        frames = Slot()
+        captured = 0
+
+        class odometry:
+            @staticmethod
+            def sample():
+                return None
+
+    camera = DEMO_CAMERA.detection_camera().scaled(64, 48)
+    world = World([], camera=DEMO_CAMERA)
+    frames = sim_frames(world, DrivingRover(), camera, {}, 8, pace_hz=DEMO_CAMERA.fps)
+    ThreadedRunner._capture(Capture(), frames, DEMO_CAMERA.fps)
+    lag_s = np.array([f.stamp_s - t0 - f.world.robot.x_m for _, f, _ in captured])
+    assert len(lag_s) == 8
+    assert np.all(lag_s[1:] < 0.02), lag_s

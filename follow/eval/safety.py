@@ -226,7 +226,8 @@ def run_case(case: Case, fault_at_s: float = 5.0, seed: int = 0,
         try:
             with ShutdownSignals() as signals:
                 try:
-                    runner.run(sim_frames(world, rover, camera, looks, n_frames, seed, edit),
+                    runner.run(sim_frames(world, rover, camera, looks, n_frames, seed, edit,
+                                          pace_hz=DEMO_CAMERA.fps),
                                pace_hz=DEMO_CAMERA.fps)  # fmt: skip
                 except KeyboardInterrupt:
                     interrupted = signals.reason

@@ -218,11 +218,21 @@ def sim_frames(
     n_frames: int,
     seed: int = 0,
     edit: Callable[[WorldFrame], WorldFrame] | None = None,
+    pace_hz: float | None = None,
+    clock: Callable[[], float] = time.monotonic,
 ) -> Iterator[SimFrame]:
     """The robot's camera: the world stepped once per frame and rendered from the
-    rover's true pose. `edit` may change what a frame shows (a person hidden, say)."""
+    rover's true pose. `edit` may change what a frame shows (a person hidden, say).
+    With `pace_hz`, each frame waits until it is due before it takes the rover's pose:
+    a runner that paces its source takes a frame and then waits for its time, and the
+    frame must show the robot where it is at that capture time, not a frame earlier."""
     horizon = horizon_row(camera)
-    for _ in range(n_frames):
+    start = clock()
+    for index in range(n_frames):
+        if pace_hz:
+            delay = start + index / pace_hz - clock()
+            if delay > 0:
+                time.sleep(delay)
         world.set_robot_pose(rover.true_pose())
         wf = world.step()
         if edit is not None:
@@ -275,7 +285,8 @@ def run_demo(
     with SimRover(seed=seed) as rover:
         mav = dataclasses.replace(config.mavlink or MavlinkConfig(), connection=rover.connection)
         with MavlinkBase(mav, clock=clock) as base:
-            frames = sim_frames(world, rover, camera, looks, n_frames, seed)
+            frames = sim_frames(world, rover, camera, looks, n_frames, seed,
+                                pace_hz=DEMO_CAMERA.fps, clock=clock)  # fmt: skip
             runner = build_runner(perception, base, config.control, ViewCone.from_camera(camera),
                                   clock=clock)  # fmt: skip
 
