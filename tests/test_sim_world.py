@@ -121,3 +121,23 @@ def test_camera_set_up_scales_to_the_detector():
     hfov = 2 * np.degrees(np.arctan(0.5 * det.image_size[0] / det.K[0, 0]))
     assert hfov == pytest.approx(70.0, abs=0.2)
     assert det.position_base[2] == pytest.approx(0.6)
+
+
+def test_odometry_drift_is_per_metre_travelled_whatever_the_frame_rate():
+    # 0.05 m of std per metre: after 4 m, independent errors per metre add up to
+    # 0.05 * sqrt(4) = 0.1 m, at 15 frames per second as at 60.
+    for fps in (15.0, 60.0):
+        errors = []
+        for seed in range(300):
+            world = World([], SimCameraConfig(fps=fps), robot_path=lambda t: (t, 0.0, 0.0),
+                          seed=seed, odometry_drift_m_per_m=0.05)  # fmt: skip
+            last = list(world.run(int(4 * fps) + 1))[-1]
+            errors.append(last.odometry.x_m - last.robot.x_m)
+        assert np.std(errors) == pytest.approx(0.1, rel=0.15), fps
+        errors = []  # and 0.05 rad per radian turned
+        for seed in range(300):
+            world = World([], SimCameraConfig(fps=fps), robot_path=lambda t: (0.0, 0.0, t / 2),
+                          seed=seed, odometry_drift_rad_per_rad=0.05)  # fmt: skip
+            last = list(world.run(int(8 * fps) + 1))[-1]
+            errors.append(last.odometry.yaw_rad - last.robot.yaw_rad)
+        assert np.std(errors) == pytest.approx(0.1, rel=0.15), fps

@@ -178,11 +178,13 @@ class World:
         left = -s * (x1 - x0) + c * (y1 - y0)
         dyaw = float(wrap_angle(yaw1 - yaw0))
         dist = math.hypot(fwd, left)
+        # Independent errors per metre (radian): the variance grows with the distance
+        # (angle), so a frame's share of it does not depend on the frame rate.
         if self.drift_m_per_m > 0 and dist > 0:
-            fwd += self.rng.normal(0.0, self.drift_m_per_m * dist)
-            left += self.rng.normal(0.0, self.drift_m_per_m * dist)
+            fwd += self.rng.normal(0.0, self.drift_m_per_m * math.sqrt(dist))
+            left += self.rng.normal(0.0, self.drift_m_per_m * math.sqrt(dist))
         if self.drift_rad_per_rad > 0 and dyaw != 0:
-            dyaw += self.rng.normal(0.0, self.drift_rad_per_rad * abs(dyaw))
+            dyaw += self.rng.normal(0.0, self.drift_rad_per_rad * math.sqrt(abs(dyaw)))
         ox, oy, oyaw = self._odom
         c, s = math.cos(oyaw), math.sin(oyaw)
         self._odom = (
