@@ -7,23 +7,21 @@ imports."""
 
 from __future__ import annotations
 
-import os
 import random
 
 import pytest
+from ros2_support import isolated_rclpy, skip_without_ros2
 
 from calib.camera_file import write_camera_file
 from follow.camera import CameraModel, CameraPose
 from follow.config import Config
 
 try:
-    import rclpy
+    import rclpy  # noqa: F401 - the import is the check
 
     from follow.ros2.node import FollowNode
 except ImportError as exc:  # pragma: no cover - depends on the installation
-    if os.environ.get("FOLLOW_REQUIRE_ROS2") == "1":
-        raise
-    pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
+    skip_without_ros2(exc)
 
 CAMERA = CameraModel.from_fov((320, 240), 70.0, CameraPose(height_m=1.0))
 CONFIG = Config().replace("identify", identifier="channels")  # no model files needed
@@ -33,11 +31,7 @@ INTRINSICS_NOTES = {"intrinsics": "follow-calib intrinsics",
 GROUND_NOTES = {"pose": "follow-calib ground"}
 
 
-@pytest.fixture
-def ros_context():
-    rclpy.init(domain_id=random.randint(100, 200))  # nothing else on the network hears us
-    yield
-    rclpy.shutdown()
+ros_context = pytest.fixture(isolated_rclpy)
 
 
 class _NodeStarted(RuntimeError):

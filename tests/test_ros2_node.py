@@ -9,13 +9,13 @@ missing ROS 2 fails instead of skipping."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import time
 
 import numpy as np
 import pytest
 from pets_robot import START_S, pets_camera, pets_frames, robot_pose
+from ros2_support import skip_without_ros2
 
 from follow.rosmsg import stamp_s
 from follow.types import Odometry
@@ -31,9 +31,7 @@ try:
         wait_for,
     )
 except ImportError as exc:  # pragma: no cover - depends on the installation
-    if os.environ.get("FOLLOW_REQUIRE_ROS2") == "1":
-        raise
-    pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
+    skip_without_ros2(exc)
 
 pytestmark = pytest.mark.slow  # a node process, its model, ~10 frames and a 3 s stop
 SELECT_AFTER_FRAME = 2

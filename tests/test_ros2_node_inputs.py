@@ -6,18 +6,16 @@ camera. In process, with a stand-in detector; runs where rclpy imports."""
 
 from __future__ import annotations
 
-import os
-import random
-
 import numpy as np
 import pytest
+from ros2_support import isolated_rclpy, skip_without_ros2
 
 from follow.camera import CameraModel, CameraPose
 from follow.config import Config
 from follow.rosmsg import camera_info_fields, image_fields, quaternion_of_yaw, stamp_fields
 
 try:
-    import rclpy
+    import rclpy  # noqa: F401 - the import is the check
     from builtin_interfaces.msg import Time
     from nav_msgs.msg import Odometry as OdometryMsg
     from sensor_msgs.msg import CameraInfo, Image
@@ -25,18 +23,12 @@ try:
 
     from follow.ros2.node import FollowNode
 except ImportError as exc:  # pragma: no cover - depends on the installation
-    if os.environ.get("FOLLOW_REQUIRE_ROS2") == "1":
-        raise
-    pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
+    skip_without_ros2(exc)
 
 CAMERA = CameraModel.from_fov((320, 240), 70.0, CameraPose(height_m=1.0))
 
 
-@pytest.fixture(scope="module", autouse=True)
-def ros_context():
-    rclpy.init(domain_id=random.randint(100, 200))  # nothing else on the network hears us
-    yield
-    rclpy.shutdown()
+ros_context = pytest.fixture(scope="module", autouse=True)(isolated_rclpy)
 
 
 @pytest.fixture

@@ -5,13 +5,12 @@ a stand-in detector; runs where rclpy imports."""
 
 from __future__ import annotations
 
-import os
-import random
 import threading
 import time
 
 import numpy as np
 import pytest
+from ros2_support import isolated_rclpy, skip_without_ros2
 from waiting import wait_for
 
 from follow.camera import CameraModel, CameraPose
@@ -21,7 +20,7 @@ from follow.rosmsg import image_fields, quaternion_of_yaw, stamp_fields
 from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
 
 try:
-    import rclpy
+    import rclpy  # noqa: F401 - the import is the check
     from builtin_interfaces.msg import Time
     from nav_msgs.msg import Odometry as OdometryMsg
     from sensor_msgs.msg import Image
@@ -29,19 +28,13 @@ try:
 
     from follow.ros2.node import FollowNode
 except ImportError as exc:  # pragma: no cover - depends on the installation
-    if os.environ.get("FOLLOW_REQUIRE_ROS2") == "1":
-        raise
-    pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
+    skip_without_ros2(exc)
 
 CAMERA = CameraModel.from_fov((320, 240), 70.0, CameraPose(height_m=1.0))
 SEEN = Observation(np.array([160.0, 100.0]), np.array([160.0, 200.0]))
 
 
-@pytest.fixture(scope="module", autouse=True)
-def ros_context():
-    rclpy.init(domain_id=random.randint(100, 200))  # nothing else on the network hears us
-    yield
-    rclpy.shutdown()
+ros_context = pytest.fixture(scope="module", autouse=True)(isolated_rclpy)
 
 
 def _header(stamp_s: float, frame_id: str) -> Header:

@@ -4,9 +4,8 @@ imports."""
 
 from __future__ import annotations
 
-import os
-
 import pytest
+from ros2_support import skip_without_ros2
 
 from follow.config import Config, ConfigError
 
@@ -16,9 +15,7 @@ try:
 
     from follow.ros2.node import parameters_over
 except ImportError as exc:  # pragma: no cover - depends on the installation
-    if os.environ.get("FOLLOW_REQUIRE_ROS2") == "1":
-        raise
-    pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
+    skip_without_ros2(exc)
 
 
 def _parameters(*overrides: str) -> Config:

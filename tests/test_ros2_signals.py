@@ -4,7 +4,6 @@ action would kill the node without its zero cmd_vel. Runs where rclpy imports.""
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -12,15 +11,14 @@ import time
 from pathlib import Path
 
 import pytest
+from ros2_support import skip_without_ros2
 
 try:
     import rclpy  # noqa: F401
 
     from follow.ros2.loopback import isolated_environment
 except ImportError as exc:  # pragma: no cover - depends on the installation
-    if os.environ.get("FOLLOW_REQUIRE_ROS2") == "1":
-        raise
-    pytest.skip(f"rclpy not importable (the ros2 extra): {exc}", allow_module_level=True)
+    skip_without_ros2(exc)
 
 pytestmark = pytest.mark.slow  # a node process per signal, a few seconds each
 STUB_NODE = Path(__file__).with_name("ros2_stub_node.py")
