@@ -5,11 +5,11 @@ file and the command that measures it; a run without a base only warns. A measur
 and a file without calibration notes drive as before."""
 
 import logging
-import time
 
 import cv2
 import numpy as np
 import pytest
+from recording_base import RecordingBase
 
 from calib.camera_file import write_camera_file
 from follow import cli
@@ -17,29 +17,13 @@ from follow import run as run_module
 from follow.camera import CameraModel, CameraPose
 from follow.control.base import NullBase
 from follow.pipeline import Detections, FrameResult
-from follow.types import Odometry, TargetEstimate, TargetStatus
+from follow.types import TargetEstimate, TargetStatus
 
 CAMERA = CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0))
 # what `follow-calib intrinsics` writes into a new camera file, and `ground` over it
 INTRINSICS_NOTES = {"intrinsics": "follow-calib intrinsics", "intrinsics_rms_px": 0.2,
                     "pose": "placeholder: measure it with `follow-calib ground`"}  # fmt: skip
 GROUND_NOTES = {"pose": "follow-calib ground", "pose_board_rms_px": 0.1}
-
-
-class _Base:
-    """A connected base that records what it is sent."""
-
-    def __init__(self):
-        self.commands = []
-
-    def send(self, cmd):
-        self.commands.append(cmd)
-
-    def odometry(self):
-        return Odometry(0.0, 0.0, 0.0, time.monotonic())
-
-    def close(self):
-        pass
 
 
 class _Perception:
@@ -65,7 +49,7 @@ def scene(tmp_path, monkeypatch):
     for _ in range(5):
         writer.write(np.zeros((48, 64, 3), np.uint8))
     writer.release()
-    base = _Base()
+    base = RecordingBase()
     monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
     monkeypatch.setattr(run_module, "open_base",
                         lambda config: base if config.mavlink.connection else NullBase())  # fmt: skip

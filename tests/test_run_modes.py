@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from recording_base import RecordingBase
 
 from follow import run as run_module
 from follow.camera import CameraModel, CameraPose
@@ -14,23 +15,9 @@ from follow.config import Config
 from follow.control.base import NullBase
 from follow.eval import bench_memory
 from follow.pipeline import Detections, FrameResult
-from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
+from follow.types import Frame, TargetEstimate, TargetStatus, TrackState
 
 CAMERA = CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0))
-
-
-class _ConnectedBase:
-    def __init__(self):
-        self.commands = []
-
-    def send(self, cmd):
-        self.commands.append((time.monotonic(), cmd))
-
-    def odometry(self):
-        return Odometry(0.0, 0.0, 0.0, time.monotonic())
-
-    def close(self):
-        pass
 
 
 class _Perception:
@@ -61,13 +48,13 @@ def _run(base, monkeypatch, offline_allowed):
 
 
 def test_a_file_with_a_base_plays_at_its_frame_rate_through_the_threaded_runner(monkeypatch):
-    base = _ConnectedBase()
+    base = RecordingBase()
     started = time.monotonic()
     summary = _run(base, monkeypatch, offline_allowed=False)
     assert time.monotonic() - started >= 0.85  # 10 frames at 10 fps, not as fast as possible
     assert summary.frames == 10
     assert summary.commands >= 12  # the control loop ticks at 15 Hz, not once per frame
-    assert base.commands[-1][1].is_stop
+    assert base.commands[-1].is_stop
 
 
 def test_a_file_without_a_base_is_processed_frame_by_frame(monkeypatch):
@@ -127,7 +114,7 @@ def test_a_live_camera_that_hangs_ends_follow_run_after_the_stall_limit():
         released.wait(30.0)
 
     config = Config().replace("control", camera_stall_timeout_s=0.5)
-    base = _ConnectedBase()
+    base = RecordingBase()
     started = time.monotonic()
     try:
         with pytest.raises(SourceError, match="no frame for 0.5 s"):
@@ -140,7 +127,7 @@ def test_a_live_camera_that_hangs_ends_follow_run_after_the_stall_limit():
     finally:
         released.set()
     assert time.monotonic() - started < 5.0
-    assert base.commands[-1][1].is_stop
+    assert base.commands[-1].is_stop
 
 
 def test_a_live_cameras_size_probe_frame_is_not_run(tmp_path, monkeypatch):
