@@ -11,6 +11,8 @@ how to make it again, instead of running and finding nobody.
 from __future__ import annotations
 
 import json
+import os
+from collections.abc import Callable
 from pathlib import Path
 
 from follow.models import ModelError, sha256_of
@@ -37,6 +39,23 @@ def write_manifest(
     }
     manifest_path(model_path).write_text(json.dumps(record, indent=2, sort_keys=True) + "\n")
     return record
+
+
+def install(
+    model_path: Path, source_path: Path, made_from: dict, write: Callable[[Path], None]
+) -> None:
+    """Make `model_path` all or nothing: `write` puts its bytes into a partial file
+    beside it, the record is written, then the file is renamed into place (atomic: same
+    folder). An error or Ctrl-C on the way leaves no half-written file in the cache, and
+    never a truncated file under the name that runs beside a record of the whole one."""
+    partial = Path(model_path).with_suffix(f".{os.getpid()}.partial")
+    try:
+        write(partial)
+        write_manifest(model_path, source_path, made_from, written=partial)
+        partial.replace(model_path)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
 
 
 def read_manifest(model_path: Path) -> dict | None:

@@ -8,7 +8,6 @@ INT8. It is written to the user cache (or a given path), never into the reposito
 from __future__ import annotations
 
 import logging
-import os
 import shutil
 import tempfile
 from collections.abc import Iterable
@@ -28,20 +27,6 @@ def default_int8_path() -> Path:
     from follow.pose.prepare import int8_key
 
     return models.cache_dir() / "pose" / f"human-pose-estimation-0001-int8-{int8_key()}.onnx"
-
-
-def _install(written: Path, output_path: Path, fp32_path: Path, made_from: dict) -> None:
-    """Move `written` to `output_path` with its record, all or nothing: the temporary
-    folder may be on another file system, where a move is a copy, and a copy cut short
-    (an error, Ctrl-C) must not leave a truncated model under the name that runs."""
-    partial = output_path.with_suffix(f".{os.getpid()}.partial")
-    try:
-        shutil.move(str(written), str(partial))
-        model_manifest.write_manifest(output_path, fp32_path, made_from, written=partial)
-        partial.replace(output_path)  # atomic: same folder
-    except BaseException:
-        partial.unlink(missing_ok=True)
-        raise
 
 
 class _FrameReader:
@@ -112,6 +97,8 @@ def quantize_pose_model(
         )
         made_from = {"calibration": calibration, "calibration_frames": len(tensors),
                      "input_height_px": input_height_px, "method": "static QDQ, MinMax"}  # fmt: skip
-        _install(written, output_path, fp32_path, made_from)
+        # the temporary folder may be on another file system, where a move is a copy
+        model_manifest.install(output_path, fp32_path, made_from,
+                               lambda partial: shutil.move(str(written), str(partial)))  # fmt: skip
     log.info("INT8 pose model written to %s (%d calibration frames)", output_path, len(tensors))
     return output_path

@@ -15,7 +15,6 @@ its INT8 (QDQ) copy alike: the first Concat that joins a 38-channel (PAF) and a
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from follow import model_manifest, models
@@ -115,13 +114,9 @@ def initial_stage_file(model_path: Path) -> Path:
     weights = {t.name for t in model.graph.initializer}
     inputs = [i.name for i in model.graph.input if i.name not in weights]
     target.parent.mkdir(parents=True, exist_ok=True)
-    partial = target.with_suffix(f".{os.getpid()}.partial")
-    try:
-        onnx.utils.extract_model(str(model_path), str(partial), inputs, list(outputs))
-        model_manifest.write_manifest(target, model_path, {"cut": "initial stage"},
-                                      written=partial)  # fmt: skip
-        partial.replace(target)  # atomic: a concurrent reader never sees half a file
-    except BaseException:  # an error or Ctrl-C: no half-written cut left in the cache
-        partial.unlink(missing_ok=True)
-        raise
+    model_manifest.install(
+        target, model_path, {"cut": "initial stage"},
+        lambda partial: onnx.utils.extract_model(str(model_path), str(partial), inputs,
+                                                 list(outputs)),
+    )  # fmt: skip
     return target
