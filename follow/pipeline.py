@@ -320,6 +320,14 @@ def run_offline(
         yield frame, result, command
 
 
+def wait_until_due(start_s: float, index: int, rate_hz: float, clock: Callable[[], float]) -> None:
+    """Sleep until frame `index` of a source played at `rate_hz` from `start_s` (on
+    `clock`) is due; a frame already late does not wait."""
+    delay = start_s + index / rate_hz - clock()
+    if delay > 0:
+        time.sleep(delay)
+
+
 class ThreadedRunner:
     """Capture, pose, perception, outputs and control in their own threads, on one clock.
 
@@ -363,9 +371,7 @@ class ThreadedRunner:
                 if self._stop.is_set():
                     break
                 if pace_hz:
-                    delay = start + index / pace_hz - self.clock()
-                    if delay > 0:
-                        time.sleep(delay)
+                    wait_until_due(start, index, pace_hz, self.clock)
                 stamped = dataclasses.replace(frame, stamp_s=self.clock())
                 self.frames.put((index, stamped, self.odometry.sample()))
                 self.captured += 1

@@ -226,13 +226,13 @@ def sim_frames(
     With `pace_hz`, each frame waits until it is due before it takes the rover's pose:
     a runner that paces its source takes a frame and then waits for its time, and the
     frame must show the robot where it is at that capture time, not a frame earlier."""
+    from follow.pipeline import wait_until_due
+
     horizon = horizon_row(camera)
     start = clock()
     for index in range(n_frames):
         if pace_hz:
-            delay = start + index / pace_hz - clock()
-            if delay > 0:
-                time.sleep(delay)
+            wait_until_due(start, index, pace_hz, clock)
         world.set_robot_pose(rover.true_pose())
         wf = world.step()
         if edit is not None:
