@@ -489,38 +489,36 @@ class CameraModel:
 
     @classmethod
     def load(cls, path: str | Path) -> CameraModel:
-        path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise CameraFileError(f"camera file {path}: cannot read ({exc.strerror})") from None
-        except UnicodeDecodeError as exc:
-            raise CameraFileError(
-                f"camera file {path}: not a text camera file (YAML/JSON; not UTF-8 at byte "
-                f"{exc.start})"
-            ) from None
-        try:
-            if path.suffix.lower() in (".yaml", ".yml"):
-                data = _parse_yaml(text)
-            else:
-                data = json.loads(text, object_pairs_hook=_unique_keys)
-        except Exception as exc:  # yaml and json raise different types
-            raise CameraFileError(f"camera file {path}: not valid YAML/JSON ({exc})") from None
-        return cls.from_dict(data, source=f"camera file {path}")
+        return cls.from_dict(read_camera_data(path), source=f"camera file {path}")
+
+
+def read_camera_data(path: str | Path):
+    """The parsed contents of a camera file, YAML (.yaml/.yml) or JSON; CameraFileError
+    naming the file where it cannot be read or parsed."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise CameraFileError(f"camera file {path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise CameraFileError(
+            f"camera file {path}: not a text camera file (YAML/JSON; not UTF-8 at byte "
+            f"{exc.start})"
+        ) from None
+    try:
+        if path.suffix.lower() in (".yaml", ".yml"):
+            return _parse_yaml(text)
+        return json.loads(text, object_pairs_hook=_unique_keys)
+    except Exception as exc:  # yaml and json raise different types
+        raise CameraFileError(f"camera file {path}: not valid YAML/JSON ({exc})") from None
 
 
 def read_calibration_notes(path: str | Path) -> dict:
     """The `calibration` section of a camera file ({} if none, or if the file cannot be
     read: `CameraModel.load` is what reports a broken file)."""
-    import yaml
-
-    path = Path(path)
     try:
-        text = path.read_text()
-        data = (
-            yaml.safe_load(text) if path.suffix.lower() in (".yaml", ".yml") else json.loads(text)
-        )
-    except (OSError, ValueError, yaml.YAMLError):
+        data = read_camera_data(path)
+    except CameraFileError:
         return {}
     notes = data.get("calibration") if isinstance(data, dict) else None
     return dict(notes) if isinstance(notes, dict) else {}
