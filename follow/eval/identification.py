@@ -275,7 +275,7 @@ class TargetPicker:
             return None
         mine = [] if target_box is None else [
             t for t in tracks
-            if t.confirmed and _picked_out(t, people, ids)
+            if t.confirmed and _picked_out(t, people, ids, target_box.box)
             and float(np.linalg.norm(t.position_m - target_box.position_m)) <= match_m
         ]  # fmt: skip
         only = mine[0].track_id if len(mine) == 1 else None
@@ -295,10 +295,10 @@ class TargetPicker:
 NECK_FROM_BOX_TOP = 0.30
 
 
-def _picked_out(track, people: dict, ids: tuple[int, ...]) -> bool:
+def _picked_out(track, people: dict, ids: tuple[int, ...], target_box) -> bool:
     """Whether a user clicking on the target would get this track: it was detected in
-    this frame with its neck where the target's neck is (inside its box, in the top
-    `NECK_FROM_BOX_TOP` of it) and inside no one else's box. People walking together
+    this frame with its neck where the target's neck is (inside its box `target_box`, in
+    the top `NECK_FROM_BOX_TOP` of it) and inside no one else's box. People walking together
     overlap in the image and their ground points (from boxes partly hidden) are noisy by
     tenths of a metre, so a track nearest the target on the floor may be its
     companion's; the user waits for a frame where the two are apart. A track whose neck
@@ -310,8 +310,7 @@ def _picked_out(track, people: dict, ids: tuple[int, ...]) -> bool:
     neck = track.observation.neck_px
     if not all(a.box.contains(*neck) == (i in ids) for i, a in people.items()):
         return False
-    box = _person_box(people, ids).box
-    return neck[1] - box.top <= NECK_FROM_BOX_TOP * box.h
+    return neck[1] - target_box.top <= NECK_FROM_BOX_TOP * target_box.h
 
 
 def _person_box(people: dict, ids: tuple[int, ...]):
