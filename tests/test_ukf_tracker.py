@@ -411,3 +411,30 @@ def test_an_ankle_point_on_one_ankle_alone_gets_the_single_ankle_noise():
     np.testing.assert_array_equal(one.ankle_px, kps[R_ANKLE])
     assert _single_ankle(one)
     assert not _single_ankle(two)
+
+
+@pytest.mark.parametrize("fps", [1.5, 15.0])
+def test_a_person_is_confirmed_at_frame_rates_slower_than_the_tentative_time(camera, fps):
+    """At 1.5 fps every gap (0.67 s) is longer than `tentative_max_unseen_s` (0.5 s): a new
+    track seen in every frame must still live to its next frame and be confirmed, with
+    one id throughout; and once it misses a frame it goes as before."""
+    cfg = TrackerConfig()
+    assert 1.0 / 1.5 > cfg.tentative_max_unseen_s and cfg.min_updates_to_confirm == 3
+    tracker = PeopleTracker(camera, cfg)
+    rng = np.random.default_rng(5)
+    robot = Odometry.origin()
+    xy, height = np.array([4.0, -0.2]), 1.45
+    ids = []
+    for k in range(5):
+        states = tracker.update([observe(camera, robot, xy, height, rng)], k / fps, robot)
+        ids.append([s.track_id for s in states])
+    assert ids == [[ids[0][0]]] * 5
+    assert states[0].confirmed
+    # a stranger seen once, then missed: tentative, gone within its own time
+    stranger = observe(camera, robot, np.array([5.0, 2.5]), 1.5, rng)
+    person = lambda: observe(camera, robot, xy, height, rng)  # noqa: E731
+    states = tracker.update([person(), stranger], 5 / fps, robot)
+    assert len(states) == 2 and not [s for s in states if s.track_id != ids[0][0]][0].confirmed
+    states = tracker.update([person()], 6 / fps, robot)
+    survivors = [s.track_id for s in states]
+    assert survivors == [ids[0][0]] if fps < 2.0 else len(survivors) == 2

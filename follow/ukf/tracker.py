@@ -149,7 +149,8 @@ class PeopleTracker:
                 self._last_stamp_s,
             )
             return self.tracks
-        dt = 0.0 if self._last_stamp_s is None else stamp_s - self._last_stamp_s
+        previous_stamp_s = self._last_stamp_s
+        dt = 0.0 if previous_stamp_s is None else stamp_s - previous_stamp_s
         self._last_stamp_s = stamp_s
         robot = robot if robot is not None else Odometry.origin(stamp_s)
         if self._robot_jumped(robot, dt):
@@ -176,8 +177,16 @@ class PeopleTracker:
                 given.append(original)
 
         # Tracks past their unseen time go before they can take anything: after a long
-        # gap (a frozen camera) their spread would let them take anyone, anywhere.
-        self._tracks = [t for t in self._tracks if stamp_s - t.last_seen_s <= self._max_unseen_s(t)]
+        # gap (a frozen camera) their spread would let them take anyone, anywhere. A
+        # tentative track seen in the last frame has missed none yet: it gets this frame
+        # within the confirmed tracks' time, so that frames slower than its own shorter
+        # time (a slow CPU) still let a person be confirmed.
+        self._tracks = [
+            t for t in self._tracks
+            if stamp_s - t.last_seen_s <= (
+                self.config.max_unseen_s if t.last_seen_s == previous_stamp_s
+                else self._max_unseen_s(t))
+        ]  # fmt: skip
         Q = process_noise(dt, cfg.accel_noise_mps2, cfg.height_noise_mps)
         for track in self._tracks:
             track.filter.predict(dt, Q)
