@@ -134,3 +134,30 @@ def test_after_a_loss_the_robot_does_not_speed_up_toward_a_target_it_does_not_se
         t += PERIOD
         blind = TargetMotion(np.array([4.0, 0.0]), np.zeros(2), last_seen, observed=False)
         assert c.update(blind, t).forward_mps == 0.0
+
+
+def test_backing_off_from_an_unseen_target_also_ends_within_the_blind_drive_bound():
+    cfg = ControlConfig(allow_backing_off=True, max_blind_drive_s=0.3, target_timeout_s=1.0)
+    too_close = (cfg.following_distance_m - 0.8, 0.0)
+    last_seen, commands = _drive_then_lose(FollowingController(cfg), xy=too_close)
+    v0 = [c for t, c in commands if t <= last_seen][-1].forward_mps
+    assert v0 == pytest.approx(-cfg.max_backward_speed_mps)  # backing off while seen
+    blind = [(t - last_seen, c) for t, c in commands if t > last_seen]
+    speeds = [abs(c.forward_mps) for _, c in blind]
+    assert all(np.diff(speeds) <= 1e-12)  # never speeds up, backward either
+    for unseen_s, c in blind:
+        assert abs(c.forward_mps) <= abs(v0) * max(0.0, 1 - unseen_s / 0.3) + 1e-9
+        if unseen_s >= cfg.max_blind_drive_s:
+            assert c.forward_mps == 0.0  # turning only
+
+
+def test_blind_driving_never_starts_backing_off():
+    cfg = ControlConfig(allow_backing_off=True, max_blind_drive_s=0.5, target_timeout_s=1.0)
+    c = FollowingController(cfg)
+    last_seen, commands = _drive_then_lose(c, blind_s=0.0)
+    assert commands[-1][1].forward_mps > 0
+    t = last_seen
+    for _ in range(10):  # predicted (unseen) right in front of the robot
+        t += PERIOD
+        blind = TargetMotion(np.array([0.8, 0.0]), np.zeros(2), last_seen, observed=False)
+        assert c.update(blind, t).forward_mps >= 0.0

@@ -7,8 +7,9 @@ Losing the target, or a last observation older than `target_timeout_s`, gives a 
 command at once: the acceleration limits apply to driving, never to stopping. A target
 not seen in the newest frame is driven toward only blind: the forward speed limit falls
 from the command at its last observation to zero within `max_blind_drive_s` (also
-ignoring the braking limit) and the turn is capped at the search rate; a target
-predicted outside the camera's field of view (`view`) gets no forward command at all.
+ignoring the braking limit), the same for backing off, and the turn is capped at the
+search rate; a target predicted outside the camera's field of view (`view`) gets no
+forward command at all.
 """
 
 from __future__ import annotations
@@ -103,7 +104,7 @@ class FollowingController:
         self._last: VelocityCommand | None = None
         self._last_bearing_rad: float | None = None
         self._lost_since_s: float | None = None
-        self._forward_when_seen_mps = 0.0  # the forward command at the last observation
+        self._forward_when_seen_mps = 0.0  # the forward command when last seen (< 0: backing)
 
     @property
     def period_s(self) -> float:
@@ -206,19 +207,28 @@ class FollowingController:
             previous.yaw_rate_radps, yaw, cfg.max_yaw_accel_radps2, cfg.max_yaw_accel_radps2,
             dt_s, self._rise_dt_s,
         )  # fmt: skip
-        if not target.observed:  # blind: forward bounded in time, turning bounded in rate
+        if not target.observed:  # blind: speed bounded in time, turning bounded in rate
             yaw = float(np.clip(yaw, -cfg.search_yaw_rate_radps, cfg.search_yaw_rate_radps))
-            forward = min(forward, self.blind_forward_limit_mps(stamp_s - target.stamp_s))
+            unseen_s = stamp_s - target.stamp_s
+            forward = min(forward, self.blind_forward_limit_mps(unseen_s))
+            forward = max(forward, -self.blind_backward_limit_mps(unseen_s))
         if self.view is not None and not self.view.contains(target.position_m):
             forward = min(forward, 0.0)
         if target.observed:
-            self._forward_when_seen_mps = max(0.0, forward)
+            self._forward_when_seen_mps = forward
         return VelocityCommand(forward, yaw, stamp_s)
 
     def blind_forward_limit_mps(self, unseen_s: float) -> float:
         """The most forward speed allowed `unseen_s` after the target's last observation:
         falling linearly from the forward command of that moment to zero at
         `max_blind_drive_s` (a robot never speeds up towards a target it no longer sees)."""
-        cfg = self.config
-        left = 1.0 - max(0.0, unseen_s) / cfg.max_blind_drive_s
-        return self._forward_when_seen_mps * max(0.0, left)
+        return max(0.0, self._forward_when_seen_mps) * self._blind_fraction_left(unseen_s)
+
+    def blind_backward_limit_mps(self, unseen_s: float) -> float:
+        """The most backward speed allowed `unseen_s` after the target's last
+        observation: the same fall, from the backing-off speed of that moment (zero when
+        the robot was not backing off then: blind driving never starts backing off)."""
+        return max(0.0, -self._forward_when_seen_mps) * self._blind_fraction_left(unseen_s)
+
+    def _blind_fraction_left(self, unseen_s: float) -> float:
+        return max(0.0, 1.0 - max(0.0, unseen_s) / self.config.max_blind_drive_s)
