@@ -438,3 +438,42 @@ def test_a_person_is_confirmed_at_frame_rates_slower_than_the_tentative_time(cam
     states = tracker.update([person()], 6 / fps, robot)
     survivors = [s.track_id for s in states]
     assert survivors == [ids[0][0]] if fps < 2.0 else len(survivors) == 2
+
+
+def test_a_person_behind_the_camera_is_not_expected_in_the_image():
+    # A level camera at a person's neck height: the near clamp projects a point straight
+    # behind it onto the principal point, where a person ahead of the robot is seen.
+    camera = CameraModel.from_fov((640, 360), 70.0, CameraPose(height_m=1.4))
+    tracker = PeopleTracker(camera)
+    t = 0.0
+    for _ in range(10):
+        t += 1 / FPS
+        tracks = tracker.update([observe(camera, Odometry.origin(t), (6.0, 0.0), 1.42)], t)
+    assert len(tracks) == 1 and tracks[0].confirmed
+    behind_id = tracks[0].track_id
+    for k in range(15):  # the robot turns round: the person is now behind it
+        t += 1 / FPS
+        tracks = tracker.update([], t, Odometry(0.0, 0.0, np.pi * (k + 1) / 15, t))
+    (behind,) = tracks
+    assert behind.expected_neck_px is None and behind.expected_ankle_px is None
+    # Someone ahead, seen by the neck alone near the image centre, is not that person.
+    for _ in range(5):
+        t += 1 / FPS
+        robot = Odometry(0.0, 0.0, np.pi, t)
+        ahead = observe(camera, robot, (-5.0, 0.0), 1.42, ankle=False)
+        tracks = tracker.update([ahead], t, robot)
+        assert all(s.observation is None for s in tracks if s.track_id == behind_id)
+
+
+def test_a_person_left_behind_the_camera_is_outside_the_view():
+    camera = CameraModel.from_fov((640, 360), 70.0, CameraPose(height_m=1.4))
+    tracker = PeopleTracker(camera, TrackerConfig(max_unseen_outside_view_s=0.5))
+    t = 0.0
+    for _ in range(10):
+        t += 1 / FPS
+        tracks = tracker.update([observe(camera, Odometry.origin(t), (6.0, 0.0), 1.42)], t)
+    assert len(tracks) == 1 and tracks[0].confirmed
+    for k in range(15):  # the robot turns round in 1 s, the person not seen since
+        t += 1 / FPS
+        tracks = tracker.update([], t, Odometry(0.0, 0.0, np.pi * (k + 1) / 15, t))
+    assert tracks == []

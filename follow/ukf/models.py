@@ -102,6 +102,13 @@ class MeasurementModel:
                 points_base[near] = pc[near] @ cam.rotation_base_from_cam.T + cam.position_base
         return self.camera.project(points_base)
 
+    def in_front(self, state: np.ndarray) -> bool:
+        """Whether the state's neck lies in front of the camera plane. One behind it is in
+        no pixel: the near clamp of `_project` would put a point straight behind the
+        camera on the principal point, where a person ahead is seen."""
+        neck, _ = self._points_base(state)
+        return bool(self.camera.base_to_camera(neck)[0, 2] > 0.0)
+
     def neck_ankle(self, states: np.ndarray) -> np.ndarray:
         """(N, 4) pixels [neck_u, neck_v, ankle_u, ankle_v] for states (N, 5)."""
         neck, ankle = self._points_base(states)

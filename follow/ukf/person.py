@@ -209,7 +209,9 @@ class PersonFilter:
         self, model: MeasurementModel, R: np.ndarray, with_ankle: bool
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """Mean and covariance of the measurement by the unscented transform, or None when
-        part of the distribution falls behind the camera."""
+        the person is behind the camera or part of the distribution projects to no pixel."""
+        if not model.in_front(self.ukf.x):
+            return None
         Z = self._measurement_sigmas(model, with_ankle)
         if not np.isfinite(Z).all():
             return None

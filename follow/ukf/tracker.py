@@ -376,13 +376,14 @@ class PeopleTracker:
 
     def _unseen_outside_view(self, expected, stamp_s: float) -> set[int]:
         """Ids of the tracks not seen at `stamp_s` whose predicted neck (`expected`, one
-        per track that existed before this frame's births) lies outside the image; none
-        looked for where `max_unseen_outside_view_s` could not shorten a track's life."""
+        per track that existed before this frame's births) lies outside the image, or in
+        no pixel (behind the camera); none looked for where `max_unseen_outside_view_s`
+        could not shorten a track's life."""
         if self.config.max_unseen_outside_view_s >= self.config.max_unseen_s:
             return set()
         return {
             t.track_id for t, e in zip(self._tracks[: len(expected)], expected, strict=True)
-            if t.last_seen_s < stamp_s and e is not None and not self.camera.in_image(e[0][:2])[0]
+            if t.last_seen_s < stamp_s and (e is None or not self.camera.in_image(e[0][:2])[0])
         }  # fmt: skip
 
     def _max_unseen_s(self, track: _Track) -> float:
