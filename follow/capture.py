@@ -30,7 +30,7 @@ class SourceError(RuntimeError):
 
 
 class FrameSource:
-    """Iterates frames from a video file, camera index, GStreamer pipeline or folder.
+    """Iterates frames from a video file, camera index or device, GStreamer pipeline or folder.
 
     Frames that cannot be decoded are skipped with a warning; a live camera whose reads
     keep failing raises SourceError (a camera does not end: it was lost). Timestamps are
@@ -64,6 +64,7 @@ class FrameSource:
             if not path.exists():
                 raise SourceError(f"source {spec}: no such file")
             self._cap = cv2.VideoCapture(str(path))
+            self.live = path.is_char_device()  # a camera's node: /dev/video0, /dev/v4l/by-id/...
         if not self._cap.isOpened():
             raise SourceError(f"source {spec}: cannot be opened by OpenCV")
         fps = self._cap.get(cv2.CAP_PROP_FPS)

@@ -146,3 +146,16 @@ def test_folder_frames_numbered_without_leading_zeros_play_in_number_order(tmp_p
         cv2.imwrite(str(tmp_path / f"frame_{i}.png"), np.full((20, 30, 3), i * 10, np.uint8))
     frames = list(FrameSource(str(tmp_path), folder_fps=10.0))
     assert [int(f.image[0, 0, 0]) // 10 for f in frames] == list(range(1, 13))
+
+
+def test_a_camera_named_by_its_device_file_is_live_not_a_video_file(monkeypatch):
+    # /dev/video0 or a /dev/v4l/by-id/... link: a camera, whose frames are stamped as they
+    # come and whose failing reads are a lost camera, not the end of a file.
+    device = "/dev/null"  # a character device, as a camera's node is
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _UnpluggedCamera(3))
+    source = FrameSource(device)
+    assert source.live
+    frames = iter(source)
+    assert len([next(frames) for _ in range(3)]) == 3
+    with pytest.raises(SourceError, match="the camera delivered no frame"):
+        next(frames)
