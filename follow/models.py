@@ -308,12 +308,13 @@ def _download(url: str, target: Path, sha256: str) -> None:
     digest = hashlib.sha256()
     fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".part")
     tmp = Path(tmp_name)
+    out = os.fdopen(fd, "wb")  # closed on every path, a download that never starts included
     try:
         try:
             response = urllib.request.urlopen(url, timeout=DOWNLOAD_TIMEOUT_S)
         except (urllib.error.URLError, OSError) as exc:
             raise ModelError(f"cannot download {url}: {getattr(exc, 'reason', exc)}") from None
-        with response, os.fdopen(fd, "wb") as out:
+        with response, out:
             total = int(response.headers.get("Content-Length") or 0) or None
             with tqdm(total=total, unit="B", unit_scale=True, desc=target.name) as bar:
                 for chunk in iter(lambda: response.read(1 << 16), b""):
@@ -329,6 +330,7 @@ def _download(url: str, target: Path, sha256: str) -> None:
         os.replace(tmp, target)
         log.info("fetched %s", target)
     finally:
+        out.close()
         tmp.unlink(missing_ok=True)
 
 

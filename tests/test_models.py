@@ -79,6 +79,16 @@ def test_unreachable_source_is_a_clear_error(cache):
         models.fetch("ccf10", source="http://127.0.0.1:9")
 
 
+def test_a_download_that_cannot_start_leaves_no_file_open(cache, tmp_path):
+    import os
+
+    open_before = len(os.listdir("/proc/self/fd"))
+    for _ in range(3):
+        with pytest.raises(models.ModelError, match="cannot download"):
+            models.fetch("ccf10", source=str(tmp_path / "no-mirror"))
+    assert len(os.listdir("/proc/self/fd")) == open_before
+
+
 def test_model_without_official_download_explains_how_to_make_it(cache):
     with pytest.raises(models.ModelError, match="ir_to_onnx"):
         models.fetch("human-pose-estimation-0001")
