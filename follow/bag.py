@@ -64,6 +64,16 @@ class BagSource:
             self._reader.open()
         except Exception as exc:  # rosbags raises its own error classes per format
             raise SourceError(f"bag {spec}: cannot be read ({exc})") from None
+        try:  # a bag refused here is closed again: the caller gets no source to close
+            self._read_topics(image_topic, odom_topic, camera_info_topic, max_odometry_gap_s,
+                              skeletons_topic)  # fmt: skip
+        except BaseException:
+            self._reader.close()
+            raise
+
+    def _read_topics(self, image_topic, odom_topic, camera_info_topic, max_odometry_gap_s,
+                     skeletons_topic) -> None:  # fmt: skip
+        spec = self.spec
         self._images = self._connections(image_topic, IMAGE_TYPES)
         self.odometry: OdometryBuffer | None = None
         if odom_topic:

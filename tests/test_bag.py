@@ -143,6 +143,22 @@ def test_a_missing_topic_is_named_with_the_topics_the_bag_holds(
         BagSource(str(tmp_path / "robot.mcap"), "/odom")
 
 
+@pytest.mark.parametrize("name", ["robot.bag", "robot.mcap", "robot_ros2"])
+def test_a_bag_refused_when_opened_is_closed_again(tmp_path, small_frames, small_camera, name):
+    import os
+
+    def open_in_bag() -> list[str]:
+        fds = "/proc/self/fd"
+        return [t for t in (os.path.realpath(f"{fds}/{fd}") for fd in os.listdir(fds))
+                if t.startswith(str(tmp_path.resolve() / name))]  # fmt: skip
+
+    write_robot_bag(tmp_path / name, small_frames, small_camera)
+    for topics in (("/image",), ("/camera/image_raw", "/camera/image_raw")):
+        with pytest.raises(SourceError):
+            BagSource(str(tmp_path / name), *topics)  # no such topic; images as odometry
+    assert open_in_bag() == []
+
+
 def test_follow_run_on_a_bag_needs_the_image_topic(tmp_path, small_frames, small_camera, capsys):
     write_robot_bag(tmp_path / "robot.mcap", small_frames, small_camera)
     small_camera.save(tmp_path / "cam.yaml")
