@@ -85,6 +85,12 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
+    sub = getattr(args, "subcommand", None)
+    if sub is not None and _selected(argv) != (args.command, sub):
+        # an option's value came before the command's name (`follow bench --frames 5 pose`):
+        # the group's own command was set up, and would run in place of the one named
+        parser.error(f"give the options of follow {args.command} {sub} after its name: "
+                     f"follow {args.command} {sub} [OPTIONS]")  # fmt: skip
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",

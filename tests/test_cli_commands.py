@@ -37,3 +37,20 @@ def test_json_output_is_strict_json_with_no_figure_as_null(monkeypatch, capsys):
     parsed = json.loads(line, parse_constant=lambda name: pytest.fail(f"{name} in the output"))
     assert parsed == {"mota": None, "recall": 0.5, "spread": [None, 1.0], "rows": [[1, None]],
                       "frames": 3}  # fmt: skip
+
+
+def test_a_command_named_after_its_groups_options_is_not_taken_for_the_group(
+    monkeypatch, capsys
+):
+    """`follow bench --frames 5 pose`: the group's own command (`follow bench`) must not
+    run in place of the one named (`follow bench pose`), its name silently dropped."""
+    import follow.eval.bench as group_command
+
+    ran = []
+    monkeypatch.setattr(group_command, "main", lambda args: ran.append(args))
+    try:
+        code = main(["bench", "--frames", "5", "pose"])
+    except SystemExit as exit_:
+        code = exit_.code
+    assert ran == [] and code == 2
+    assert "follow bench pose" in capsys.readouterr().err
