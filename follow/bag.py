@@ -110,9 +110,13 @@ class BagSource:
         poses, bad = [], []
         for c, log_time_ns, raw in self._reader.messages(connections):
             try:
-                poses.append(odometry_from_msg(self._reader.deserialize(raw, c.msgtype)))
+                pose = odometry_from_msg(self._reader.deserialize(raw, c.msgtype))
             except InvalidInput as exc:  # one bad sample: a gap, not an unreadable bag
                 bad.append(f"{log_time_ns * 1e-9:.3f} s: {exc}")
+                continue
+            if pose.stamp_s == 0.0:  # unstamped, as images can be: the time it was recorded
+                pose = Odometry(pose.x_m, pose.y_m, pose.yaw_rad, log_time_ns * 1e-9)
+            poses.append(pose)
         if bad:
             log.warning("bag %s: %d odometry message(s) on %s skipped (first at %s)",
                         self.spec, len(bad), connections[0].topic, bad[0])  # fmt: skip

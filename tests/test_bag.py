@@ -102,6 +102,30 @@ def test_a_repeated_image_is_skipped_not_tracked_twice(tmp_path, small_frames, s
     assert source.repeated_frames == 1
 
 
+def test_unstamped_odometry_is_placed_at_its_record_time_as_unstamped_images_are(
+    tmp_path, small_frames
+):
+    path = tmp_path / "unstamped.mcap"
+    poses = odometry_track(small_frames[0].stamp_s, small_frames[-1].stamp_s)
+    with BagWriter(path) as bag:
+        stamped_header = bag._header
+        bag._header = lambda stamp, frame_id: stamped_header(0.0, frame_id)  # header left 0
+        for pose in poses:
+            bag.write_odometry("/odom", pose)  # recorded at the pose's time
+        bag._header = stamped_header
+        for frame in small_frames:
+            bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+    source = BagSource(str(path), "/camera/image_raw", "/odom")
+    frames = list(source)
+    assert len(frames) == len(small_frames) and source.frames_without_odometry == 0
+    for frame in frames:
+        expected = robot_pose(frame.stamp_s)
+        pose = source.odometry_at(frame.stamp_s)
+        assert (pose.x_m, pose.y_m, pose.yaw_rad) == pytest.approx(
+            (expected.x_m, expected.y_m, expected.yaw_rad), abs=1e-6
+        )
+
+
 def test_one_unusable_odometry_sample_is_a_gap_not_an_unreadable_bag(
     tmp_path, small_frames, small_camera, caplog
 ):
