@@ -221,14 +221,24 @@ class ControlLoop:
         self._wake.set()
 
     def stop(self) -> None:
-        """Zero from now on: a tick still under way can only send zero after this."""
+        """Zero from now on: a tick still under way can only send zero after this. A
+        base that fails to take the last zero is logged and kept in `error` (if nothing
+        failed before), not raised: the caller's cleanup must go on."""
         self._stop.set()
         self._wake.set()
         self._thread.join(timeout=STOP_JOIN_TIMEOUT_S)
         if self._thread.is_alive():
             log.error("control thread still busy %.0f s after stop: it can only send zero "
                       "commands from now on", STOP_JOIN_TIMEOUT_S)  # fmt: skip
-        self._send(VelocityCommand.stop(self.clock()))
+        self._send_last_stop()
+
+    def _send_last_stop(self) -> None:
+        try:
+            self._send(VelocityCommand.stop(self.clock()))
+        except Exception as exc:  # the link is gone: nothing more can be sent
+            log.error("the base did not take the stop command: %s", exc)
+            if self.error is None:
+                self.error = exc
 
     def tick(self) -> VelocityCommand:
         """One control step (public so tests and the offline runner can drive it)."""
@@ -288,7 +298,7 @@ class ControlLoop:
         except BaseException as exc:  # the base must stop whatever went wrong
             self.error = exc
             log.exception("control loop failed: stopping the base")
-            self._send(VelocityCommand.stop(self.clock()))
+            self._send_last_stop()
 
 
 def run_offline(

@@ -368,3 +368,27 @@ def test_a_control_loop_failure_after_the_last_frame_is_still_raised(overlap):
         runner.run(frames_then_failure())
     assert isinstance(failure.value.__cause__, ZeroDivisionError)
     assert base.commands[-1].is_stop
+
+
+@pytest.mark.parametrize("overlap", [False, True])
+def test_a_base_that_fails_to_send_still_lets_the_run_deliver_every_result(overlap):
+    """The link to the base goes (every send raises from the third on): the control loop
+    fails, and so does its last stop; the run ends with the error, but its cleanup still
+    delivers every concluded frame's result (the run log) and ends the capture thread."""
+
+    class _LinkGone(NullBase):
+        def send(self, cmd):
+            if len(self.commands) >= 2:
+                raise OSError("serial port gone")
+            return super().send(cmd)
+
+    delivered = []
+    perception = _TimedPerception(0.01)
+    runner = _runner(perception, overlap, base=_LinkGone())
+    with pytest.raises(RuntimeError, match="control loop failed") as failure:
+        runner.run(_frames(40), pace_hz=50.0,
+                   on_result=lambda frame, result: delivered.append(result.frame_index))
+    assert isinstance(failure.value.__cause__, OSError)
+    assert runner.processed >= 1 and len(delivered) == runner.processed
+    assert delivered == sorted(set(delivered))  # in order, each once
+    assert not [t for t in threading.enumerate() if t.name in ("capture", "outputs")]
