@@ -397,6 +397,19 @@ def test_reidentification_rejects_a_look_alike_too_far_too_new_or_of_another_hei
     assert isinstance(reid_frames(Reidentification(), ctx, same, 10.1, *good)[-1], Probation)
 
 
+def test_reidentification_never_names_a_track_the_tracker_has_not_confirmed():
+    """Seen in enough frames for the identifier, but still tentative for a tracker that
+    confirms later (min_updates_to_confirm above min_target_observations): as for the
+    first choice, a track the tracker does not vouch for is never the target."""
+    ctx = tracked_context(stamp_s=10.0, observed={7: 5})
+    tentative = [dataclasses.replace(person(7, 2.5), confirmed=False)]
+    ok = {7: 0.9}, {7: CFG.reid_accept_similarity + 0.1}
+    states = reid_frames(Reidentification(), ctx, tentative, 10.1, *ok, n=3 * CFG.reid_frames)
+    assert all(isinstance(s, Reidentification) for s in states)
+    assert isinstance(reid_frames(Reidentification(), ctx, [person(7, 2.5)], 11.0, *ok)[-1],
+                      Probation)  # fmt: skip
+
+
 def test_reidentification_needs_every_part_of_the_targets_colours():
     """A candidate passing every other test is taken only while its torso and legs are
     each within `reid_part_colour_distance` of the target's colours; before any part

@@ -263,9 +263,11 @@ class IdentityContext:
 
     # ------------------------------------------------------------ who may be it
     def established(self, track: TrackState) -> bool:
-        """Whether a track may become the target: seen now, and in enough frames."""
+        """Whether a track may become the target: confirmed by the tracker, seen now, and
+        in enough frames."""
         return (
-            track.observation is not None
+            track.confirmed
+            and track.observation is not None
             and self.observed_frames.get(track.track_id, 0) >= self.config.min_target_observations
         )
 

@@ -6,8 +6,9 @@ Each state is a small object in `follow.identify.states` whose `update` returns 
 state; their docstrings give the rules that move between them. This module checks the
 configuration and each frame's input, keeps the current state and reports its estimate.
 
-Rules every state shares (in `follow.identify.context`): only a track seen in the
-current frame, and in `min_target_observations` frames so far, can become the target. A
+Rules every state shares (in `follow.identify.context`): only a track confirmed by the
+tracker, seen in the current frame and in `min_target_observations` frames so far, can
+become the target. A
 track's appearance is cut from the observation associated with it in this frame; a
 track without one (occluded, missed) has no appearance and no confidence this frame.
 Nothing is learnt from a crop that shows two people: while another person's box (seen,
