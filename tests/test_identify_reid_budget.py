@@ -222,3 +222,26 @@ def test_a_non_finite_embedding_is_neither_used_nor_learnt():
     similarity = model.similarity([good, faulty])
     assert similarity[0] == pytest.approx(1.0) and np.isnan(similarity[1])
     assert np.isfinite(model.confidence([good])).all()
+
+
+class NanCropReid:
+    """Gives a NaN embedding for a crop whose first pixel is 1 (a faulty network run)."""
+
+    def embed_crops(self, crops):
+        out = np.zeros((len(crops), 256), np.float32)
+        out[:, 0] = 1.0
+        for k, crop in enumerate(crops):
+            if int(crop[0, 0, 0]) == 1:
+                out[k] = np.nan
+        return out
+
+
+def test_a_non_finite_embedding_of_a_whole_crop_is_neither_used_nor_learnt():
+    model = AppearanceModel(IdentifyConfig(), extractor=None, reid=NanCropReid())
+    good, faulty = model.describe_crops([np.zeros((64, 32, 3), np.uint8),
+                                         np.ones((64, 32, 3), np.uint8)])  # fmt: skip
+    assert faulty.embedding is None and good.embedding is not None
+    model.learn([faulty], [])
+    model.learn([good], [])
+    similarity = model.similarity([good, faulty])
+    assert similarity[0] == pytest.approx(1.0) and np.isnan(similarity[1])

@@ -141,15 +141,10 @@ class AppearanceModel:
         non-finite embedding (a faulty run of the network) is left out: learnt, one NaN
         would make every later similarity to the gallery NaN, and the target could never
         be re-identified again."""
-        out = list(appearances)
-        if indices:
-            found = self.reid.embed(image_bgr, [rois[i] for i in indices])
-            for i, embedding in zip(indices, found, strict=True):
-                if np.all(np.isfinite(embedding)):
-                    out[i] = dataclasses.replace(out[i], embedding=embedding)
-                else:
-                    log.warning("re-id: the network gave a non-finite embedding; not used")
-        return out
+        if not indices:
+            return list(appearances)
+        found = self.reid.embed(image_bgr, [rois[i] for i in indices])
+        return _with_embeddings(appearances, indices, found)
 
     @property
     def has_reid(self) -> bool:
@@ -165,8 +160,11 @@ class AppearanceModel:
             return []
         crops = resize_crops(crops_bgr, self._crop_size())  # resized once for both uses
         maps = self._maps(crops, lambda: self.extractor.extract_crops(crops_bgr))
-        emb = self.reid.embed_crops(crops_bgr) if self.reid is not None else None
-        return self._combine(maps, emb, crops)
+        if self.reid is None:
+            return self._combine(maps, None, crops)
+        described = self._combine(maps, [None] * len(crops), crops)
+        found = self.reid.embed_crops(crops_bgr)  # a non-finite one left out, as `describe`
+        return _with_embeddings(described, list(range(len(crops))), found)
 
     def synthetic_negatives(self, crop_bgr: np.ndarray, count: int) -> list:
         """Feature maps of `count` colour-changed copies of the target's crop: what the
@@ -272,6 +270,18 @@ class AppearanceModel:
             weight[known] += w
         fused = np.divide(total, weight, out=np.zeros(n), where=weight > 0.0)
         return np.clip(fused, -1.0, 1.0)
+
+
+def _with_embeddings(appearances, indices: list[int], found) -> list[Appearance]:
+    """The appearances with the embeddings `found` for those at `indices`; a non-finite
+    one is left out (see `AppearanceModel._embedded`)."""
+    out = list(appearances)
+    for i, embedding in zip(indices, found, strict=True):
+        if np.all(np.isfinite(embedding)):
+            out[i] = dataclasses.replace(out[i], embedding=embedding)
+        else:
+            log.warning("re-id: the network gave a non-finite embedding; not used")
+    return out
 
 
 def reid_rule_applies(mode: str, has_reid: bool) -> bool:
