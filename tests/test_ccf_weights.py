@@ -101,3 +101,14 @@ def test_missing_folder_and_file(tmp_path, weight_folder):
     (weight_folder / "conv_t2").unlink()
     with pytest.raises(WeightsError, match="conv_t2: cannot read"):
         load_ccf_weights(weight_folder)
+
+
+def test_a_blank_line_does_not_shift_the_line_an_error_names(weight_folder):
+    """Blank lines are skipped, but the error names the line of the file as an editor
+    shows it."""
+    path = weight_folder / "conv_t1"
+    lines = path.read_text().splitlines()
+    lines[3] = lines[3].replace(lines[3].split()[0], "abc", 1)
+    path.write_text("\n".join(lines[:1] + [""] + lines[1:]) + "\n")
+    with pytest.raises(WeightsError, match="conv_t1: line 5 .* not a number"):
+        load_conv_layer(path)

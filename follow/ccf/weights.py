@@ -91,7 +91,9 @@ def load_conv_layer(path: Path) -> ConvLayer:
         raise WeightsError(f"{path}: cannot read CCF weight file ({exc.strerror})") from None
     except UnicodeDecodeError:
         raise WeightsError(f"{path}: not a text CCF weight file") from None
-    lines = [line for line in text.splitlines() if line.strip()]
+    numbered = [(k, line) for k, line in enumerate(text.splitlines(), 1) if line.strip()]
+    lines = [line for _, line in numbered]
+    at = [k for k, _ in numbered]  # the file's own line numbers, blank lines counted
     if len(lines) < 4:
         raise WeightsError(
             f"{path}: expected 4 lines (shape, weights, bias count, biases), found {len(lines)}"
@@ -99,14 +101,18 @@ def load_conv_layer(path: Path) -> ConvLayer:
         )
     if len(lines) > 4:
         raise WeightsError(f"{path}: expected 4 lines, found {len(lines)}")
-    shape = _parse_ints(lines[0], path, 1, "shape N K H W")
+    shape = _parse_ints(lines[0], path, at[0], "shape N K H W")
     if len(shape) != 4 or min(shape) <= 0:
-        raise WeightsError(f"{path}: line 1 must be 4 positive integers N K H W, got {shape}")
-    weights = _parse_floats(lines[1], path, 2, f"weights {shape}", int(np.prod(shape)))
-    bias_count = _parse_ints(lines[2], path, 3, "bias count")
+        raise WeightsError(
+            f"{path}: line {at[0]} must be 4 positive integers N K H W, got {shape}"
+        )
+    weights = _parse_floats(lines[1], path, at[1], f"weights {shape}", int(np.prod(shape)))
+    bias_count = _parse_ints(lines[2], path, at[2], "bias count")
     if bias_count != [shape[0]]:
-        raise WeightsError(f"{path}: line 3 (bias count) is {bias_count}, expected [{shape[0]}]")
-    biases = _parse_floats(lines[3], path, 4, "biases", shape[0])
+        raise WeightsError(
+            f"{path}: line {at[2]} (bias count) is {bias_count}, expected [{shape[0]}]"
+        )
+    biases = _parse_floats(lines[3], path, at[3], "biases", shape[0])
     return ConvLayer(weights.reshape(shape), biases)
 
 
