@@ -105,6 +105,8 @@ def test_an_empty_gallery_and_bad_crops_are_errors():
         PartGallery(1)
     with pytest.raises(ValueError, match="uint8 crops"):
         part_colours(np.zeros((2, H, W), np.uint8), CFG)
+    with pytest.raises(ValueError, match="float32"):  # the shape is right, the type is not
+        part_colours(np.zeros((2, H, W, 3), np.float32), CFG)
     assert part_colours(np.zeros((0, H, W, 3), np.uint8), CFG).shape == (0, 2, PART_BINS)
 
 

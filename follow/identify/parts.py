@@ -31,7 +31,9 @@ def part_colours(crops_bgr: np.ndarray, config: IdentifyConfig) -> np.ndarray:
     crops of one size, cut by `roi_from_keypoints`); each histogram sums to 1."""
     crops = np.asarray(crops_bgr)
     if crops.ndim != 4 or crops.shape[-1] != 3 or crops.dtype != np.uint8:
-        raise ValueError(f"part_colours: expected (N, H, W, 3) uint8 crops, got {crops.shape}")
+        raise ValueError(
+            f"part_colours: expected (N, H, W, 3) uint8 crops, got {crops.shape} {crops.dtype}"
+        )
     n, height, width = crops.shape[:3]
     out = np.zeros((n, len(PARTS), PART_BINS), np.float32)
     if n == 0:
