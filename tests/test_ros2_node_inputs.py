@@ -104,6 +104,19 @@ def test_odometry_stamped_ahead_of_the_clock_is_dropped_and_counted(node):
     assert node.odometry_dropped == 1 and node.gate.healthy()
 
 
+def test_odometry_without_a_stamp_is_dropped_by_name(node, capfd):
+    """A base driver that leaves header.stamp at zero: its poses are never fresh, so the
+    base stays stopped; the node must say why, not only that images find no odometry."""
+    capfd.readouterr()
+    node._on_odometry(_odometry(0.0))
+    assert node.odometry_dropped == 1 and len(node.odometry) == 0 and not node.gate.healthy()
+    warning = [line for line in capfd.readouterr().err.splitlines() if "no stamp" in line]
+    assert len(warning) == 1 and "WARN" in warning[0]
+    assert "odometry dropped: its header has no stamp (zero)" in warning[0]
+    node._on_odometry(_odometry(node.now_s()))
+    assert node.odometry_dropped == 1 and node.gate.healthy()
+
+
 def test_an_image_of_another_size_mid_run_is_refused():
     config = Config().replace("identify", identifier="channels")
     node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,

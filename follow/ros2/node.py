@@ -262,7 +262,7 @@ class FollowNode(Node):
 
     def _on_odometry(self, msg) -> None:
         """A pose in `ros.odom_frame` (the frame tracks are kept and published in); one in
-        another frame, unusable (NaN, no orientation) or stamped ahead of the node's
+        another frame, unusable (NaN, no orientation), unstamped or stamped ahead of the node's
         clock (never fresh, `follow.freshness`) is dropped with a warning: the odometry
         then goes stale and the base stops, but the node lives on."""
         odom_frame = self.config.ros.odom_frame
@@ -279,6 +279,13 @@ class FollowNode(Node):
         except InvalidInput as exc:
             self.odometry_dropped += 1
             self.get_logger().warning(f"odometry dropped: {exc}", throttle_duration_sec=5.0)
+            return
+        if pose.stamp_s == 0.0:  # never fresh: the base would stop with no word of why
+            self.odometry_dropped += 1
+            self.get_logger().warning(
+                "odometry dropped: its header has no stamp (zero): the base driver must "
+                "stamp each pose with its time", throttle_duration_sec=5.0,
+            )  # fmt: skip
             return
         now = self.now_s()
         if is_ahead(now, pose.stamp_s):
