@@ -109,29 +109,54 @@ def _field(msg, name: str):
     return getattr(msg, name.upper()) if value is None else value
 
 
+def _cropped(msg) -> tuple[int, int, np.ndarray]:
+    """(width, height, K) of the images a CameraInfo goes with: K and (width, height) are
+    the full sensor's, and a region of interest (`roi`, all zeros: the full image) crops
+    the published images, moving the principal point (binning only scales them, which
+    `CameraModel.for_image_size` does from the images' size)."""
+    K = np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3)
+    width, height = int(msg.width), int(msg.height)
+    roi = getattr(msg, "roi", None)
+    if roi is None:
+        return width, height, K
+    x, y, w, h = (int(v) for v in (roi.x_offset, roi.y_offset, roi.width, roi.height))
+    if (x, y, w, h) == (0, 0, 0, 0) or (x, y, w, h) == (0, 0, width, height):
+        return width, height, K
+    if w <= 0 or h <= 0 or x + w > width or y + h > height:
+        raise InvalidInput(
+            f"camera_info roi (x_offset {x}, y_offset {y}, width {w}, height {h}) does not "
+            f"lie inside its {width}x{height} image"
+        )
+    K = K.copy()
+    K[0, 2] -= x
+    K[1, 2] -= y
+    return w, h, K
+
+
 def camera_info_key(msg) -> tuple:
     """What of a sensor_msgs/CameraInfo a camera model is built from (size, distortion
-    model, K, D): equal keys, the same camera."""
-    return (int(msg.width), int(msg.height), str(msg.distortion_model),
-            tuple(float(v) for v in _field(msg, "k")),
+    model, K, D, with its region of interest applied): equal keys, the same camera."""
+    width, height, K = _cropped(msg)
+    return (width, height, str(msg.distortion_model), tuple(float(v) for v in K.ravel()),
             tuple(float(v) for v in _field(msg, "d")))  # fmt: skip
 
 
 def camera_from_info(msg, mounted: CameraModel) -> CameraModel:
     """`mounted` (the camera file: its pose on the robot) with the intrinsics, distortion
-    and image size of a sensor_msgs/CameraInfo."""
+    and image size of a sensor_msgs/CameraInfo (of its region of interest, where the
+    images are cropped)."""
     model = str(msg.distortion_model)
     if model not in _PINHOLE_MODELS:
         raise InvalidInput(
             f"camera_info distortion_model {model!r} is not supported; use one of "
             f"{[m for m in _PINHOLE_MODELS if m]}"
         )
-    K = np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3)
+    width, height, K = _cropped(msg)
     dist = np.asarray(_field(msg, "d"), dtype=np.float64).ravel()
     if dist.size and not dist.any():
         dist = np.zeros(0)
     try:
-        return CameraModel(K, dist, (int(msg.width), int(msg.height)), mounted.pose)
+        return CameraModel(K, dist, (width, height), mounted.pose)
     except ValueError as exc:
         raise InvalidInput(f"camera_info: {exc}") from None
 

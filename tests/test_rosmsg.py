@@ -78,6 +78,29 @@ def test_camera_info_replaces_intrinsics_and_keeps_the_mounting():
         camera_from_info(fisheye, mounted)
 
 
+def test_camera_info_of_a_cropped_image_gives_the_crop_s_intrinsics():
+    """K is for the full sensor; a region of interest (roi) crops the image published
+    with it. Scaled to the crop's size instead, a centre crop of half the size would
+    halve the focal length and put every person at half their distance."""
+    from follow.run import camera_for_frames
+
+    mounted = CameraModel.from_fov((640, 480), 60.0, CameraPose(height_m=1.1))
+    roi = Msg(x_offset=160, y_offset=120, width=320, height=240, do_rectify=False)
+    info = Msg(**camera_info_fields(mounted), roi=roi, binning_x=0, binning_y=0)
+    camera = camera_for_frames(camera_from_info(info, mounted), 320, 240)
+    assert camera.image_size == (320, 240)
+    np.testing.assert_allclose(camera.K[[0, 1], [0, 1]], mounted.K[[0, 1], [0, 1]])
+    np.testing.assert_allclose(camera.K[:2, 2], mounted.K[:2, 2] - [160, 120])
+    # all zeros: the full image; binning: the image subsampled, K scaled with it
+    full = Msg(x_offset=0, y_offset=0, width=0, height=0, do_rectify=False)
+    info = Msg(**camera_info_fields(mounted), roi=full, binning_x=2, binning_y=2)
+    camera = camera_for_frames(camera_from_info(info, mounted), 320, 240)
+    np.testing.assert_allclose(camera.K[[0, 1], [0, 1]], mounted.K[[0, 1], [0, 1]] / 2)
+    outside = Msg(x_offset=400, y_offset=0, width=320, height=240, do_rectify=False)
+    with pytest.raises(InvalidInput, match="roi"):
+        camera_from_info(Msg(**camera_info_fields(mounted), roi=outside), mounted)
+
+
 def test_odometry_is_interpolated_between_samples_and_never_invented():
     buffer = OdometryBuffer(max_gap_s=0.1)
     buffer.add(Odometry(0.0, 0.0, math.pi - 0.1, 10.0))
