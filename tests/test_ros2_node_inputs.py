@@ -6,6 +6,8 @@ camera. In process, with a stand-in detector; runs where rclpy imports."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from ros2_support import isolated_rclpy, skip_without_ros2
@@ -238,6 +240,42 @@ def test_a_target_unseen_longer_than_the_target_timeout_is_not_published_for_nav
             node._publish(result, frame.image, True, msg.header)
             assert len(published) == 1, f"unseen for {unseen_s} s"
     finally:
+        node.shutdown()
+        node.destroy_node()
+
+
+def test_diagnostics_survive_a_frame_concluded_while_they_are_read():
+    """The perception thread records each frame's timing while the executor's timer reads
+    the recent ones for /diagnostics: read in place, a frame concluded meanwhile raised
+    'deque mutated during iteration' out of the timer, and the executor ended the node."""
+    import sys
+    import threading
+
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
+                                     camera_info_topic=""),
+                      CAMERA, detect=lambda frame: [])  # fmt: skip
+    node.pub_diagnostics.publish = lambda msg: None
+    switch_interval_s = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # threads switch as often as a loaded robot computer may
+    stop = threading.Event()
+
+    def conclude_frames():
+        while not stop.is_set():
+            node._recent.append((time.monotonic(), {"pose": 1.0}))
+
+    appender = threading.Thread(target=conclude_frames, daemon=True)
+    try:
+        for _ in range(300):
+            node._recent.append((time.monotonic(), {"pose": 1.0}))
+        appender.start()
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            node._publish_diagnostics()
+    finally:
+        stop.set()
+        appender.join(2.0)
+        sys.setswitchinterval(switch_interval_s)
         node.shutdown()
         node.destroy_node()
 

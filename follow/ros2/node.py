@@ -489,7 +489,8 @@ class FollowNode(Node):
     def _publish_diagnostics(self) -> None:
         period = self.config.ros.diagnostics_period_s
         now = time.monotonic()
-        recent = [timing for wall, timing in self._recent if now - wall <= period]
+        # a copy first: the perception thread appends while this timer reads
+        recent = [timing for wall, timing in list(self._recent) if now - wall <= period]
         values = {"fps": f"{len(recent) / period:.2f}", "model": self.model_name,
                   "frames": str(self.frames),
                   "frames_without_odometry": str(self.frames_without_odometry),
