@@ -191,3 +191,23 @@ def test_paused_telemetry_makes_the_base_report_no_odometry_and_last_setpoint_is
             assert rover.mode == mf.ROVER_MODE_GUIDED  # the link itself stays up
             rover.pause_telemetry(False)
             assert wait_for(lambda: base.odometry() is not None, 2.0)
+
+
+def test_the_true_pose_is_stamped_at_the_instant_it_describes():
+    """Figures (the safety evaluation's time to stand still, the following error) pair the
+    true pose with its stamp: stamped at the call instead of at the physics step that
+    computed it, a pose up to a step old passed for the pose now."""
+    with SimRover(mode=mf.ROVER_MODE_GUIDED, physics_rate_hz=5.0) as rover:
+        c = Companion(rover)
+        c.setpoint(mavlink.MAV_FRAME_BODY_OFFSET_NED, mf.TYPE_MASK_VELOCITY_YAW_RATE, vx=1.0)
+        assert wait_for(lambda: rover.true_velocity()[0] == 1.0, 2.0)
+        time.sleep(0.25)  # a step at 1 m/s from start to end
+        samples = []
+        for _ in range(80):
+            samples.append(rover.true_pose())
+            time.sleep(0.01)
+        c.close()
+    first = samples[0]
+    assert len({p.stamp_s for p in samples}) >= 3  # several steps
+    for pose in samples:  # straight along x at 1 m/s
+        assert pose.x_m - first.x_m == pytest.approx(pose.stamp_s - first.stamp_s, abs=1e-9)

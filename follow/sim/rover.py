@@ -120,6 +120,7 @@ class SimRover:
         self._boot_s = time.monotonic()
         pose = start_pose or Odometry.origin()
         self._north, self._east, self._yaw = mf.odom_pose_to_ned(pose.x_m, pose.y_m, pose.yaw_rad)
+        self._state_s = self._boot_s  # when the pose and speeds below were computed
         self._speed = 0.0  # forward, m/s
         self._turn_rate = 0.0  # NED, rad/s
         self._target = _Target()
@@ -173,10 +174,12 @@ class SimRover:
     # -- truth and faults -----------------------------------------------------------------
 
     def true_pose(self) -> Odometry:
-        """The vehicle's exact pose in `odom` now."""
+        """The vehicle's exact pose in `odom`, stamped (monotonic clock) at the physics
+        step that computed it: up to a step before the call."""
         with self._lock:
             x, y, yaw = mf.ned_pose_to_odom(self._north, self._east, self._yaw)
-        return Odometry(x, y, yaw, time.monotonic())
+            stamp_s = self._state_s
+        return Odometry(x, y, yaw, stamp_s)
 
     def true_velocity(self) -> tuple[float, float]:
         """(forward m/s, yaw rate rad/s counter-clockwise) now."""
@@ -397,6 +400,7 @@ class SimRover:
         self._north += self._speed * math.cos(self._yaw) * dt_s
         self._east += self._speed * math.sin(self._yaw) * dt_s
         self._yaw = float(wrap_angle(self._yaw + self._turn_rate * dt_s))
+        self._state_s = now
 
     def _emit(self, now: float) -> None:
         boot_ms = int((now - self._boot_s) * 1000)
