@@ -32,7 +32,8 @@ class SourceError(RuntimeError):
 class FrameSource:
     """Iterates frames from a video file, camera index or device, GStreamer pipeline or folder.
 
-    Frames that cannot be decoded are skipped with a warning; a live camera whose reads
+    Frames that cannot be decoded are skipped with a warning; single-channel frames (a
+    GRAY8 pipeline, a mono camera) are used as grey BGR; a live camera whose reads
     keep failing raises SourceError (a camera does not end: it was lost). Timestamps are
     taken from the file's frame rate for files and folders (so replay is reproducible)
     and from the monotonic clock for live cameras.
@@ -94,6 +95,7 @@ class FrameSource:
         position = 0  # a file's frames read or found undecodable: their time
         start = time.monotonic()
         failures = 0
+        grey_said = False
         while True:
             ok, image = self._cap.read()
             if not ok:
@@ -120,9 +122,14 @@ class FrameSource:
             stamp = time.monotonic() - start if self.live else position / self.fps
             index += 1
             position += 1
+            if _single_channel(image):  # a GRAY8 pipeline, a mono camera: as a bag's mono8
+                if not grey_said:
+                    log.info("source %s: single-channel frames, used as grey BGR", self.spec)
+                    grey_said = True
+                image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
             try:
                 yield Frame(image, stamp)
-            except InvalidInput as exc:  # pragma: no cover - decoder gave something odd
+            except InvalidInput as exc:  # the decoder gave something odd
                 log.warning("skipping frame %d: %s", index, exc)
 
     def _frames_announced_after(self, position: int) -> bool:
@@ -146,6 +153,12 @@ class FrameSource:
     def close(self) -> None:
         if self._cap is not None:
             self._cap.release()
+
+
+def _single_channel(image) -> bool:
+    """Whether OpenCV handed over a 2-D 8-bit frame (one channel) instead of HxWx3 BGR."""
+    return (isinstance(image, np.ndarray) and image.ndim == 2 and image.dtype == np.uint8
+            and image.size > 0)  # fmt: skip
 
 
 def _frame_order(path: Path) -> tuple:

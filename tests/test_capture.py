@@ -159,3 +159,70 @@ def test_a_camera_named_by_its_device_file_is_live_not_a_video_file(monkeypatch)
     assert len([next(frames) for _ in range(3)]) == 3
     with pytest.raises(SourceError, match="the camera delivered no frame"):
         next(frames)
+
+
+class _ScriptedCapture:
+    """An OpenCV capture that delivers the given images, then ends (a file) or fails (a
+    camera); `positions_ms` are what CAP_PROP_POS_MSEC reports after each read."""
+
+    def __init__(self, images, fps: float = 10.0, positions_ms=None):
+        self.images = list(images)
+        self.fps = fps
+        self.positions_ms = list(positions_ms) if positions_ms is not None else None
+        self.read_count = 0
+
+    def isOpened(self):
+        return True
+
+    def get(self, prop):
+        if prop == cv2.CAP_PROP_FPS:
+            return self.fps
+        if prop == cv2.CAP_PROP_FRAME_COUNT:
+            return float(len(self.images))
+        if prop == cv2.CAP_PROP_POS_MSEC and self.positions_ms is not None:
+            return self.positions_ms[self.read_count - 1]
+        return 0.0
+
+    def read(self):
+        if self.read_count >= len(self.images):
+            return False, None
+        self.read_count += 1
+        return True, self.images[self.read_count - 1]
+
+    def release(self):
+        pass
+
+
+def test_single_channel_frames_of_a_pipeline_are_converted_to_bgr_not_skipped(
+    monkeypatch, caplog
+):
+    # e.g. "... ! video/x-raw,format=GRAY8 ! appsink" or a mono USB camera: OpenCV hands
+    # over 2-D frames, as a bag's mono8 images are, and they are used as grey BGR frames.
+    grey = [np.full((24, 32), 40 * i, np.uint8) for i in range(3)]
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _ScriptedCapture(grey))
+    frames = iter(FrameSource("v4l2src ! video/x-raw,format=GRAY8 ! appsink"))
+    got = [next(frames) for _ in range(3)]
+    assert [f.image.shape for f in got] == [(24, 32, 3)] * 3
+    assert [int(f.image[5, 5, 2]) for f in got] == [0, 40, 80]
+    assert "skipping" not in caplog.text
+
+
+def test_a_single_channel_video_file_is_read_as_bgr_and_odd_frames_still_skipped(
+    tmp_path, monkeypatch, caplog
+):
+    path = tmp_path / "mono.avi"
+    path.write_bytes(b"")
+    images = [
+        np.full((24, 32), 10, np.uint8),
+        np.full((24, 32), 10, np.float32),  # not uint8: still refused
+        np.full((24, 32, 4), 10, np.uint8),  # four channels: still refused
+        np.full((4, 4), 10, np.uint8),  # too small: still refused, after conversion
+        np.zeros((0, 0), np.uint8),  # empty: refused, not handed to cvtColor
+        np.full((24, 32), 30, np.uint8),
+    ]
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _ScriptedCapture(images))
+    frames = list(FrameSource(str(path)))
+    assert [(f.image.shape, int(f.image[0, 0, 1])) for f in frames] == [
+        ((24, 32, 3), 10), ((24, 32, 3), 30)
+    ]
+    assert caplog.text.count("skipping frame") == 4
