@@ -23,6 +23,9 @@ EARLY_END_TOLERANCE_FRAMES = 1
 # Failed reads in a row skipped as damaged frames before a file counts as cut short.
 MAX_UNDECODABLE_RUN = 30
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+# A file's presentation time this close to index / fps is a frame on its frame rate's
+# grid (containers store times to the millisecond): it keeps index / fps exactly.
+FRAME_RATE_GRID_TOLERANCE_S = 1e-3
 
 
 class SourceError(RuntimeError):
@@ -35,8 +38,9 @@ class FrameSource:
     Frames that cannot be decoded are skipped with a warning; single-channel frames (a
     GRAY8 pipeline, a mono camera) are used as grey BGR; a live camera whose reads
     keep failing raises SourceError (a camera does not end: it was lost). Timestamps are
-    taken from the file's frame rate for files and folders (so replay is reproducible)
-    and from the monotonic clock for live cameras.
+    taken from a video file's presentation times (a variable frame rate kept; where the
+    file has none, from its frame rate), from the frame rate for folders (so replay is
+    reproducible) and from the monotonic clock for live cameras.
     """
 
     def __init__(self, spec: str, folder_fps: float = 15.0):
@@ -94,6 +98,7 @@ class FrameSource:
         index = 0
         position = 0  # a file's frames read or found undecodable: their time
         start = time.monotonic()
+        clock = None if self.live else _FileClock(self.spec, self.fps)
         failures = 0
         grey_said = False
         while True:
@@ -119,7 +124,10 @@ class FrameSource:
                             "s" if failures > 1 else "",
                             first if failures == 1 else f"{first}-{position - 1}")  # fmt: skip
             failures = 0
-            stamp = time.monotonic() - start if self.live else position / self.fps
+            if clock is None:
+                stamp = time.monotonic() - start
+            else:  # the time the container gives the frame just read
+                stamp = clock.stamp(position, self._cap.get(cv2.CAP_PROP_POS_MSEC))
             index += 1
             position += 1
             if _single_channel(image):  # a GRAY8 pipeline, a mono camera: as a bag's mono8
@@ -153,6 +161,73 @@ class FrameSource:
     def close(self) -> None:
         if self._cap is not None:
             self._cap.release()
+
+
+class _FileClock:
+    """Stamps of a video file's frames: the container's presentation times (read after
+    each frame), shifted so that the first frame keeps index / fps; from the frame rate,
+    on from the last good stamp, once they are missing (0), go back, stall or are not
+    finite. A decoder's constant delay in them (OpenCV reports an H.264 AVI's frames at
+    the time of the packet two frames on) is taken out by the shift."""
+
+    def __init__(self, spec: str, fps: float):
+        self.spec = spec
+        self.fps = fps
+        self.from_file = True
+        self._stamped = 0  # frames stamped so far
+        self._first: tuple[float, float] | None = None  # (file ms, stamp s) of the first
+        self._last: tuple[int, float, float] | None = None  # (position, file ms, stamp s)
+
+    def stamp(self, position: int, file_ms: float) -> float:
+        grid = position / self.fps
+        if self.from_file:
+            problem = self._problem(file_ms)
+            if problem is None:
+                stamp = self._from_file(file_ms, grid)
+            else:
+                self._give_up(position, problem)
+        if not self.from_file:  # on at the frame rate from the last stamp (none: 0 shift)
+            stamp = grid
+            if self._last is not None:
+                stamp += self._last[2] - self._last[0] / self.fps
+        self._last = (position, file_ms, stamp)
+        self._stamped += 1
+        return stamp
+
+    def _problem(self, file_ms: float) -> str | None:
+        """Why a frame's presentation time cannot be used; None when it can."""
+        if not np.isfinite(file_ms):
+            return f"not finite: {file_ms}"
+        if self._last is None:
+            return None if file_ms >= 0 else f"negative: {file_ms:g} ms"
+        if file_ms <= 0:
+            return "missing"
+        if file_ms <= self._last[1]:
+            return f"{file_ms:g} ms after {self._last[1]:g} ms"
+        return None
+
+    def _from_file(self, file_ms: float, grid: float) -> float:
+        if self._first is None:
+            self._first = (file_ms, grid)
+            return grid
+        if self._stamped == 1:
+            log.info("source %s: frames stamped with the file's presentation times", self.spec)
+        stamp = self._first[1] + (file_ms - self._first[0]) / 1000.0
+        if abs(stamp - grid) <= FRAME_RATE_GRID_TOLERANCE_S and grid > self._last[2]:
+            return grid  # on a constant frame rate: the stamps it always gave
+        return stamp
+
+    def _give_up(self, position: int, problem: str) -> None:
+        self.from_file = False
+        if self._stamped <= 1:
+            log.info("source %s: the file gives no usable presentation times (frame %d: %s); "
+                     "frames stamped from its frame rate, %g fps", self.spec, position,
+                     problem, self.fps)  # fmt: skip
+            return
+        level = logging.INFO if problem == "missing" else logging.WARNING
+        log.log(level, "source %s: presentation times unusable from frame %d on (%s): "
+                "later frames stamped from the frame rate, %g fps", self.spec, position,
+                problem, self.fps)  # fmt: skip
 
 
 def _single_channel(image) -> bool:

@@ -1,3 +1,4 @@
+import itertools
 import threading
 
 import cv2
@@ -226,3 +227,101 @@ def test_a_single_channel_video_file_is_read_as_bgr_and_odd_frames_still_skipped
         ((24, 32, 3), 10), ((24, 32, 3), 30)
     ]
     assert caplog.text.count("skipping frame") == 4
+
+
+def _write_vfr_mp4(path, times_ms):
+    """An MP4 whose frames are shown at `times_ms` (variable frame rate, as a phone
+    records), written with PyAV; frame i is filled with grey 20 * i."""
+    av = pytest.importorskip("av")
+    from fractions import Fraction
+
+    with av.open(str(path), "w") as out:
+        stream = out.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
+        stream.time_base = stream.codec_context.time_base = Fraction(1, 1000)
+        for i, t in enumerate(times_ms):
+            frame = av.VideoFrame.from_ndarray(np.full((48, 64, 3), 20 * i, np.uint8), "bgr24")
+            frame.pts, frame.time_base = t, Fraction(1, 1000)
+            for packet in stream.encode(frame):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+
+
+def test_a_variable_frame_rate_video_is_stamped_with_its_presentation_times(tmp_path, caplog):
+    # A phone's recording: frames 50-450 ms apart. From index / fps (the container's
+    # average rate), every stamp after the first would be off, and with them the
+    # tracker's velocities and the controller's timing.
+    times_ms = [0, 100, 150, 400, 433, 466, 900, 1000, 1050, 1300, 1400, 1500]
+    path = tmp_path / "vfr.mp4"
+    _write_vfr_mp4(path, times_ms)
+    caplog.set_level("INFO", logger="follow.capture")
+    frames = list(FrameSource(str(path)))
+    assert [f.stamp_s for f in frames] == pytest.approx([t / 1000 for t in times_ms], abs=1e-6)
+    assert "presentation times" in caplog.text
+
+
+def test_a_constant_rate_video_keeps_the_stamps_of_its_frame_rate(tmp_path):
+    for suffix, fourcc in ((".avi", "MJPG"), (".mp4", "mp4v"), (".mkv", "XVID")):
+        path = tmp_path / f"v{suffix}"
+        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), 7.0, (32, 24))
+        for i in range(20):
+            writer.write(np.full((24, 32, 3), 10 * i, np.uint8))
+        writer.release()
+        stamps = [f.stamp_s for f in FrameSource(str(path))]
+        assert stamps == [i / 7.0 for i in range(20)], suffix  # exactly: no figure moves
+
+
+def _fake_file(tmp_path, monkeypatch, positions_ms, fps=10.0):
+    path = tmp_path / "fake.avi"
+    path.write_bytes(b"")
+    images = [np.full((24, 32, 3), i, np.uint8) for i in range(len(positions_ms))]
+    capture = _ScriptedCapture(images, fps=fps, positions_ms=positions_ms)
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: capture)
+    return str(path)
+
+
+def test_a_file_without_presentation_times_is_stamped_from_its_frame_rate(
+    tmp_path, monkeypatch, caplog
+):
+    caplog.set_level("INFO", logger="follow.capture")
+    source = _fake_file(tmp_path, monkeypatch, [0.0] * 5)
+    assert [f.stamp_s for f in FrameSource(source)] == [i / 10.0 for i in range(5)]
+    assert caplog.text.count("frame rate") == 1 and "presentation times" in caplog.text
+
+
+def test_presentation_times_offset_by_the_decoder_and_missing_at_the_end_keep_the_frame_rate(
+    tmp_path, monkeypatch, caplog
+):
+    # What OpenCV reports for an H.264 AVI (PETS 2009 View_001): each frame's time is
+    # that of the packet two frames on, and the frames drained at the end have none.
+    caplog.set_level("INFO", logger="follow.capture")
+    positions = [(i + 2) * 100.00000000000001 for i in range(8)] + [0.0, 0.0]
+    source = _fake_file(tmp_path, monkeypatch, positions)
+    assert [f.stamp_s for f in FrameSource(source)] == [i / 10.0 for i in range(10)]
+    assert "WARNING" not in caplog.text
+
+
+@pytest.mark.parametrize("bad", [150.0, 300.0, float("nan"), float("inf"), -5.0])
+def test_presentation_times_that_go_wrong_midway_give_way_to_the_frame_rate(
+    tmp_path, monkeypatch, caplog, bad
+):
+    caplog.set_level("INFO", logger="follow.capture")
+    positions = [0.0, 50.0, 300.0, bad, 400.0, 450.0]  # going back, stalling, not finite
+    source = _fake_file(tmp_path, monkeypatch, positions)
+    stamps = [f.stamp_s for f in FrameSource(source)]
+    # the file's times while they hold, then on from the last one at the frame rate
+    assert stamps == pytest.approx([0.0, 0.05, 0.3, 0.4, 0.5, 0.6])
+    assert caplog.text.count("frame rate") == 1 and "frame 3" in caplog.text
+
+
+def test_pets_video_stamps_are_those_of_its_frame_rate(data_path):
+    # The PETS evaluations and the bag tests stamp PETS frames through FrameSource.
+    path = str(data_path("pets2009_s2l1/View_001.avi"))
+    source = FrameSource(path)
+    try:
+        stamps = [f.stamp_s for f in itertools.islice(source, 60)]
+    finally:
+        source.close()
+    assert source.fps == 10.0
+    assert stamps == [i / 10.0 for i in range(60)]
