@@ -23,6 +23,8 @@ EARLY_END_TOLERANCE_FRAMES = 1
 # Failed reads in a row skipped as damaged frames before a file counts as cut short.
 MAX_UNDECODABLE_RUN = 30
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+# An image folder's frame rate unless told (`follow run --folder-fps`): its frames' times.
+DEFAULT_FOLDER_FPS = 15.0
 # A file's presentation time this close to index / fps is a frame on its frame rate's
 # grid (containers store times to the millisecond): it keeps index / fps exactly.
 FRAME_RATE_GRID_TOLERANCE_S = 1e-3
@@ -43,7 +45,7 @@ class FrameSource:
     reproducible) and from the monotonic clock for live cameras.
     """
 
-    def __init__(self, spec: str, folder_fps: float = 15.0):
+    def __init__(self, spec: str, folder_fps: float = DEFAULT_FOLDER_FPS):
         self.spec = spec
         self.live = False
         self._folder: list[Path] | None = None
@@ -258,12 +260,14 @@ def open_source(
     camera_info_topic: str | None = None,
     max_odometry_gap_s: float = 0.2,
     skeletons_topic: str | None = None,
+    folder_fps: float = DEFAULT_FOLDER_FPS,
 ):
-    """A FrameSource, or a BagSource when `spec` names a recorded bag (or topics are given)."""
+    """A FrameSource, or a BagSource when `spec` names a recorded bag (or topics are given).
+    `folder_fps`: the frame rate an image folder's frames are stamped at."""
     from follow.bag import BagSource, is_bag
 
     if not (is_bag(spec) or image_topic or odom_topic or camera_info_topic or skeletons_topic):
-        return FrameSource(spec)
+        return FrameSource(spec, folder_fps)
     if not image_topic:
         raise SourceError(f"bag {spec}: give the image topic to read (--image-topic)")
     return BagSource(spec, image_topic, odom_topic, camera_info_topic, max_odometry_gap_s,

@@ -21,8 +21,8 @@ import cv2
 import numpy as np
 
 from follow.camera import CameraModel, check_pose_measured
-from follow.capture import open_source
-from follow.cli_args import non_negative_int
+from follow.capture import DEFAULT_FOLDER_FPS, open_source
+from follow.cli_args import non_negative_int, positive_float
 from follow.config import Config
 from follow.pipeline import FrameResult, Perception, build_runner, run_offline
 from follow.render import annotate, top_down
@@ -44,6 +44,9 @@ def add_arguments(p) -> None:
     p.add_argument("--camera-info-topic", help="bag: CameraInfo, intrinsics over the camera file")
     p.add_argument("--skeletons-topic", help="bag: recorded skeletons (follow demo --bag) "
                    "used instead of the pose network")  # fmt: skip
+    p.add_argument("--folder-fps", type=positive_float, default=DEFAULT_FOLDER_FPS, metavar="HZ",
+                   help="an image folder's frame rate, which its frames are stamped at "
+                   f"(default {DEFAULT_FOLDER_FPS:g})")  # fmt: skip
     p.add_argument("--camera", required=True, help="camera file (YAML/JSON, from follow-calib)")
     p.add_argument("--config", help="TOML configuration over the robot defaults (docs/config.md)")
     p.add_argument("--mavlink", help="MAVLink connection string, e.g. udpin:0.0.0.0:14550")
@@ -280,7 +283,8 @@ def main(args) -> dict:
     if args.replay:
         return replay(args, config)
     source = open_source(args.source, args.image_topic, args.odom_topic, args.camera_info_topic,
-                         config.ros.max_odometry_age_s, args.skeletons_topic)  # fmt: skip
+                         config.ros.max_odometry_age_s, args.skeletons_topic,
+                         folder_fps=args.folder_fps)  # fmt: skip
     try:  # released on every path, a failure before the run included (a camera stays busy)
         return _run_source(args, config, source)
     finally:
@@ -449,7 +453,7 @@ def replay(args, config: Config) -> dict:
     source = open_source(args.source, args.image_topic or header.get("image_topic"),
                          header.get("odom_topic"),
                          args.camera_info_topic or header.get("camera_info_topic"),
-                         config.ros.max_odometry_age_s)  # fmt: skip
+                         config.ros.max_odometry_age_s, folder_fps=args.folder_fps)  # fmt: skip
     camera = None
     perception = None
     agree = total = 0

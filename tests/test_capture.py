@@ -325,3 +325,27 @@ def test_pets_video_stamps_are_those_of_its_frame_rate(data_path):
         source.close()
     assert source.fps == 10.0
     assert stamps == [i / 10.0 for i in range(60)]
+
+
+def test_an_image_folder_plays_at_the_rate_given_to_follow_run(tmp_path, monkeypatch):
+    from follow import run as run_module
+    from follow.camera import CameraModel, CameraPose
+    from follow.capture import open_source
+    from follow.cli import main
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), np.full((48, 64, 3), i * 40, np.uint8))
+    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0)).save(tmp_path / "cam.yaml")
+    stamps = {}
+
+    def opened(*args, **kwargs):  # the run's source, read and then ended
+        source = open_source(*args, **kwargs)
+        stamps[kwargs.get("folder_fps")] = [f.stamp_s for f in source]
+        raise SourceError("read")
+
+    monkeypatch.setattr(run_module, "open_source", opened)
+    for given in ([], ["--folder-fps", "5"]):
+        assert main(["run", str(folder), "--camera", str(tmp_path / "cam.yaml"), *given]) == 1
+    assert stamps == {15.0: [0.0, 1 / 15, 2 / 15], 5.0: [0.0, 0.2, 0.4]}

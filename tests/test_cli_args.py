@@ -28,6 +28,10 @@ from follow.cli_args import (
         (["eval", "tracking", "--match-threshold-m", "-1"], "--match-threshold-m"),
         (["eval", "following", "--latency-s", "-0.1"], "--latency-s"),
         (["run", "video.mp4", "--target-id", "-1"], "--target-id"),
+        (["run", "frames", "--folder-fps", "0"], "--folder-fps"),
+        (["run", "frames", "--folder-fps", "-5"], "--folder-fps"),
+        (["run", "frames", "--folder-fps", "nan"], "--folder-fps"),
+        (["run", "frames", "--folder-fps", "inf"], "--folder-fps"),
         (["eval", "pose", "--sizes", "368", "100"], "--sizes"),  # not a multiple of 8
         (["eval", "pose", "--sizes", "0"], "--sizes"),
         (["eval", "pose-near", "--sizes", "256", "260"], "--sizes"),

@@ -94,7 +94,7 @@ def test_the_source_is_released_when_the_run_fails_before_it_starts(tmp_path, mo
         max_frames=None, config=None, mavlink=None, replay=None, source="0",
         image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
         realtime=False, camera=str(tmp_path / "missing.yaml"), output_video=None, log=None,
-        frames_dir=None, target_id=None,
+        frames_dir=None, target_id=None, folder_fps=15.0,
     )  # fmt: skip
     with pytest.raises((ValueError, OSError)):
         run_module.main(args)
@@ -159,7 +159,7 @@ def test_a_live_cameras_size_probe_frame_is_not_run(tmp_path, monkeypatch):
         max_frames=None, config=None, mavlink=None, replay=None, source="0",
         image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
         realtime=False, camera=str(tmp_path / "camera.yaml"), output_video=None, log=None,
-        frames_dir=None, target_id=None, json=True,
+        frames_dir=None, target_id=None, json=True, folder_fps=15.0,
     )  # fmt: skip
     run_module.main(args)
     assert seen == [1, 2, 3]
