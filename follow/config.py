@@ -44,10 +44,11 @@ class PoseConfig:
     far_person_distance_m: float = 8.0
     far_person_height_m: float = 1.6
     # The height in the network input from which the detector finds a person's neck and
-    # ankles: 95 % of real crops and more from 85 px with the INT8 model (74 px FP32),
+    # ankles: 95 % of real crops and more from 85 px with the INT8 model, 74 px with FP32,
     # chosen on the robot-camera crops, checked on CUHK03 (`follow eval pose-near`;
-    # docs/pose.md). A 640x480 camera of 60 degrees gets 376 px, a 16:9 one of 70 336 px.
-    min_person_input_px: float = 85.0
+    # docs/pose.md). "auto": the one of the precision that runs (INT8: a 640x480 camera of
+    # 60 degrees gets 376 px, a 16:9 one of 70 336 px).
+    min_person_input_px: float | str = "auto"
     # While every person in view is larger than that, run a smaller input (down to 256
     # px, where the smallest of them is still min_person_input_px tall: half the time of
     # 368 px), and the full height every full_input_every_frames frames and whenever the

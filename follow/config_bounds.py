@@ -230,7 +230,9 @@ BOUNDS: dict[str, dict[str, Range]] = {
 }
 
 CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
-    "pose": {"provider": POSE_PROVIDERS, "precision": POSE_PRECISIONS},
+    # min_person_input_px: "auto" or a number in its range (BOUNDS)
+    "pose": {"provider": POSE_PROVIDERS, "precision": POSE_PRECISIONS,
+             "min_person_input_px": ("auto",)},  # fmt: skip
     "identify": {
         "identifier": IDENTIFIERS,
         "mirrored_positives": REID_RULE_CHOICES,
@@ -330,8 +332,11 @@ def markdown_tables() -> str:
                 allowed = "`true` \\| `false`"
             elif isinstance(value, str):
                 choices = list(CHOICES.get(f.name, {}).get(key.name, ()))
-                if bool in field_types(type(section), key.name, str):
+                types = field_types(type(section), key.name, str)
+                if bool in types:
                     choices += ["true", "false"]
+                if float in types:
+                    choices.append(BOUNDS[f.name][key.name].describe())
                 allowed = " \\| ".join(f"`{c}`" for c in choices) if choices else "any text"
             else:
                 allowed = f"`{BOUNDS[f.name][key.name].describe()}`"

@@ -34,6 +34,8 @@ def test_the_defaults_pass_validation():
         ("[pose]\ninput_height_px = 366\n", r"\[pose\] input_height_px = 366"),
         ("[pose]\nprovider = 'gpu'\n", r"\[pose\] provider = 'gpu': must be one of auto, cpu"),
         ("[pose]\nprecision = 'fp16'\n", r"\[pose\] precision"),
+        ("[pose]\nmin_person_input_px = 'big'\n", r"\[pose\] min_person_input_px = 'big': .* auto"),
+        ("[pose]\nmin_person_input_px = 8\n", r"\[pose\] min_person_input_px = 8.0 .* 16 <="),
         ("[identify]\nidentifier = 'ccf11'\n", r"\[identify\] identifier"),
         ("[mavlink]\nautopilot = 'dji'\n", r"\[mavlink\] autopilot"),
         ("[control]\noverlap_stages = 'yes'\n", r"\[control\] overlap_stages = 'yes': .* auto"),
@@ -50,6 +52,14 @@ def test_out_of_range_values_are_refused_naming_the_key(tmp_path, text, match):
     with pytest.raises(ConfigError, match=match) as caught:
         Config.load(path)
     assert str(caught.value).startswith(f"config {path}: ")
+
+
+def test_a_number_or_auto_key_takes_either(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[pose]\nmin_person_input_px = 80\n")
+    assert Config.load(path).pose.min_person_input_px == 80.0
+    path.write_text("[pose]\nmin_person_input_px = 'auto'\n")
+    assert Config.load(path).pose.min_person_input_px == "auto"
 
 
 def test_every_error_is_one_line_each():
@@ -88,7 +98,11 @@ def test_every_key_has_a_declared_range_or_choice():
         numeric_or_text = {k for k in keys if not isinstance(getattr(instance, k), bool)}
         assert numeric_or_text == declared, section.name
         for key, rng in BOUNDS.get(section.name, {}).items():
-            assert rng.contains(getattr(instance, key)), (section.name, key)
+            value = getattr(instance, key)
+            if isinstance(value, str):  # a number or a choice ("auto"): the choice
+                assert value in CHOICES[section.name][key], (section.name, key)
+            else:
+                assert rng.contains(value), (section.name, key)
             assert not rng.contains(math.inf) and not rng.contains(math.nan)
 
 

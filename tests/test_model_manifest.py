@@ -73,7 +73,12 @@ def test_a_cut_without_a_record_is_made_again(cache, tmp_path):
 
 
 @pytest.mark.parametrize("precision", ["auto", "int8"])
-def test_a_corrupted_int8_model_is_refused_with_how_to_rebuild(cache, tmp_path, precision):
+def test_a_corrupted_int8_model_is_refused_with_how_to_rebuild(
+    cache, tmp_path, precision, monkeypatch
+):
+    from follow.pose import cpu_features
+
+    monkeypatch.setattr(cpu_features, "cpu_flags", lambda: frozenset({"avx512_vnni"}))
     source = tmp_path / "fp32.onnx"
     _save_graph(source, quantized=True)
     int8 = default_int8_path()

@@ -12,6 +12,7 @@ import numpy as np
 from follow import model_manifest, models
 from follow.config import PoseConfig
 from follow.pose.decode import DecodedPerson, DecodeParams, decode
+from follow.pose.input_size import reliable_person_input_px
 from follow.pose.people_sized_input import PeopleSizedInput
 from follow.pose.prepare import SOURCE_MODEL
 from follow.pose.preprocess import (
@@ -71,31 +72,55 @@ def model_file_for(config: PoseConfig, model_path: Path | None = None) -> Path:
     return source
 
 
+def resolved_precision(config: PoseConfig) -> str:
+    """What the pose network runs in, "int8" or "fp32", once `precision = "auto"` is
+    settled for this machine: INT8 only on a CPU with 8-bit dot products (VNNI; where
+    the flags cannot be read it is assumed), once `follow models prepare` has made it,
+    for the registry's source model. Elsewhere INT8 is no faster than FP32 and finds far
+    people less well (docs/pose.md). A named `model_file` is what its name says."""
+    if config.model_file:
+        return "int8" if "int8" in Path(config.model_file).name.lower() else "fp32"
+    if config.precision != "auto":
+        return config.precision
+    return "fp32" if _auto_fp32_reason(config) else "int8"
+
+
+def _auto_fp32_reason(config: PoseConfig) -> str | None:
+    """Why `precision = "auto"` runs FP32 here, or None where it runs INT8."""
+    from follow.pose.cpu_features import cpu_flags, has_int8_dot_product
+    from follow.pose.quantize import default_int8_path
+
+    if config.model != SOURCE_MODEL:
+        return f"the INT8 model is made from {SOURCE_MODEL}, not {config.model}"
+    if runs_on_gpu(config.provider):
+        return "on a GPU (the INT8 model is for CPUs)"
+    if has_int8_dot_product(cpu_flags()) is False:
+        return ("this CPU has no 8-bit dot-product instructions (VNNI): INT8 would run no "
+                "faster and find far people less well")  # fmt: skip
+    if not default_int8_path().exists():
+        return "no INT8 model in the cache (`follow models prepare` makes it)"
+    return None
+
+
 def _source_model_file(config: PoseConfig) -> Path:
     if config.model_file:
         return Path(config.model_file)
-    models.get_spec(config.model)  # an unknown [pose] model is refused by name
-    if config.precision in ("auto", "int8") and config.model != SOURCE_MODEL:
-        if config.precision == "int8":
-            raise models.ModelError(
-                f"pose precision 'int8': the INT8 model is made from {SOURCE_MODEL}, not "
-                f"[pose] model '{config.model}'; use precision 'fp32' or 'auto' with it"
-            )
-        config = dataclasses.replace(config, precision="fp32")  # auto: the named model
-    if config.precision == "auto" and runs_on_gpu(config.provider):
-        log.info("pose: precision 'auto' on a GPU: FP32 (the INT8 model is for CPUs)")
-        config = dataclasses.replace(config, precision="fp32")
-    if config.precision == "auto":
-        from follow.pose.quantize import default_int8_path
+    from follow.pose.quantize import default_int8_path
 
-        if default_int8_path().exists():
+    models.get_spec(config.model)  # an unknown [pose] model is refused by name
+    if config.precision == "int8" and config.model != SOURCE_MODEL:
+        raise models.ModelError(
+            f"pose precision 'int8': the INT8 model is made from {SOURCE_MODEL}, not "
+            f"[pose] model '{config.model}'; use precision 'fp32' or 'auto' with it"
+        )
+    if config.precision == "auto":
+        reason = _auto_fp32_reason(config)
+        if reason is None:
             model_manifest.verify_derived(default_int8_path(), REBUILD_INT8)
             return default_int8_path()
-        log.info("pose: no INT8 model in the cache (`follow models prepare` makes it): FP32")
+        log.info("pose: precision 'auto': FP32, %s", reason)
         config = dataclasses.replace(config, precision="fp32")
     if config.precision == "int8":
-        from follow.pose.quantize import default_int8_path
-
         path = default_int8_path()
         if not path.exists():
             raise models.ModelError(
@@ -118,7 +143,7 @@ def _advise_on_int8_without_dot_product(model_path: Path, backend_name: str) -> 
     if int8 and "CPU" in backend_name and has_int8_dot_product(cpu_flags()) is False:
         log.warning("pose: this CPU has no 8-bit dot-product instructions (VNNI), so the INT8 "
                     "model runs no faster than FP32 and finds far people less well: "
-                    '[pose] precision = "fp32" with min_person_input_px = 75 (docs/pose.md)')  # fmt: skip
+                    '[pose] precision = "fp32" (or "auto", which runs it on such a CPU; docs/pose.md)')  # fmt: skip
 
 
 class PoseDetector:
@@ -166,7 +191,7 @@ class PoseDetector:
         runs at the full input height."""
         config = self.config
         self.input_sizing = (
-            PeopleSizedInput(config.input_height_px, config.min_person_input_px,
+            PeopleSizedInput(config.input_height_px, reliable_person_input_px(config),
                              config.full_input_every_frames)
             if config.input_height_from_people else None
         )  # fmt: skip
