@@ -82,10 +82,10 @@ def resolved_precision(config: PoseConfig) -> str:
         return "int8" if "int8" in Path(config.model_file).name.lower() else "fp32"
     if config.precision != "auto":
         return config.precision
-    return "fp32" if _auto_fp32_reason(config) else "int8"
+    return "fp32" if auto_fp32_reason(config) else "int8"
 
 
-def _auto_fp32_reason(config: PoseConfig) -> str | None:
+def auto_fp32_reason(config: PoseConfig) -> str | None:
     """Why `precision = "auto"` runs FP32 here, or None where it runs INT8."""
     from follow.pose.cpu_features import cpu_flags, has_int8_dot_product
     from follow.pose.quantize import default_int8_path
@@ -114,7 +114,7 @@ def _source_model_file(config: PoseConfig) -> Path:
             f"[pose] model '{config.model}'; use precision 'fp32' or 'auto' with it"
         )
     if config.precision == "auto":
-        reason = _auto_fp32_reason(config)
+        reason = auto_fp32_reason(config)
         if reason is None:
             model_manifest.verify_derived(default_int8_path(), REBUILD_INT8)
             return default_int8_path()
