@@ -39,7 +39,7 @@ from follow.freshness import is_ahead, is_fresh
 from follow.handoff import Handoff, OrderedWorker
 from follow.latency import LatencyRecorder
 from follow.odometry_buffer import pose_jumped
-from follow.shutdown import cleanup_begins
+from follow.shutdown import cleanup_begins, halt_on_signal
 from follow.types import (
     Frame,
     Observation,
@@ -452,6 +452,8 @@ class ThreadedRunner:
         )
         capture.start()
         self.control.start()
+        # a shutdown signal stops driving at once, not when the pose network returns
+        unregister_halt = halt_on_signal(self.control.stop)
         outputs = OrderedWorker(on_result) if on_result is not None else None
         if self.overlap_stages:
             detected = self._detected_ahead(stall_timeout_s)
@@ -471,6 +473,7 @@ class ThreadedRunner:
                     break
         finally:
             cleanup_begins()  # a signal now is recorded, not raised into this cleanup
+            unregister_halt()
             self._stop.set()
             self.control.stop()  # first: waiting for the pose thread must not drive on
             detected.close()

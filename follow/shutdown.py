@@ -5,6 +5,14 @@ failed, or was interrupted) a signal is only recorded, so it cannot cut the clea
 (frames unlogged, a writer closed under its thread, an error reported as a clean stop).
 A second signal stops the base first, from a helper thread through the base's
 `emergency_stop` (which takes no lock the interrupted code may hold), and then exits.
+
+Python runs a signal's handler in the main thread only between two bytecodes, so while
+the main thread is inside a long native call (the pose network: 20-350 ms a frame on a
+CPU) the control thread would go on driving toward the last target until the call
+returns. The signal is therefore also written to a pipe (`signal.set_wakeup_fd`) that a
+watcher thread reads at once: it runs the halts registered with `halt_on_signal` (the
+runner's control loop, which then sends only zero) before the main thread gets to the
+handler.
 """
 
 from __future__ import annotations
@@ -13,6 +21,7 @@ import logging
 import os
 import signal
 import threading
+from collections.abc import Callable
 
 from follow.types import VelocityCommand
 
@@ -24,6 +33,22 @@ EMERGENCY_STOP_WAIT_S = 1.0
 
 
 _active: ShutdownSignals | None = None  # the one handling this process's signals
+
+
+def halt_on_signal(halt: Callable[[], None]) -> Callable[[], None]:
+    """Run `halt` from the signal watcher as soon as a first shutdown signal arrives,
+    whatever the main thread is doing (see the module doc); it must be safe to call from
+    any thread, and more than once. Returns the function that unregisters it."""
+    active = _active
+    if active is None:
+        return lambda: None
+    active._halts.append(halt)
+
+    def unregister() -> None:
+        if halt in active._halts:
+            active._halts.remove(halt)
+
+    return unregister
 
 
 def cleanup_begins() -> None:
@@ -43,12 +68,17 @@ class ShutdownSignals:
         self.reason: str | None = None
         self.cleaning_up = False
         self._previous: dict[int, object] = {}
+        self._halts: list[Callable[[], None]] = []
+        self._wakeup: tuple[int, int] | None = None  # (read, write) ends of the pipe
+        self._previous_wakeup_fd = -1
+        self._watcher: threading.Thread | None = None
 
     def __enter__(self) -> ShutdownSignals:
         global _active
         if threading.current_thread() is threading.main_thread():
             for sig in SIGNALS:
                 self._previous[sig] = signal.signal(sig, self._handle)
+            self._watch_signals()
             _active = self
         return self
 
@@ -57,8 +87,48 @@ class ShutdownSignals:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
         self._previous.clear()
+        if self._wakeup is not None:
+            signal.set_wakeup_fd(self._previous_wakeup_fd)
+            os.close(self._wakeup[1])  # the watcher reads the end of the pipe and ends
+            self._watcher.join(timeout=1.0)
+            os.close(self._wakeup[0])
+            self._wakeup = None
+        self._halts.clear()
         if _active is self:
             _active = None
+
+    def _watch_signals(self) -> None:
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)  # the C-level handler must never block
+        try:
+            self._previous_wakeup_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        except ValueError:  # not the main thread of the main interpreter after all
+            os.close(read_fd)
+            os.close(write_fd)
+            return
+        self._wakeup = (read_fd, write_fd)
+        self._watcher = threading.Thread(target=self._watch, args=(read_fd,),
+                                         name="signal-watch", daemon=True)  # fmt: skip
+        self._watcher.start()
+
+    def _watch(self, read_fd: int) -> None:
+        """Halt at once on the first shutdown signal (not during cleanup, whose own
+        stop comes first; a second signal is the handler's emergency stop)."""
+        shutdown_signals = {int(sig) for sig in SIGNALS}
+        while True:
+            try:
+                data = os.read(read_fd, 64)
+            except OSError:
+                return
+            if not data:
+                return  # the write end closed: the block is over
+            if self.cleaning_up or not shutdown_signals & set(data):
+                continue
+            for halt in list(self._halts):
+                try:
+                    halt()
+                except Exception as exc:  # the handler's own path still stops the base
+                    log.error("halting on a signal: %s", exc)
 
     def _handle(self, signum: int, frame) -> None:
         name = signal.Signals(signum).name

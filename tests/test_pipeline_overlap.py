@@ -383,6 +383,7 @@ def test_a_base_that_fails_to_send_still_lets_the_run_deliver_every_result(overl
             return super().send(cmd)
 
     delivered = []
+    threads_before = set(threading.enumerate())
     perception = _TimedPerception(0.01)
     runner = _runner(perception, overlap, base=_LinkGone())
     with pytest.raises(RuntimeError, match="control loop failed") as failure:
@@ -391,4 +392,52 @@ def test_a_base_that_fails_to_send_still_lets_the_run_deliver_every_result(overl
     assert isinstance(failure.value.__cause__, OSError)
     assert runner.processed >= 1 and len(delivered) == runner.processed
     assert delivered == sorted(set(delivered))  # in order, each once
-    assert not [t for t in threading.enumerate() if t.name in ("capture", "outputs")]
+    left = set(threading.enumerate()) - threads_before
+    assert not [t for t in left if t.name in ("capture", "outputs")]
+
+
+def test_a_shutdown_signal_stops_driving_while_the_pose_network_runs():
+    """SIGTERM arrives while the main thread is inside a long native call (the pose
+    network, in turn): the base gets zero at once, not when the call returns."""
+    import hashlib
+    import os
+    import signal
+
+    from follow.shutdown import ShutdownSignals
+
+    probe = 20_000
+    started = time.perf_counter()
+    hashlib.pbkdf2_hmac("sha256", b"frame", b"salt", probe)
+    iterations = int(0.8 * probe / max(time.perf_counter() - started, 1e-6))
+
+    class _SlowNetwork(_TimedPerception):
+        def detect_people(self, frame):
+            if self.detected == 3:  # the fourth frame's inference is long
+                threading.Thread(target=send_signal, daemon=True).start()
+                hashlib.pbkdf2_hmac("sha256", b"frame", b"salt", iterations)
+            return super().detect_people(frame)
+
+        def conclude(self, frame, robot, index, detections):  # the target seen 4 m ahead
+            result = super().conclude(frame, robot, index, detections)
+            seen = Observation(np.array([320.0, 200.0]), np.array([320.0, 400.0]))
+            track = dataclasses.replace(result.tracks[0], observation=seen)
+            return dataclasses.replace(result, tracks=[track],
+                                       target=dataclasses.replace(result.target, target_seen=True))  # fmt: skip
+
+    sent = []
+
+    def send_signal():
+        time.sleep(0.2)
+        sent.append(time.monotonic())
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    base = NullBase()
+    runner = _runner(_SlowNetwork(0.01), overlap=False, base=base)
+    with ShutdownSignals(), pytest.raises(KeyboardInterrupt):
+        runner.run(_frames(50), pace_hz=30.0)
+    assert sent
+    moving = [c for c in base.commands if not c.is_stop]
+    assert moving, "the robot never drove"
+    assert max(c.stamp_s for c in moving) < sent[0] + 0.1  # nothing moving after the signal
+    first_stop_after = min(c.stamp_s for c in base.commands if c.is_stop and c.stamp_s >= sent[0])
+    assert first_stop_after - sent[0] < 0.2  # long before the 0.8 s inference ended

@@ -1,8 +1,10 @@
 """The shutdown path: the first SIGINT/SIGTERM/SIGHUP raises KeyboardInterrupt (the
 Ctrl-C path), a second one stops the base before the process exits."""
 
+import hashlib
 import os
 import signal
+import threading
 import time
 
 import pytest
@@ -35,3 +37,50 @@ def test_second_signal_stops_the_base_then_exits(monkeypatch):
         signals._handle(signal.SIGTERM, None)
     assert exits == [128 + signal.SIGTERM]
     assert base.closed and base.commands[-1].is_stop
+
+
+def _native_call(seconds: float):
+    """A native call that holds the main thread for about `seconds` without returning to
+    Python (as the pose network does) and lets other threads run meanwhile."""
+    probe = 20_000
+    started = time.perf_counter()
+    hashlib.pbkdf2_hmac("sha256", b"frame", b"salt", probe)
+    per_iteration_s = max(time.perf_counter() - started, 1e-6) / probe
+    iterations = int(seconds / per_iteration_s)
+    return lambda: hashlib.pbkdf2_hmac("sha256", b"frame", b"salt", iterations)
+
+
+def test_a_signal_during_a_long_native_call_halts_at_once():
+    """The handler itself runs only once the native call returns; the registered halt
+    runs when the signal arrives."""
+    busy = _native_call(1.0)
+    halted, sent = [], []
+
+    def send_signal():
+        time.sleep(0.1)
+        sent.append(time.monotonic())
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(KeyboardInterrupt):
+        with shutdown.ShutdownSignals():
+            unregister = shutdown.halt_on_signal(lambda: halted.append(time.monotonic()))
+            threading.Thread(target=send_signal).start()
+            try:
+                busy()
+            finally:
+                returned_s = time.monotonic()
+    assert sent and halted, "the halt did not run"
+    assert halted[0] - sent[0] < 0.25
+    assert returned_s - halted[0] > 0.3  # the native call was still running
+    unregister()  # harmless once the block is over
+
+
+def test_no_halt_outside_the_block_or_during_cleanup():
+    halted = []
+    assert shutdown.halt_on_signal(lambda: halted.append(1))() is None  # no active block
+    with shutdown.ShutdownSignals() as signals:
+        shutdown.halt_on_signal(lambda: halted.append(2))
+        signals.cleaning_up = True
+        os.kill(os.getpid(), signal.SIGTERM)  # recorded, not raised: no halt either
+        time.sleep(0.3)
+    assert signals.reason == "SIGTERM" and halted == []
