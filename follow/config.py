@@ -189,7 +189,9 @@ class IdentifyConfig:
     # them: when another track came within identity_risk_distance_m of the target on
     # the floor, or the target's track went unseen for identity_risk_unseen_s, within
     # identity_trust_s. Otherwise (a person turning round, say) the frame is only not
-    # learnt, and the tracker's identity is kept.
+    # learnt, and the tracker's identity is kept. Frames handed to the identifier more
+    # than identity_risk_unseen_s apart (perception stalled) count as the track unseen
+    # for the gap: the tracker matches it again at once, perhaps on someone else.
     identity_trust_s: float = 1.5
     identity_risk_distance_m: float = 1.0
     identity_risk_unseen_s: float = 0.5

@@ -6,7 +6,8 @@ and doubts it from its start to its end; the target's stature comes only from fr
 that vouched for it; nothing is learnt while someone, seen or half out of view, covers
 the target's crop or the target covers theirs; a selected track must be confirmed; "the nearest
 person" forgets an earlier selection; a frame stamped before the last, or as the last,
-is ignored; a tie is no lead."""
+is ignored; a tie is no lead; a stall of perception (no frame for longer than
+`identity_risk_unseen_s`) puts the target's identity at risk."""
 
 from __future__ import annotations
 
@@ -304,3 +305,70 @@ def test_a_frame_ignored_after_a_new_selection_names_no_earlier_target(identifie
     estimate = identifier.update(*scene([target], rng, last), last - 0.1)
     assert (estimate.status, estimate.target_id) == (TargetStatus.INITIAL, None)
     assert estimate.stamp_s == last and identifier.last_stamp_s == last  # still ignored
+
+
+def _scripted_identifier(monkeypatch, scores: dict[int, float]) -> TargetIdentifier:
+    """The real identifier, track 1 selected, on a model that scores each track as
+    `scores` says (changed in place as the test goes)."""
+    monkeypatch.setattr(context_module, "track_rois", lambda tracks, size, cfg: {
+        t.track_id: (100 * t.track_id, 0, 100 * t.track_id + 50, 200)
+        for t in tracks if t.observation is not None})  # fmt: skip
+    monkeypatch.setattr(context_module, "person_boxes", lambda tracks, rois, size, cfg: dict(rois))
+    extractor = ChannelFeatureExtractor((CFG.crop_width_px, CFG.crop_height_px))
+    identifier = TargetIdentifier(CFG, extractor)
+    identifier.context.model = TaughtModel(clean=scores, taught=scores)
+    identifier.select_target(1)
+    return identifier
+
+
+def _after_a_stall(monkeypatch, gap_s: float):
+    """Track 1 is selected, learnt and tracked for 3 s at 15 fps, track 2 always 2 m
+    away (nobody near, never unseen); then perception stalls, no frame at all for
+    `gap_s`, and in the next frame track 1 is matched again but scores low while track 2
+    scores high. The identifier and its estimate of that frame."""
+    scores = {1: 0.9, 2: -0.5}
+    identifier = _scripted_identifier(monkeypatch, scores)
+
+    def both(t):
+        return [person(1, 2.0, last_seen_s=t), person(2, 4.0, last_seen_s=t)]
+
+    for k in range(45):
+        t = 10.0 + k / 15.0
+        estimate = identifier.update(IMAGE, both(t), t)
+    assert (estimate.status, estimate.target_id) == (TargetStatus.TRACKING, 1)
+    assert identifier.context.identity_trusted(t)
+    scores.update({1: -0.5, 2: 0.9})
+    t += gap_s
+    return identifier, identifier.update(IMAGE, both(t), t)
+
+
+def test_a_stall_of_perception_puts_the_identity_at_risk(monkeypatch):
+    """No frame for 1.5 s: the tracker may have put anyone on the target's track, though
+    it is matched again in the next frame (never seen to coast). Its low score is not
+    excused as a turn: the target is doubted, as after its track went unseen."""
+    identifier, estimate = _after_a_stall(monkeypatch, 1.5)
+    assert estimate.status == TargetStatus.REIDENTIFICATION and estimate.target_id is None
+    assert identifier.context.identity_risk_s == estimate.stamp_s
+
+
+def test_a_gap_shorter_than_identity_risk_unseen_s_still_excuses_a_turn(monkeypatch):
+    gap_s = 0.3
+    assert gap_s < CFG.identity_risk_unseen_s
+    identifier, estimate = _after_a_stall(monkeypatch, gap_s)
+    assert (estimate.status, estimate.target_id) == (TargetStatus.TRACKING, 1)
+    assert identifier.context.identity_risk_s == -np.inf
+
+
+def test_a_target_first_chosen_after_a_stall_is_not_at_risk(monkeypatch):
+    """The gap is before the frame the target is chosen from: nobody was named whose track
+    the tracker could have swapped, as a track chosen is one seen now."""
+    scores = {1: 0.9, 2: -0.5}
+    identifier = _scripted_identifier(monkeypatch, scores)
+    for t in (10.0, 10.1):
+        identifier.update(IMAGE, [person(2, 4.0, last_seen_s=t)], t)
+    assert identifier.status == TargetStatus.INITIAL
+    t = 10.1 + 1.5
+    both = [person(1, 2.0, last_seen_s=t), person(2, 4.0, last_seen_s=t)]
+    estimate = identifier.update(IMAGE, both, t)
+    assert (estimate.status, estimate.target_id) == (TargetStatus.INITIAL_TRAINING, 1)
+    assert identifier.context.identity_risk_s == -np.inf

@@ -44,6 +44,8 @@ class IdentityContext:
         self.model = model
         self.requested_id: int | None = None
         self.observed_frames: dict[int, int] = {}  # track id -> frames it was seen in
+        self.last_frame_s: float | None = None  # the stamp of the last frame handed over
+        self.frame_gap_s = 0.0  # the time since the frame before this one, if any
         self.forget()
 
     def forget(self) -> None:
@@ -63,6 +65,14 @@ class IdentityContext:
             i: self.observed_frames.get(i, 0) + int(t.observation is not None)
             for i, t in by_id.items()
         }
+
+    def note_frame(self, stamp_s: float) -> None:
+        """A new frame, once a frame whatever the state: the time since the frame before
+        it (none for the first one, or the first after the identifier is reset). A stall
+        of perception hands over no frame at all, and the target's track is matched again
+        in the next one: `note_target` takes such a gap as the track unseen for as long."""
+        self.frame_gap_s = 0.0 if self.last_frame_s is None else stamp_s - self.last_frame_s
+        self.last_frame_s = stamp_s
 
     # ------------------------------------------------------------------ the frame
     def look(self, frame: FrameTracks, only: int | None = None, embed: bool = True) -> None:
@@ -146,9 +156,12 @@ class IdentityContext:
         `stature`, or another person covers its crop as `crop_shows_another` tells:
         its skeleton may then have been given that person's feet, and nothing is learnt
         of its appearance either), whether the tracker could be swapping it with
-        someone this frame, and, on a frame that `confirmed` its identity, who was seen
-        beside it (`seen_apart`)."""
+        someone this frame (another track near it, or its track unseen, or no frame
+        handed over, for `identity_risk_unseen_s`: `note_frame`; a target first named
+        this frame was chosen from it, past any gap), and, on a frame that `confirmed`
+        its identity, who was seen beside it (`seen_apart`)."""
         track = frame.by_id[target_id]
+        named_before = math.isfinite(self.last_target_s)
         self.last_target_position_m = track.position_m.copy()
         self.last_target_s = frame.stamp_s
         if track.observation is not None:
@@ -157,6 +170,8 @@ class IdentityContext:
                 self.target_height = (track.neck_height_m, float(track.cov[4, 4]))
         near = self._near_target(target_id, frame)
         unseen_s = frame.stamp_s - track.last_seen_s
+        if named_before:  # no frame in the gap: the target was unseen all along it
+            unseen_s = max(unseen_s, self.frame_gap_s)
         if near or unseen_s > self.config.identity_risk_unseen_s:
             self.identity_risk_s = frame.stamp_s
         swappable = near | self._touching_target(target_id, frame)

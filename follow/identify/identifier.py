@@ -80,6 +80,7 @@ class TargetIdentifier:
         names no target: it is what an ignored frame reports."""
         self.context.forget()
         self.context.observed_frames = {}
+        self.context.last_frame_s = None  # the next frame follows no gap
         self.state: State = Initial()
         if self._last is not None:
             self._last = TargetEstimate(self.state.status, None, {}, self._last.stamp_s)
@@ -124,6 +125,7 @@ class TargetIdentifier:
                         "(%.3f s)", stamp_s, self._last.stamp_s)  # fmt: skip
             return self._last
         self.context.count_observations(by_id)
+        self.context.note_frame(stamp_s)
         frame = FrameTracks(image_bgr, list(tracks), stamp_s, robot, by_id)
         self.state = self.state.update(self.context, frame)
         target_id = self.state.target_id
