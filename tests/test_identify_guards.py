@@ -7,7 +7,8 @@ that vouched for it; nothing is learnt while someone, seen or half out of view, 
 the target's crop or the target covers theirs; a selected track must be confirmed; "the nearest
 person" forgets an earlier selection; a frame stamped before the last, or as the last,
 is ignored; a tie is no lead; a stall of perception (no frame for longer than
-`identity_risk_unseen_s`) puts the target's identity at risk."""
+`identity_risk_unseen_s`) puts the target's identity at risk and ends every
+candidate's run of evidence."""
 
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from follow.ccf.channels import ChannelFeatureExtractor
 from follow.identify.appearance import Appearance
 from follow.identify.context import FrameTracks, IdentityContext
 from follow.identify.identifier import TargetIdentifier
-from follow.identify.states import Initial, Probation, Reidentification, Tracking
+from follow.identify.states import Initial, Probation, Reidentification, State, Tracking
 from follow.types import Observation, TargetStatus, TrackState
 
 
@@ -136,6 +137,36 @@ def test_a_streak_ends_in_a_frame_the_candidate_is_not_seen_in():
     assert state.streaks == {7: 0}
     seen = frame([person(7, 2.5, last_seen_s=10.3)], 10.3, {7: 0.9}, {7: 0.9})
     assert isinstance(state.update(ctx, seen), Reidentification)  # one pass, not two
+
+
+def _streak_across_a_gap(gap_s: float) -> tuple[State, Reidentification]:
+    """Candidate 7 passes in `reid_frames` - 1 frames at 10 fps, then in one more frame
+    after no frame at all for `gap_s` (each frame noted, as the identifier does)."""
+    ctx = tracked_context(stamp_s=10.0, observed={7: 5})
+    ctx.note_frame(10.0)
+    state = Reidentification()
+    t = 10.0
+    for _ in range(CFG.reid_frames - 1):
+        t += 0.1
+        ctx.note_frame(t)
+        seen = frame([person(7, 2.5, last_seen_s=t)], t, {7: 0.9}, {7: 0.9})
+        assert state.update(ctx, seen) is state
+    t += gap_s
+    ctx.note_frame(t)
+    seen = frame([person(7, 2.5, last_seen_s=t)], t, {7: 0.9}, {7: 0.9})
+    return state.update(ctx, seen), state
+
+
+def test_a_streak_ends_across_a_stall_of_perception():
+    """No frame for longer than `identity_risk_unseen_s`: every track went unseen, and
+    the tracker may have moved the candidate's track onto someone else in the gap, though
+    it is matched again at once. The frame after the gap starts the run again."""
+    after, state = _streak_across_a_gap(1.0)
+    assert after is state and state.streaks == {7: 1}
+    short = 0.3
+    assert short < CFG.identity_risk_unseen_s  # frames this close decide as they did
+    after, _ = _streak_across_a_gap(short)
+    assert isinstance(after, Probation) and after.target_id == 7
 
 
 def test_probation_needs_the_candidate_seen_not_only_time():

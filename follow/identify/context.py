@@ -70,7 +70,8 @@ class IdentityContext:
         """A new frame, once a frame whatever the state: the time since the frame before
         it (none for the first one, or the first after the identifier is reset). A stall
         of perception hands over no frame at all, and the target's track is matched again
-        in the next one: `note_target` takes such a gap as the track unseen for as long."""
+        in the next one: `note_target` takes such a gap as the track unseen for as long,
+        and re-identification ends every candidate's run of passing frames across it."""
         self.frame_gap_s = 0.0 if self.last_frame_s is None else stamp_s - self.last_frame_s
         self.last_frame_s = stamp_s
 

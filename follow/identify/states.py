@@ -171,7 +171,9 @@ class Tracking(State):
 class Reidentification(State):
     """The target is unknown and nothing is learnt. A track becomes the target again
     after `reid_frames` consecutive frames in which it passes every test of
-    `_may_pass` and `_passes`; the evidence needed rises the longer the target is gone."""
+    `_may_pass` and `_passes`; the evidence needed rises the longer the target is gone.
+    A frame in which a track is unseen ends its run, and so does a gap between frames
+    longer than `identity_risk_unseen_s` for every track (`IdentityContext.note_frame`)."""
 
     status = TargetStatus.REIDENTIFICATION
 
@@ -180,6 +182,10 @@ class Reidentification(State):
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         self.streaks = {k: v for k, v in self.streaks.items() if k in frame.by_id}
+        if context.frame_gap_s > context.config.identity_risk_unseen_s:
+            # No frame for as long (perception stalled): every track went unseen, and
+            # the tracker may have moved one onto someone else. Every streak ends.
+            self.streaks = {}
         # The re-id network runs only on a frame where some track passes every test that
         # needs no embedding: on any other frame no track can pass, whatever re-id says.
         context.look(frame, embed=False)
