@@ -6,6 +6,7 @@ camera. In process, with a stand-in detector; runs where rclpy imports."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -336,3 +337,56 @@ def test_selecting_another_target_stops_the_base_until_a_frame_is_concluded_for_
     finally:
         node.shutdown()
         node.destroy_node()
+
+
+def test_stop_following_sends_zero_while_a_frame_holds_the_perception_lock(monkeypatch):
+    """`~/stop_following` must not wait for the frame being tracked and identified (tens
+    of ms, hundreds on a slow CPU): the base gets its zero, and only zeros after it, while
+    the perception lock is still held."""
+    from std_srvs.srv import Trigger
+    from waiting import wait_for
+
+    from follow import pipeline
+    from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
+
+    monkeypatch.setattr(pipeline.ControlLoop, "_run", lambda loop: loop._stop.wait())  # tick here
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", publish_cmd_vel=True), CAMERA, detect=lambda f: [])
+    twists: list = []
+    node.pub_cmd_vel.publish = twists.append
+    seen = Observation(np.array([160.0, 100.0]), np.array([160.0, 200.0]))
+    held, release = threading.Event(), threading.Event()
+
+    def perceiving():  # a frame being tracked and identified
+        with node._lock:
+            held.set()
+            release.wait(10.0)
+
+    holder = threading.Thread(target=perceiving, daemon=True)
+    response: list = []
+    stopper = threading.Thread(target=lambda: response.append(node._on_stop_following(
+        Trigger.Request(), Trigger.Response())), daemon=True)  # fmt: skip
+    try:
+        now = node.now_s()
+        node._on_odometry(_odometry(now))
+        track = TrackState(7, np.array([4.0, 0.0, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, now,
+                           observation=seen)  # fmt: skip
+        node.results.put(pipeline.FrameResult(0, now, Odometry.origin(now), [], [track],
+                         TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, now)))  # fmt: skip
+        assert node.control.tick().forward_mps > 0 and twists[-1].linear.x > 0
+        holder.start()
+        assert held.wait(3.0)
+        stopper.start()
+        zeroed = wait_for(lambda: len(twists) > 1 and twists[-1].linear.x == 0.0, 1.0)
+        still_held = node._lock.locked()
+        node.control.tick()  # a command after the stop: zero too
+        after = twists[-1]
+    finally:
+        release.set()
+        holder.join(5.0)
+        stopper.join(5.0)
+        node.shutdown()
+        node.destroy_node()
+    assert zeroed and still_held, "no zero on cmd_vel until the perception lock was free"
+    assert after.linear.x == 0.0 and after.angular.z == 0.0 and node.gate.blocked >= 1
+    assert response and response[0].success and node.following is False

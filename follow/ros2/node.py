@@ -319,10 +319,14 @@ class FollowNode(Node):
         self.get_logger().info(f"target selected: {msg.data if msg.data >= 0 else 'nearest'}")
 
     def _on_stop_following(self, request, response):
+        """Zero on cmd_vel at once, and for every command after it: the gate's stop does
+        not wait for the frame being tracked and identified (the perception lock, held
+        for tens of ms, hundreds on a slow CPU). The node's callbacks share one mutually
+        exclusive group, so no `~/select_target` comes between the two steps."""
+        if self.gate is not None:
+            self.gate.stop_following(self.now_s())
         with self._lock:
             self.following = False
-            if self.gate is not None:
-                self.gate.stop_following(self.now_s())
         response.success = True
         response.message = "stopped following; publish a track id on ~/select_target to resume"
         return response
