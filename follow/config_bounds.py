@@ -246,6 +246,10 @@ CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
 # (section, smaller key, larger key): pairs whose order matters.
 ORDERED: tuple[tuple[str, str, str], ...] = (
     ("tracker", "min_neck_height_m", "max_neck_height_m"),
+    # The population prior a new track's height is fused with: inside what the tracker
+    # accepts as a standing person's neck.
+    ("tracker", "min_neck_height_m", "default_neck_height_m"),
+    ("tracker", "default_neck_height_m", "max_neck_height_m"),
     ("tracker", "tentative_max_unseen_s", "max_unseen_s"),
     ("identify", "rect_min_fraction", "rect_max_fraction"),
     ("control", "search_yaw_rate_radps", "max_yaw_rate_radps"),

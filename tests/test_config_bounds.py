@@ -44,6 +44,14 @@ def test_the_defaults_pass_validation():
             "[tracker]\nmin_neck_height_m = 2.0\nmax_neck_height_m = 1.0\n",
             "min_neck_height_m .* must not exceed max_neck_height_m",
         ),
+        (  # each in its range, but a new track would start at a height the tracker refuses
+            "[tracker]\ndefault_neck_height_m = 2.0\nmax_neck_height_m = 1.8\n",
+            r"default_neck_height_m \(2.0\) must not exceed max_neck_height_m \(1.8\)",
+        ),
+        (
+            "[tracker]\ndefault_neck_height_m = 0.8\nmin_neck_height_m = 1.0\n",
+            r"min_neck_height_m \(1.0\) must not exceed default_neck_height_m \(0.8\)",
+        ),
     ],
 )
 def test_out_of_range_values_are_refused_naming_the_key(tmp_path, text, match):
