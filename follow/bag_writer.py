@@ -7,6 +7,7 @@ a video into the bag a robot would have recorded.
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -43,10 +44,18 @@ class BagWriter:
             self.typestore = get_typestore(Stores.ROS2_KILTED)
             target = self.path
             if self._single_mcap:  # rosbags writes a directory; its one .mcap is kept
-                self._tmp = Path(tempfile.mkdtemp(prefix="follow-bag-"))
+                # Hidden beside the bag, not in a temp folder that may be on another file
+                # system: the last step is then a rename, and never leaves part of a bag
+                # under its name.
+                self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp",
+                                                  dir=self.path.parent))  # fmt: skip
                 target = self._tmp / "bag"
             self._writer = Writer(target, version=9, storage_plugin=StoragePlugin.MCAP)
-        self._writer.open()
+        try:
+            self._writer.open()
+        except BaseException:
+            self._remove_tmp()
+            raise
         self._connections: dict[str, object] = {}
         self._seq = 0
 
@@ -117,10 +126,18 @@ class BagWriter:
         self.write(topic, stamp, msg)
 
     def close(self) -> None:
-        self._writer.close()
+        """Finish the bag. A single `.mcap` appears under its name whole, or not at all:
+        a failure on the way removes what was written."""
+        try:
+            self._writer.close()
+            if self._tmp is not None:
+                (written,) = (self._tmp / "bag").glob("*.mcap")
+                os.replace(written, self.path)  # the same folder: atomic
+        finally:
+            self._remove_tmp()
+
+    def _remove_tmp(self) -> None:
         if self._tmp is not None:
-            (written,) = (self._tmp / "bag").glob("*.mcap")
-            shutil.move(str(written), self.path)
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
 
@@ -131,8 +148,7 @@ class BagWriter:
             self._writer.close()
         finally:
             if self._tmp is not None:
-                shutil.rmtree(self._tmp, ignore_errors=True)
-                self._tmp = None
+                self._remove_tmp()
             elif self.path.is_dir():
                 shutil.rmtree(self.path, ignore_errors=True)
             else:

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -296,6 +298,56 @@ def test_a_bag_whose_writing_fails_part_way_is_not_left_as_a_shorter_valid_bag(
                     raise RuntimeError("disk full")
                 bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
     assert not path.exists()
+    assert list(tmp_path.iterdir()) == []  # no temporary left either
+
+
+def test_a_single_mcap_is_written_beside_its_destination_and_renamed_into_place(
+    tmp_path, small_frames, monkeypatch
+):
+    """Written in a system temp folder, the bag's last step was a copy whenever that
+    folder is on another file system, and an interruption left part of a bag under its
+    name: the temporary is hidden in the destination's own folder, then renamed."""
+    renamed = []
+    replace = os.replace
+    monkeypatch.setattr(os, "replace",
+                        lambda src, dst: (renamed.append((src, dst)), replace(src, dst)))  # fmt: skip
+    path = tmp_path / "robot.mcap"
+    with BagWriter(path) as bag:
+        frame = small_frames[0]
+        bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+        (hidden,) = tmp_path.iterdir()
+        assert hidden.name.startswith(".robot.mcap.") and hidden.is_dir()
+    into_place = [Path(src) for src, dst in renamed if Path(dst) == path]
+    assert [src.parent.parent for src in into_place] == [hidden]  # hidden/bag/*.mcap
+    assert list(tmp_path.iterdir()) == [path]
+    source = BagSource(str(path), "/camera/image_raw")
+    assert [f.stamp_s for f in source] == [frame.stamp_s]
+    source.close()
+
+
+@pytest.mark.parametrize("failing", ["writer", "rename"])
+def test_a_single_mcap_whose_closing_fails_leaves_neither_bag_nor_temporary(
+    tmp_path, small_frames, monkeypatch, failing
+):
+    def fail(*args):
+        raise OSError("disk full")
+
+    path = tmp_path / "robot.mcap"
+    replace = os.replace
+    bag = BagWriter(path)
+    frame = small_frames[0]
+    bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+    temporary = bag._tmp
+    if failing == "writer":  # the writer finishes its file, then fails
+        close = bag._writer.close
+        monkeypatch.setattr(bag._writer, "close", lambda: (close(), fail()))
+    else:
+        monkeypatch.setattr(os, "replace",  # the bag's own rename only
+                            lambda src, dst: fail() if Path(dst) == path else replace(src, dst))
+    with pytest.raises(OSError, match="disk full"):
+        bag.close()
+    assert not path.exists() and not temporary.exists()
+    assert list(tmp_path.iterdir()) == []
 
 
 def _record_replayed_frames(monkeypatch) -> list:
