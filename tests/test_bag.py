@@ -371,11 +371,12 @@ def _record_replayed_frames(monkeypatch) -> list:
 
 
 def test_a_bag_run_replays_each_record_on_its_own_image(
-    tmp_path, small_frames, small_camera, capsys, monkeypatch
+    tmp_path, small_frames, small_camera, capsys, monkeypatch, model_path
 ):
     """Images without odometry are skipped in the run but not in the replay (which reads
     no odometry): each record must still meet the image it was made from, not the one
     at its position among all the bag's images."""
+    model_path("ccf/ccf10")  # the run's identifier
     path = tmp_path / "late_odometry.mcap"
     with BagWriter(path) as bag:
         for frame in small_frames:
