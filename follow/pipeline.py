@@ -178,7 +178,9 @@ class ControlLoop:
     `perception_timeout_s` (the watchdog), or the base has no fresh odometry, the command
     is zero until both are back; a result stamped ahead of `clock` counts as stale too
     (`follow.freshness`). On stop, and on any exception inside the loop, the base gets a
-    zero command, and from the moment `stop` is called nothing else leaves the loop.
+    zero command, and from the moment `stop` is called nothing else leaves the loop;
+    likewise, from the moment `clear_result` drops the newest result, no command computed
+    from it leaves the loop.
     Ticks are timed on `time.monotonic`, whatever `clock` is, so a clock that steps back
     (a ROS clock after an NTP step) cannot put the loop to sleep on a moving command.
     """
@@ -210,6 +212,7 @@ class ControlLoop:
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._send_lock = threading.Lock()  # a command and the check before it, as one
+        self._clears = 0  # results dropped by `clear_result` (changed under `_send_lock`)
         self._thread = threading.Thread(target=self._run, name="control", daemon=True)
 
     def start(self) -> ControlLoop:
@@ -219,6 +222,14 @@ class ControlLoop:
     def notify(self) -> None:
         """A new result is in: compute its command now rather than at the next tick."""
         self._wake.set()
+
+    def clear_result(self) -> None:
+        """Drop the newest result (the target it tracks is no longer the one to follow):
+        zero until a new one is put, and a tick under way that took the dropped one sends
+        zero rather than the command it computed from it."""
+        with self._send_lock:
+            self.results.put(None)
+            self._clears += 1  # after the put: a tick that took the dropped one read less
 
     def stop(self) -> None:
         """Zero from now on: a tick still under way can only send zero after this. A
@@ -249,6 +260,7 @@ class ControlLoop:
             command = VelocityCommand.stop(now)
             self._send(command, overridden=True)
             return command
+        clears = self._clears  # before the peek: a result dropped after it is noticed
         result: FrameResult | None = self.results.peek()
         stalled = result is None or not is_fresh(now, result.stamp_s, self.perception_timeout_s)
         if stalled and result is not None:
@@ -266,17 +278,22 @@ class ControlLoop:
         command = self.controller.update(target, now)
         if stalled:
             command = VelocityCommand.stop(now)
-        self._send(command, overridden=stalled)
+        self._send(command, overridden=stalled, clears=clears)
         if result is not None and result is not self._last_result:
             self._last_result = result
             self.latency.add(now - result.stamp_s)
         return command
 
-    def _send(self, command: VelocityCommand, overridden: bool = False) -> None:
-        """Send `command` (zero once stopping); the controller is told of every zero it
-        did not choose, `overridden` here (a watchdog, no odometry) or by the base
-        refusing to move, so that it speeds up from rest afterwards."""
+    def _send(
+        self, command: VelocityCommand, overridden: bool = False, clears: int | None = None
+    ) -> None:
+        """Send `command` (zero once stopping, or when the result it was computed from, taken
+        with `clears` results dropped, has been dropped since); the controller is told of
+        every zero it did not choose, `overridden` here (a watchdog, no odometry, a dropped
+        result) or by the base refusing to move, so that it speeds up from rest afterwards."""
         with self._send_lock:
+            if clears is not None and clears != self._clears and not command.is_stop:
+                command, overridden = VelocityCommand.stop(command.stamp_s), True
             if self._stop.is_set() and not command.is_stop:
                 command = VelocityCommand.stop(command.stamp_s)
             self.last_command = command

@@ -81,6 +81,57 @@ def test_watchdog_stops_the_base_when_perception_stalls():
     assert loop.tick().forward_mps > 0  # fresh data again: it drives again
 
 
+class _HeldController:
+    """A controller whose updates, once `hold` is set, wait for `release` (a tick taken
+    between its reading the newest result and its sending the command)."""
+
+    def __init__(self, controller):
+        self.controller, self.hold = controller, False
+        self.computing, self.release = threading.Event(), threading.Event()
+
+    def update(self, target, stamp_s):
+        command = self.controller.update(target, stamp_s)
+        if self.hold:
+            self.computing.set()
+            assert self.release.wait(5.0)
+        return command
+
+    def stopped_elsewhere(self, stamp_s):
+        self.controller.stopped_elsewhere(stamp_s)
+
+
+def test_a_command_computed_from_a_cleared_result_is_zero():
+    """`clear_result` (the target changed elsewhere) while a tick computes its command
+    from the result it drops: that command drives toward the target no longer followed,
+    so zero goes to the base instead."""
+    now = [10.0]
+    slot, base = LatestSlot(), NullBase(clock=lambda: now[0])
+    held = _HeldController(FollowingController(ControlConfig()))
+    loop = ControlLoop(held, base, slot, rate_hz=15.0, perception_timeout_s=0.5,
+                       clock=lambda: now[0])  # fmt: skip
+    slot.put(_result(10.0))
+    for _ in range(5):
+        now[0] += 1 / 15
+        loop.tick()
+    assert base.commands[-1].forward_mps > 0
+    held.hold = True
+    now[0] += 1 / 15
+    ticking = threading.Thread(target=loop.tick, daemon=True)
+    ticking.start()
+    assert held.computing.wait(5.0)
+    loop.clear_result()
+    held.release.set()
+    ticking.join(5.0)
+    assert not ticking.is_alive()
+    assert base.commands[-1].is_stop and loop.last_command.is_stop
+    held.hold = False
+    now[0] += 1 / 15
+    assert loop.tick().is_stop  # nothing concluded for the new target yet
+    slot.put(_result(now[0]))
+    now[0] += 1 / 15
+    assert loop.tick().forward_mps > 0 and base.commands[-1].forward_mps > 0
+
+
 class _FrozenPerception(Perception):
     """Detects in two frames, then hangs as a stuck detector would."""
 

@@ -339,6 +339,54 @@ def test_selecting_another_target_stops_the_base_until_a_frame_is_concluded_for_
         node.destroy_node()
 
 
+def test_a_command_computed_while_another_target_is_selected_is_not_sent(monkeypatch):
+    """A control tick that took the newest result just before `~/select_target` dropped it
+    computes a command toward the target chosen before: zero goes on cmd_vel instead."""
+    from std_msgs.msg import Int32
+
+    from follow import pipeline
+    from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
+
+    monkeypatch.setattr(pipeline.ControlLoop, "_run", lambda loop: loop._stop.wait())  # tick here
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", publish_cmd_vel=True), CAMERA, detect=lambda f: [])
+    twists: list = []
+    node.pub_cmd_vel.publish = twists.append
+    controller = node.control.controller
+    computing, release = threading.Event(), threading.Event()
+
+    def update(target, stamp_s):  # the command computed, then held before it is sent
+        command = type(controller).update(controller, target, stamp_s)
+        computing.set()
+        release.wait(5.0)
+        return command
+
+    seen = Observation(np.array([160.0, 100.0]), np.array([160.0, 200.0]))
+    ticking = threading.Thread(target=node.control.tick, daemon=True)
+    try:
+        now = node.now_s()
+        node._on_odometry(_odometry(now))
+        track = TrackState(7, np.array([4.0, 0.0, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, now,
+                           observation=seen)  # fmt: skip
+        node.results.put(pipeline.FrameResult(0, now, Odometry.origin(now), [], [track],
+                         TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, now)))  # fmt: skip
+        assert node.control.tick().forward_mps > 0 and twists[-1].linear.x > 0
+        monkeypatch.setattr(controller, "update", update)
+        before = len(twists)
+        ticking.start()
+        assert computing.wait(5.0)
+        node._on_select_target(Int32(data=3))
+        release.set()
+        ticking.join(5.0)
+        assert not ticking.is_alive()
+    finally:
+        release.set()
+        node.shutdown()
+        node.destroy_node()
+    held = twists[before]  # the held tick's command, published after the selection
+    assert held.linear.x == 0.0 and held.angular.z == 0.0, f"cmd_vel: {held.linear.x} m/s"
+
+
 def test_stop_following_sends_zero_while_a_frame_holds_the_perception_lock(monkeypatch):
     """`~/stop_following` must not wait for the frame being tracked and identified (tens
     of ms, hundreds on a slow CPU): the base gets its zero, and only zeros after it, while

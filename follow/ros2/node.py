@@ -304,9 +304,13 @@ class FollowNode(Node):
         """A track id to follow; a negative id: the nearest person again. The newest
         result tracks the target chosen before: it is dropped (the base stops) until a
         frame is concluded with the new choice, so the robot never drives on toward the
-        person the operator just chose against."""
+        person the operator just chose against, not even for a command being computed from
+        it at this moment."""
         with self._lock:
-            self.results.put(None)
+            if self.control is not None:
+                self.control.clear_result()
+            else:
+                self.results.put(None)
             self.following = True
             if self.gate is not None:
                 self.gate.following = True
