@@ -443,10 +443,8 @@ def replay_target_id(header: dict, log_path: str, asked: int | None) -> int | No
 def replay(args, config: Config) -> dict:
     """Tracking and identification again on a log's skeletons and the same frames."""
     header, records = read_run_log(args.replay)
-    records = list(records)
     check_replay_source(header, args.replay, args.source)
     target_id = replay_target_id(header, args.replay, args.target_id)
-    by_index = {r.frame_index: r for r in records}
     # The log holds the robot's poses; a bag's odometry is read again only so that the
     # images the run skipped for want of it are skipped again, and frame numbers agree.
     # The bag's image and camera-info topics are the run's unless given again.
@@ -458,11 +456,19 @@ def replay(args, config: Config) -> dict:
     perception = None
     agree = total = 0
     current: list = [[]]  # the logged skeletons of the frame being replayed
+    # the log is read a record at a time as the frames reach it: its records are in the
+    # order of their frames, each frame without one (skipped by the run) is skipped again
+    record = next(records, None)
     try:
         for index, frame in enumerate(source):
-            record = by_index.get(index)
             if record is None:
+                break  # the log has ended: the rest of the source has nothing to replay
+            if record.frame_index > index:
                 continue
+            if record.frame_index < index:  # a frame logged twice, back in time or below 0
+                after = f"after frame {index - 1}" if index else "below 0"
+                raise ValueError(f"--replay {args.replay}: the log's frame "
+                                 f"{record.frame_index} is out of order ({after})")  # fmt: skip
             if camera is None:
                 h, w = frame.image.shape[:2]
                 logged = header.get("image_size")
@@ -480,8 +486,11 @@ def replay(args, config: Config) -> dict:
             result = perception.process(Frame(frame.image, record.stamp_s), robot, index)
             total += 1
             agree += int(result.target.target_id == record.target_id)
+            record = next(records, None)
     finally:
         source.close()
+    for _ in records:  # the source ended first: the rest of the log is still checked
+        pass
     if total == 0:
         raise ValueError(f"log {args.replay}: no frame of it found in {args.source}")
     summary = {"frames": total, "target_agreement": round(agree / total, 4)}

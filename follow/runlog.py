@@ -7,6 +7,7 @@ identification on the same detections without the pose network.
 
 from __future__ import annotations
 
+import itertools
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -130,19 +131,66 @@ class RunLogWriter:
 
 
 def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
-    """The header and an iterator over the frame records. A truncated last line (a run
-    that was killed mid-write) is ignored; any other malformed line is an error naming it."""
-    path = Path(path)
+    """The header and an iterator over the frame records, which reads the log a line at a
+    time as it is iterated (an hour's log is never held whole). The header and the first
+    frame line are read here, so a file that is no run log is refused at once. A truncated
+    last line (a run that was killed mid-write) is ignored; any other malformed line is an
+    error naming it, raised when the iteration reaches it."""
+    reading = _read(Path(path))
+    header = next(reading)
+    return header, reading
+
+
+def _read(path: Path) -> Iterator:
+    """The header, then the frame records, from one open file; the file is closed when
+    the records end or the iterator is dropped."""
+    with open(path, "rb") as fh:
+        lines = _lines(fh, path)
+        first = next(lines, None)
+        if first is None:
+            raise ValueError(f"run log {path}: empty")
+        header = _header(path, first[1])
+        ahead = next(lines, None)  # the first frame line: a binary file fails here
+        yield header
+        if ahead is None:
+            return
+        for number, line in itertools.chain([ahead], lines):
+            try:
+                d = json.loads(line)
+            except json.JSONDecodeError:
+                if next(lines, None) is None:
+                    return  # the last line, cut short
+                raise ValueError(f"run log {path}: line {number} is not JSON") from None
+            try:
+                record = _record(d)
+            except (KeyError, TypeError, ValueError, IndexError, AttributeError,
+                    OverflowError) as exc:
+                raise ValueError(f"run log {path}: line {number}: {_problem(exc)}") from None
+            yield record
+
+
+def _lines(fh, path: Path) -> Iterator[tuple[int, str]]:
+    """The numbered lines of a file opened in binary, split as `str.splitlines` splits
+    the whole text (a chunk read up to b"\\n" holds whole UTF-8 characters); bytes that are
+    not UTF-8 are named by their offset in the file."""
+    number, offset = 1, 0
+    for chunk in fh:
+        try:
+            text = chunk.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ValueError(
+                f"run log {path}: not a text run log (JSON lines; not UTF-8 at byte "
+                f"{offset + exc.start})"
+            ) from None
+        offset += len(chunk)
+        for line in text.splitlines():
+            yield number, line
+            number += 1
+
+
+def _header(path: Path, line: str) -> dict:
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except UnicodeDecodeError as exc:
-        raise ValueError(
-            f"run log {path}: not a text run log (JSON lines; not UTF-8 at byte {exc.start})"
-        ) from None
-    if not lines:
-        raise ValueError(f"run log {path}: empty")
-    try:
-        header = json.loads(lines[0])
+        header = json.loads(line)
     except json.JSONDecodeError as exc:
         raise ValueError(f"run log {path}: line 1 (header) is not JSON ({exc})") from None
     if not isinstance(header, dict):
@@ -153,22 +201,7 @@ def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
     if size is not None and not _is_image_size(size):
         raise ValueError(f"run log {path}: header image_size {size!r} is not [width, height] "
                          "in pixels")  # fmt: skip
-
-    def records() -> Iterator[FrameRecord]:
-        for number, line in enumerate(lines[1:], start=2):
-            try:
-                d = json.loads(line)
-            except json.JSONDecodeError:
-                if number == len(lines):
-                    return
-                raise ValueError(f"run log {path}: line {number} is not JSON") from None
-            try:
-                yield _record(d)
-            except (KeyError, TypeError, ValueError, IndexError, AttributeError,
-                    OverflowError) as exc:
-                raise ValueError(f"run log {path}: line {number}: {_problem(exc)}") from None
-
-    return header, records()
+    return header
 
 
 def _is_image_size(size) -> bool:

@@ -93,6 +93,35 @@ def test_malformed_replay_log(tmp_path, capsys, record, message):
     assert f"run log {log}: {message}" in err
 
 
+@pytest.mark.parametrize(
+    "frames, message",
+    [((1, 0), "frame 0 is out of order (after frame 1)"),
+     ((2, 2), "frame 2 is out of order (after frame 2)"),
+     ((-1, 0), "frame -1 is out of order (below 0)")],
+)  # fmt: skip
+def test_replay_log_out_of_order(tmp_path, capsys, monkeypatch, frames, message):
+    """The replay reads the log as it goes, pairing each record with its frame: records
+    must come in the order of their frames, as a run writes them."""
+    from types import SimpleNamespace
+
+    from follow import run as run_module
+
+    class Perception:
+        identifier = None
+
+        def process(self, frame, robot, index):
+            return SimpleNamespace(target=SimpleNamespace(target_id=None))
+
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Perception())
+    video = _video(tmp_path / "a.avi")
+    records = [json.dumps({"frame": k, "stamp_s": 0.1 * n, "skeletons": []})
+               for n, k in enumerate(frames)]  # fmt: skip
+    log = _log(tmp_path / "run.jsonl", {"source": str(video), "image_size": [64, 48]}, records)
+    err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)),
+                          "--replay", str(log)])  # fmt: skip
+    assert f"--replay {log}: the log's {message}" in err
+
+
 def _result(stamp_s, track_ids):
     tracks = [TrackState(i, np.array([3.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5), True, stamp_s)
               for i in track_ids]  # fmt: skip

@@ -98,3 +98,27 @@ def test_a_frame_record_of_the_wrong_shape_is_named_not_a_crash(tmp_path, record
     _, records = read_run_log(path)
     with pytest.raises(ValueError, match=rf"run log {path}: line 2: malformed frame record"):
         list(records)
+
+
+def test_the_log_is_read_a_line_at_a_time_as_the_records_are_taken(tmp_path):
+    """Lines written after the first records were taken are read too (the file is read
+    as it is iterated, not whole at the start), and bytes that are not UTF-8 far down are
+    named, with their offset in the file, only when reached."""
+    path = tmp_path / "run.jsonl"
+    log = RunLogWriter(path, {"source": "video.avi"})
+    for i in range(2):
+        log.write_frame(i, i / 15.0, None, [_skeleton(100 + i)], [], None, None)
+    header, records = read_run_log(path)
+    assert header["source"] == "video.avi" and next(records).frame_index == 0
+    for i in range(2, 4):  # the run goes on
+        log.write_frame(i, i / 15.0, None, [_skeleton(100 + i)], [], None, None)
+    log.close()
+    assert [r.frame_index for r in records] == [1, 2, 3]
+
+    good = path.read_bytes()
+    path.write_bytes(good + b'{"frame": 4, "stamp_s": \xff}\n' + good.splitlines(True)[1])
+    _, records = read_run_log(path)
+    assert [next(records).frame_index for _ in range(4)] == [0, 1, 2, 3]
+    offset = len(good) + len(b'{"frame": 4, "stamp_s": ')
+    with pytest.raises(ValueError, match=rf"run log {path}: not a text run log .* byte {offset}\)"):
+        next(records)

@@ -1,0 +1,56 @@
+"""`follow run --replay` reads its log as it replays: each record just before its frame,
+never the whole log first (an hour's log at 30 fps is some 100 000 records)."""
+
+import json
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+
+from follow import cli
+from follow import run as run_module
+from follow.camera import CameraModel, CameraPose
+
+
+def test_a_replay_reads_each_record_of_its_log_as_its_frame_is_reached(
+    tmp_path, capsys, monkeypatch
+):
+    video = tmp_path / "a.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (64, 48))
+    for k in range(10):
+        writer.write(np.full((48, 64, 3), 20 * k, np.uint8))
+    writer.release()
+    camera = tmp_path / "cam.yaml"
+    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0)).save(camera)
+    log = tmp_path / "run.jsonl"
+    lines = [{"log_version": 1, "source": str(video), "image_size": [64, 48]}]
+    lines += [{"frame": k, "stamp_s": k / 15.0, "skeletons": []} for k in (0, 2, 3, 6)]
+    log.write_text("".join(json.dumps(line) + "\n" for line in lines))
+
+    events = []
+    read_run_log = run_module.read_run_log
+
+    def reading(path):
+        header, records = read_run_log(path)
+
+        def taken():
+            for record in records:
+                events.append(("read", record.frame_index))
+                yield record
+
+        return header, taken()
+
+    class Recorder:
+        identifier = None
+
+        def process(self, frame, robot, index):
+            events.append(("replayed", index))
+            return SimpleNamespace(target=SimpleNamespace(target_id=None))
+
+    monkeypatch.setattr(run_module, "read_run_log", reading)
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recorder())
+    argv = ["run", str(video), "--camera", str(camera), "--replay", str(log), "--json"]
+    assert cli.main(argv) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary == {"frames": 4, "target_agreement": 1.0}
+    assert events == [(step, k) for k in (0, 2, 3, 6) for step in ("read", "replayed")]
