@@ -7,6 +7,15 @@ from follow.pose.detector import model_file_for
 from follow.pose.quantize import default_int8_path
 
 
+@pytest.fixture(autouse=True)
+def cpu_with_dot_products(monkeypatch):
+    """These tests are of a CPU that runs INT8 fast (VNNI), whatever CPU runs them; a CPU
+    without 8-bit dot products is tests/test_pose_cpu_features.py's."""
+    from follow.pose import cpu_features
+
+    monkeypatch.setattr(cpu_features, "cpu_flags", lambda: frozenset({"avx2", "avx512_vnni"}))
+
+
 def test_auto_precision_uses_the_int8_model_once_it_is_made(tmp_path, monkeypatch, model_path):
     model_path("pose/human-pose-estimation-0001.onnx")
     monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path / "cache"))
