@@ -339,13 +339,28 @@ def test_selecting_another_target_stops_the_base_until_a_frame_is_concluded_for_
         node.destroy_node()
 
 
+def _drive_toward_a_target(node, twists: list) -> None:
+    """Fresh odometry and a result tracking target 7, seen 4 m ahead: a tick drives toward
+    it, and cmd_vel says so."""
+    from follow import pipeline
+    from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
+
+    now = node.now_s()
+    node._on_odometry(_odometry(now))
+    seen = Observation(np.array([160.0, 100.0]), np.array([160.0, 200.0]))
+    track = TrackState(7, np.array([4.0, 0.0, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, now,
+                       observation=seen)  # fmt: skip
+    node.results.put(pipeline.FrameResult(0, now, Odometry.origin(now), [], [track],
+                     TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, now)))  # fmt: skip
+    assert node.control.tick().forward_mps > 0 and twists[-1].linear.x > 0
+
+
 def test_a_command_computed_while_another_target_is_selected_is_not_sent(monkeypatch):
     """A control tick that took the newest result just before `~/select_target` dropped it
     computes a command toward the target chosen before: zero goes on cmd_vel instead."""
     from std_msgs.msg import Int32
 
     from follow import pipeline
-    from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
 
     monkeypatch.setattr(pipeline.ControlLoop, "_run", lambda loop: loop._stop.wait())  # tick here
     config = Config().replace("identify", identifier="channels")
@@ -361,16 +376,9 @@ def test_a_command_computed_while_another_target_is_selected_is_not_sent(monkeyp
         release.wait(5.0)
         return command
 
-    seen = Observation(np.array([160.0, 100.0]), np.array([160.0, 200.0]))
     ticking = threading.Thread(target=node.control.tick, daemon=True)
     try:
-        now = node.now_s()
-        node._on_odometry(_odometry(now))
-        track = TrackState(7, np.array([4.0, 0.0, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, now,
-                           observation=seen)  # fmt: skip
-        node.results.put(pipeline.FrameResult(0, now, Odometry.origin(now), [], [track],
-                         TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, now)))  # fmt: skip
-        assert node.control.tick().forward_mps > 0 and twists[-1].linear.x > 0
+        _drive_toward_a_target(node, twists)
         monkeypatch.setattr(controller, "update", update)
         before = len(twists)
         ticking.start()
@@ -395,14 +403,12 @@ def test_stop_following_sends_zero_while_a_frame_holds_the_perception_lock(monke
     from waiting import wait_for
 
     from follow import pipeline
-    from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, TrackState
 
     monkeypatch.setattr(pipeline.ControlLoop, "_run", lambda loop: loop._stop.wait())  # tick here
     config = Config().replace("identify", identifier="channels")
     node = FollowNode(config.replace("ros", publish_cmd_vel=True), CAMERA, detect=lambda f: [])
     twists: list = []
     node.pub_cmd_vel.publish = twists.append
-    seen = Observation(np.array([160.0, 100.0]), np.array([160.0, 200.0]))
     held, release = threading.Event(), threading.Event()
 
     def perceiving():  # a frame being tracked and identified
@@ -415,13 +421,7 @@ def test_stop_following_sends_zero_while_a_frame_holds_the_perception_lock(monke
     stopper = threading.Thread(target=lambda: response.append(node._on_stop_following(
         Trigger.Request(), Trigger.Response())), daemon=True)  # fmt: skip
     try:
-        now = node.now_s()
-        node._on_odometry(_odometry(now))
-        track = TrackState(7, np.array([4.0, 0.0, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, now,
-                           observation=seen)  # fmt: skip
-        node.results.put(pipeline.FrameResult(0, now, Odometry.origin(now), [], [track],
-                         TargetEstimate(TargetStatus.TRACKING, 7, {7: 0.9}, now)))  # fmt: skip
-        assert node.control.tick().forward_mps > 0 and twists[-1].linear.x > 0
+        _drive_toward_a_target(node, twists)
         holder.start()
         assert held.wait(3.0)
         stopper.start()
