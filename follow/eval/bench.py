@@ -153,13 +153,9 @@ def main(args) -> dict:
     if (config.pose.precision == "auto" and not config.pose.model_file
             and "int8" not in detector.model_path.name):
         from follow.pose.detector import auto_fp32_reason
-        from follow.pose.quantize import default_int8_path
 
-        if not default_int8_path().exists():
-            notes.append("the INT8 pose model is not made yet, so FP32 ran (2x slower on a "
-                         "CPU with VNNI): `follow models prepare` makes it once")  # fmt: skip
-        else:
-            notes.append(f"FP32 ran, not the INT8 pose model: {auto_fp32_reason(config.pose)}")
+        # the reason names the missing model (and how to make it), the CPU or the GPU
+        notes.append(f"FP32 ran, not the INT8 pose model: {auto_fp32_reason(config.pose)}")
     if result["runner_fps"] and result["runner_fps"] >= 0.95 * args.camera_fps:
         notes.append(f"the runner kept up with the {args.camera_fps:g} fps camera: its figures "
                      "are the camera's rate, not the stack's limit")  # fmt: skip
