@@ -8,9 +8,9 @@ configuration and each frame's input, keeps the current state and reports its es
 
 Rules every state shares (in `follow.identify.context`): only a track confirmed by the
 tracker, seen in the current frame and in `min_target_observations` frames so far, can
-become the target. A
-track's appearance is cut from the observation associated with it in this frame; a
-track without one (occluded, missed) has no appearance and no confidence this frame.
+become the target. A track's appearance is cut from the observation associated with it
+in this frame; a track without one (occluded, missed) has no appearance and no
+confidence this frame.
 Nothing is learnt from a crop that shows two people: while another person's box (seen,
 or predicted by the tracker) covers more than `max_learning_overlap` of the target's
 box the frame is not learnt (neither the target nor the others), since learning during

@@ -222,8 +222,8 @@ class Reidentification(State):
         """The tests that need no re-id embedding: with two cues, the boosted classifier's
         own confidence reaches the required one (`reid_confidence` rising to
         `reid_strict_confidence`); the track is confirmed by the tracker and was seen in
-        `min_target_observations` frames, did not fail probation and was never beside the confirmed target
-        (`reid_excludes_seen_beside`); it stands where the target could have walked
+        `min_target_observations` frames, did not fail probation and was never beside the
+        confirmed target (`reid_excludes_seen_beside`); it stands where the target could have walked
         (`reid_reach_m` + `reid_reach_speed_mps`); its neck height agrees with the
         target's (`reid_height_tolerance_m`); and its torso and legs are each of the
         target's colours (`reid_part_colour_distance`)."""

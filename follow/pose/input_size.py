@@ -1,12 +1,12 @@
 """The network input height a camera needs, from the farthest person to be followed.
 
 The detector finds a person reliably once they are about `min_person_input_px` tall in
-the network input (85 px with the INT8 model, 74 px with FP32) (`follow eval pose-near`, docs/pose.md). A person `far_person_height_m`
-tall, `far_person_distance_m` away, is `f_y * height / distance` px tall in the camera
-image; the input height is the image height scaled so that this person reaches the
-reliable size. A narrow camera then runs a smaller, faster input; a wide one a larger
-input, so that its far people are still found. Without a camera (a bare video, the
-benchmarks) the configured `input_height_px` is used.
+the network input (85 px with the INT8 model, 74 px with FP32; `follow eval pose-near`,
+docs/pose.md). A person `far_person_height_m` tall, `far_person_distance_m` away, is
+`f_y * height / distance` px tall in the camera image; the input height is the image
+height scaled so that this person reaches the reliable size. A narrow camera then runs a
+smaller, faster input; a wide one a larger input, so that its far people are still found.
+Without a camera (a bare video, the benchmarks) the configured `input_height_px` is used.
 """
 
 from __future__ import annotations

@@ -184,7 +184,7 @@ class PeopleTracker:
         self._tracks = [
             t for t in self._tracks
             if stamp_s - t.last_seen_s <= (
-                self.config.max_unseen_s if t.last_seen_s == previous_stamp_s
+                cfg.max_unseen_s if t.last_seen_s == previous_stamp_s
                 else self._max_unseen_s(t))
         ]  # fmt: skip
         Q = process_noise(dt, cfg.accel_noise_mps2, cfg.height_noise_mps)
