@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import re
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import cv2
@@ -163,6 +163,27 @@ class FrameSource:
     def close(self) -> None:
         if self._cap is not None:
             self._cap.release()
+
+
+def played_at_own_stamps(
+    frames: Iterable[Frame],
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> Iterator[Frame]:
+    """Each frame of a file when its own stamp falls due, counted from the first frame:
+    the file played as it was recorded. A variable-frame-rate video keeps its gaps, and
+    frames skipped as undecodable leave theirs; pacing by index / fps would play both
+    on an even grid and the robot would see time run at another speed. A frame already
+    late does not wait."""
+    start_s = first_stamp_s = None
+    for frame in frames:
+        if start_s is None:
+            start_s, first_stamp_s = clock(), frame.stamp_s
+        else:
+            delay_s = start_s + (frame.stamp_s - first_stamp_s) - clock()
+            if delay_s > 0:
+                sleep(delay_s)
+        yield frame
 
 
 class _FileClock:

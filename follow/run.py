@@ -1,7 +1,7 @@
 """`follow run`: follow a person from a camera or a video, optionally driving a base.
 
 Live sources (a camera index or a GStreamer pipeline), `--realtime` and any run that
-drives a base (`--mavlink`, a file then plays at its frame rate) run capture,
+drives a base (`--mavlink`, a file then plays at its own frames' stamps) run capture,
 perception and control in their own threads on the wall clock, with the perception
 watchdog. A file without a base and without `--realtime` is processed frame by frame,
 every frame, reproducibly. Ctrl-C, SIGTERM, SIGHUP or an error send the base a zero
@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from follow.camera import CameraModel, check_pose_measured
-from follow.capture import DEFAULT_FOLDER_FPS, open_source
+from follow.capture import DEFAULT_FOLDER_FPS, open_source, played_at_own_stamps
 from follow.cli_args import non_negative_int, positive_float
 from follow.config import Config
 from follow.pipeline import FrameResult, Perception, build_runner, run_offline
@@ -56,7 +56,7 @@ def add_arguments(p) -> None:
     p.add_argument("--frames-dir", help="write annotated frames (with a top-down view) here")
     p.add_argument("--log", help="write a JSON-lines log of every frame here")
     p.add_argument(
-        "--realtime", action="store_true", help="play a file at its frame rate with threads"
+        "--realtime", action="store_true", help="play a file as recorded (its frames' own times) with threads"
     )
     p.add_argument("--max-frames", type=int, help="stop after this many frames")
     p.add_argument(
@@ -372,7 +372,7 @@ def _run_source(args, config: Config, source) -> dict:
 def run_frames(args, config, source, frames, perception, camera, base, outputs, summary,
                watch, bag_odometry=None) -> None:  # fmt: skip
     """The loop: threads (a live source, `--realtime`, or any run driving a base: a file
-    is then played at its frame rate, with the watchdog) or, for a file without a base,
+    is then played at its own stamps, with the watchdog) or, for a file without a base,
     every frame in order."""
     from follow.control.base import NullBase
     from follow.control.controller import FollowingController
@@ -389,9 +389,10 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
             watch.check(result)
             outputs.write(frame, result, runner.control.last_command)
 
+        if not source.live:
+            frames = played_at_own_stamps(frames)
         try:
-            runner.run(frames, pace_hz=None if source.live else source.fps,
-                       on_result=on_result, max_frames=args.max_frames,
+            runner.run(frames, on_result=on_result, max_frames=args.max_frames,
                        stall_timeout_s=(config.control.camera_stall_timeout_s
                                         if source.live else None))  # fmt: skip
         finally:

@@ -5,7 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from follow.capture import FrameSource, LatestSlot, SourceError
+from follow.capture import FrameSource, LatestSlot, SourceError, played_at_own_stamps
+from follow.types import Frame
 
 
 def test_latest_slot_keeps_only_the_newest_and_counts_drops():
@@ -349,3 +350,44 @@ def test_an_image_folder_plays_at_the_rate_given_to_follow_run(tmp_path, monkeyp
     for given in ([], ["--folder-fps", "5"]):
         assert main(["run", str(folder), "--camera", str(tmp_path / "cam.yaml"), *given]) == 1
     assert stamps == {15.0: [0.0, 1 / 15, 2 / 15], 5.0: [0.0, 0.2, 0.4]}
+
+
+class _FakeTime:
+    """A clock that only sleeps move, and the sleeps asked of it."""
+
+    def __init__(self, start_s: float = 100.0):
+        self.now_s, self.sleeps = start_s, []
+
+    def clock(self) -> float:
+        return self.now_s
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps.append(seconds)
+        self.now_s += seconds
+
+
+def test_a_file_played_as_recorded_waits_for_each_frames_own_stamp(tmp_path):
+    # The phone video of the test above: `--realtime` and `--mavlink` runs play it with
+    # its own gaps (250 ms, 434 ms), not on an even grid of the container's rate.
+    times_ms = [0, 100, 150, 400, 433, 466, 900, 1000, 1050, 1300, 1400, 1500]
+    path = tmp_path / "vfr.mp4"
+    _write_vfr_mp4(path, times_ms)
+    fake = _FakeTime()
+    played = played_at_own_stamps(FrameSource(str(path)), fake.clock, fake.sleep)
+    due_s = [fake.clock() - 100.0 for _ in played]
+    assert due_s == pytest.approx([t / 1000 for t in times_ms], abs=1e-6)
+
+
+def test_a_late_frame_is_not_held_back_and_the_next_keeps_its_time():
+    fake = _FakeTime()
+    image = np.zeros((24, 32, 3), np.uint8)
+    played = []
+    for frame in played_at_own_stamps(
+        [Frame(image, 5.0), Frame(image, 5.1), Frame(image, 5.2), Frame(image, 5.3)],
+        fake.clock, fake.sleep,
+    ):  # fmt: skip
+        played.append(round(fake.clock() - 100.0, 6))
+        if frame.stamp_s == 5.1:
+            fake.now_s += 0.25  # a slow consumer: frame 5.2 is already late
+    assert played == [0.0, 0.1, 0.35, 0.35]
+    assert all(s > 0 for s in fake.sleeps)
