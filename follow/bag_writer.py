@@ -32,24 +32,23 @@ class BagWriter:
             raise FileExistsError(f"bag {self.path} exists already; not overwriting it")
         self.ros1 = self.path.suffix == ".bag"
         self._single_mcap = self.path.suffix == ".mcap"
-        self._tmp: Path | None = None
+        # Written in a hidden folder beside the bag, not in a temp folder that may be on
+        # another file system: the last step is then a rename, and a run killed on the way
+        # never leaves part of a bag under its name (it would read back as a valid,
+        # shorter recording).
+        self._tmp: Path | None = Path(
+            tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+        )
+        target = self._tmp / self.path.name
         if self.ros1:
             from rosbags.rosbag1 import Writer
 
             self.typestore = get_typestore(Stores.ROS1_NOETIC)
-            self._writer = Writer(self.path)
-        else:
+            self._writer = Writer(target)
+        else:  # rosbags writes a directory; of a single `.mcap`, its one file is kept
             from rosbags.rosbag2 import StoragePlugin, Writer
 
             self.typestore = get_typestore(Stores.ROS2_KILTED)
-            target = self.path
-            if self._single_mcap:  # rosbags writes a directory; its one .mcap is kept
-                # Hidden beside the bag, not in a temp folder that may be on another file
-                # system: the last step is then a rename, and never leaves part of a bag
-                # under its name.
-                self._tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp",
-                                                  dir=self.path.parent))  # fmt: skip
-                target = self._tmp / "bag"
             self._writer = Writer(target, version=9, storage_plugin=StoragePlugin.MCAP)
         try:
             self._writer.open()
@@ -126,13 +125,16 @@ class BagWriter:
         self.write(topic, stamp, msg)
 
     def close(self) -> None:
-        """Finish the bag. A single `.mcap` appears under its name whole, or not at all:
-        a failure on the way removes what was written."""
+        """Finish the bag. It appears under its name whole, or not at all: a failure on
+        the way removes what was written."""
         try:
             self._writer.close()
-            if self._tmp is not None:
-                (written,) = (self._tmp / "bag").glob("*.mcap")
-                os.replace(written, self.path)  # the same folder: atomic
+            written = self._tmp / self.path.name
+            if self._single_mcap:
+                (written,) = written.glob("*.mcap")
+            if self.path.exists():  # made meanwhile: neither overwritten nor merged
+                raise FileExistsError(f"bag {self.path} appeared while writing; not overwriting it")
+            os.replace(written, self.path)  # the same folder: atomic
         finally:
             self._remove_tmp()
 
@@ -147,12 +149,7 @@ class BagWriter:
         try:
             self._writer.close()
         finally:
-            if self._tmp is not None:
-                self._remove_tmp()
-            elif self.path.is_dir():
-                shutil.rmtree(self.path, ignore_errors=True)
-            else:
-                self.path.unlink(missing_ok=True)
+            self._remove_tmp()
 
     def __enter__(self) -> BagWriter:
         return self

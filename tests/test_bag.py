@@ -301,24 +301,26 @@ def test_a_bag_whose_writing_fails_part_way_is_not_left_as_a_shorter_valid_bag(
     assert list(tmp_path.iterdir()) == []  # no temporary left either
 
 
-def test_a_single_mcap_is_written_beside_its_destination_and_renamed_into_place(
-    tmp_path, small_frames, monkeypatch
+@pytest.mark.parametrize("name", ["robot.bag", "robot.mcap", "robot_ros2"])
+def test_a_bag_is_written_beside_its_destination_and_renamed_into_place(
+    tmp_path, small_frames, monkeypatch, name
 ):
-    """Written in a system temp folder, the bag's last step was a copy whenever that
-    folder is on another file system, and an interruption left part of a bag under its
-    name: the temporary is hidden in the destination's own folder, then renamed."""
+    """Written under its own name, a ROS 1 bag or a ROS 2 bag folder cut short by a
+    killed run read back as a valid, shorter recording; written in a system temp folder,
+    the last step was a copy whenever that folder is on another file system. The bag is
+    written hidden in the destination's own folder, then renamed."""
     renamed = []
     replace = os.replace
     monkeypatch.setattr(os, "replace",
                         lambda src, dst: (renamed.append((src, dst)), replace(src, dst)))  # fmt: skip
-    path = tmp_path / "robot.mcap"
+    path = tmp_path / name
     with BagWriter(path) as bag:
         frame = small_frames[0]
         bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
         (hidden,) = tmp_path.iterdir()
-        assert hidden.name.startswith(".robot.mcap.") and hidden.is_dir()
-    into_place = [Path(src) for src, dst in renamed if Path(dst) == path]
-    assert [src.parent.parent for src in into_place] == [hidden]  # hidden/bag/*.mcap
+        assert hidden.name.startswith(f".{name}.") and hidden.is_dir()
+    (into_place,) = [Path(src) for src, dst in renamed if Path(dst) == path]
+    assert hidden in into_place.parents
     assert list(tmp_path.iterdir()) == [path]
     source = BagSource(str(path), "/camera/image_raw")
     assert [f.stamp_s for f in source] == [frame.stamp_s]
