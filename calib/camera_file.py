@@ -15,6 +15,7 @@ import os
 import secrets
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from follow.camera import CameraModel, read_calibration_notes
@@ -66,6 +67,21 @@ def write_file_atomic(path: str | Path, data: bytes) -> None:
             os.close(folder)
 
 
+def _plain(value):
+    """Notes as text, numbers, lists and mappings, which JSON and YAML both write: numpy
+    numbers as numbers, anything else YAML reads in a free-form note (a date, also as a
+    key) as its text."""
+    if isinstance(value, dict):
+        return {k if isinstance(k, str) else str(_plain(k)): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if value is None or isinstance(value, (str, bool, int, float)):
+        return value
+    return str(value)
+
+
 def write_camera_file(
     path: str | Path,
     model: CameraModel,
@@ -84,7 +100,7 @@ def write_camera_file(
     merged.update(notes or {})
     data = model.to_dict()
     if merged:
-        data["calibration"] = json.loads(json.dumps(merged, default=float))
+        data["calibration"] = _plain(merged)
     if path.parent and not path.parent.exists():
         path.parent.mkdir(parents=True)
     if path.suffix.lower() in (".yaml", ".yml"):

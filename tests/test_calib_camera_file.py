@@ -9,7 +9,7 @@ import pytest
 
 from calib.camera_file import write_camera_file, write_file_atomic
 from calib.synthetic import BoardSpec, render_floor_board
-from follow.camera import CameraModel, CameraPose
+from follow.camera import CameraModel, CameraPose, read_calibration_notes
 
 REPO = Path(__file__).resolve().parents[1]
 CAMERA = CameraModel.from_fov((640, 480), 70.0, CameraPose(0.83, 0.2, 0.01))
@@ -80,3 +80,22 @@ def test_a_replaced_file_keeps_its_permissions(tmp_path):
     assert (tmp_path / "link.yaml").is_symlink() and path.read_bytes() == b"newer"
     with pytest.raises(OSError, match="cannot write .*missing"):
         write_file_atomic(tmp_path / "missing" / "cam.yaml", b"new")
+
+
+@pytest.mark.parametrize("name", ["cam.yaml", "cam.json"])
+def test_notes_with_dates_are_kept_as_their_text(tmp_path, name):
+    # The calibration section is free-form: YAML reads a date there as a date object.
+    (tmp_path / "old.yaml").write_text(
+        "calibration:\n  checked: 2024-05-01\n  2024-06-02: camera remounted\n"
+    )
+    path = tmp_path / name
+    write_camera_file(
+        path, CAMERA, {"pose": "follow-calib ground"}, notes_from=tmp_path / "old.yaml"
+    )
+    notes = read_calibration_notes(path)
+    assert notes == {
+        "checked": "2024-05-01",
+        "2024-06-02": "camera remounted",
+        "pose": "follow-calib ground",
+    }
+    assert CameraModel.load(path).to_dict() == CAMERA.to_dict()
