@@ -87,16 +87,18 @@ def write_camera_file(
     model: CameraModel,
     notes: dict | None = None,
     notes_from: str | Path | None = None,
+    keep_notes: bool = True,
 ) -> None:
     """Write the camera file (YAML for .yaml/.yml, else JSON) with a `calibration` section.
 
     The notes of the file the model was read from, `notes_from` (default: an existing file
     at `path`), are kept where `notes` does not replace them: they say how the parts of
-    the model that were not measured now were measured.
+    the model that were not measured now were measured. `keep_notes=False` for a model
+    measured whole: an old file's notes would describe another camera.
     """
     path = Path(path)
     source = Path(notes_from) if notes_from is not None else path
-    merged = read_calibration_notes(source) if source.exists() else {}
+    merged = read_calibration_notes(source) if keep_notes and source.exists() else {}
     merged.update(notes or {})
     data = model.to_dict()
     if merged:

@@ -54,7 +54,7 @@ def main(args: argparse.Namespace) -> dict:
         "tsai_max_discrepancy_px": round(discrepancy_px, 5),
         "frame": "base is the calibration's world frame (m, z up, ground z = 0)",
     }
-    write_camera_file(args.output, model, notes)
+    write_camera_file(args.output, model, notes, keep_notes=False)  # all of it is new
     p = model.pose
     result = {
         "camera_file": str(args.output),

@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 
 from calib import cli
+from calib.camera_file import write_camera_file
 from calib.gt_boxes import BoxFileError, motion_figures, read_boxes
 from calib.tsai import TsaiCamera, TsaiFileError
-from follow.camera import CameraModel
+from follow.camera import CameraModel, CameraPose, read_calibration_notes
 
 PETS = "pets2009_s2l1"
 
@@ -210,3 +211,17 @@ def test_a_world_in_metres_or_upside_down_is_refused_by_name(tmp_path, extrinsic
     )
     with pytest.raises(TsaiFileError, match="world units must be mm"):
         TsaiCamera.from_xml(write(tmp_path, text))
+
+
+def test_an_import_over_a_calibrated_file_keeps_none_of_its_notes(tmp_path, capsys):
+    # The notes of the chessboard calibration the file held (its RMS, views, coverage)
+    # were kept beside the import's, as if they described the imported intrinsics.
+    xml = write(tmp_path, VALID_XML.format(kappa1=0.01, rx=-1.95))
+    out = tmp_path / "c.yaml"
+    old = CameraModel.from_fov((640, 480), 70.0, CameraPose(1.0))
+    write_camera_file(out, old, {"intrinsics": "follow-calib intrinsics",
+                                 "intrinsics_rms_px": 0.15, "pose_board_rms_px": 0.2})  # fmt: skip
+    assert cli.main(["import-tsai", str(xml), "-o", str(out)]) == 0
+    notes = read_calibration_notes(out)
+    assert notes["intrinsics"] == notes["pose"] == "follow-calib import-tsai cam.xml"
+    assert "intrinsics_rms_px" not in notes and "pose_board_rms_px" not in notes
