@@ -505,12 +505,18 @@ def read_camera_data(path: str | Path):
             f"camera file {path}: not a text camera file (YAML/JSON; not UTF-8 at byte "
             f"{exc.start})"
         ) from None
-    try:
-        if path.suffix.lower() in (".yaml", ".yml"):
+    if path.suffix.lower() in (".yaml", ".yml"):
+        try:
             return _parse_yaml(text)
+        except Exception as exc:  # yaml's errors, and a key given twice
+            raise CameraFileError(f"camera file {path}: not valid YAML ({exc})") from None
+    try:
         return json.loads(text, object_pairs_hook=_unique_keys)
-    except Exception as exc:  # yaml and json raise different types
-        raise CameraFileError(f"camera file {path}: not valid YAML/JSON ({exc})") from None
+    except Exception as exc:  # json's errors, and a key given twice
+        raise CameraFileError(
+            f"camera file {path}: not valid JSON ({exc}); files not named .yaml/.yml are read "
+            "as JSON (name a YAML camera file .yaml or .yml)"
+        ) from None
 
 
 def read_calibration_notes(path: str | Path) -> dict:

@@ -141,3 +141,23 @@ def test_a_camera_matrix_for_another_image_size_is_refused(tmp_path):
     path = _write(tmp_path, data)
     with pytest.raises(CameraFileError, match="principal point .* outside the 640x360 image"):
         CameraModel.load(path)
+
+
+@pytest.mark.parametrize("name", ["camera.yaml.bak", "camera.conf"])
+def test_a_yaml_file_under_another_suffix_is_said_to_be_read_as_json(tmp_path, name):
+    # It was called "not valid YAML/JSON" though it was valid YAML, only named otherwise.
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(_data()))
+    with pytest.raises(CameraFileError) as err:
+        CameraModel.load(path)
+    message = str(err.value)
+    assert f"camera file {path}: not valid JSON" in message
+    assert "YAML" not in message.split("(")[0]
+    assert "name a YAML camera file .yaml or .yml" in message
+
+
+def test_a_malformed_yaml_file_is_said_to_be_yaml(tmp_path):
+    path = tmp_path / "cam.yaml"
+    path.write_text("pose: [1, 2\n")
+    with pytest.raises(CameraFileError, match=re.escape(f"camera file {path}: not valid YAML (")):
+        CameraModel.load(path)
