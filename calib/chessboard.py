@@ -69,7 +69,10 @@ def read_image(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise ImageInputError(f"image {path}: no such file")
-    data = np.fromfile(str(path), dtype=np.uint8)
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8)
+    except OSError as exc:  # no permission to read it, a failing disk
+        raise ImageInputError(f"image {path}: cannot read ({exc.strerror or exc})") from None
     image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     if image is None:
         raise ImageInputError(f"image {path}: not a readable image (corrupt or unknown format)")

@@ -338,3 +338,30 @@ def test_views_of_the_same_file_name_in_two_folders_are_each_counted(views, tmp_
     assert result["views_used"] == 6
     assert len(result["per_view_rms_px"]) == 6
     assert str(tmp_path / "right" / "shot_0.png") in result["per_view_rms_px"]
+
+
+def test_a_file_that_cannot_be_read_is_skipped_like_a_corrupt_one(
+    views, tmp_path, monkeypatch, capsys
+):
+    # A file without read permission stopped the whole calibration with a bare
+    # "[Errno 13] Permission denied", where a corrupt one is skipped and listed.
+    for name, image in views[:6]:
+        cv2.imwrite(str(tmp_path / f"{name.replace(' ', '_')}.png"), image)
+    (tmp_path / "locked.png").write_bytes(b"")
+    fromfile = np.fromfile
+
+    def refuse_locked(file, *args, **kwargs):
+        if str(file).endswith("locked.png"):
+            raise PermissionError(13, "Permission denied", str(file))
+        return fromfile(file, *args, **kwargs)
+
+    monkeypatch.setattr(np, "fromfile", refuse_locked)
+    out = tmp_path / "cam.yaml"
+    argv = ["intrinsics", str(tmp_path), "--pattern", "9x6", "--square-size-m", "0.03"]
+    assert cli.main(argv + ["-o", str(out), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert result["views_used"] == 6
+    assert result["rejected"] == [
+        {"view": "locked.png", "reason": f"image {tmp_path / 'locked.png'}: cannot read "
+                                         "(Permission denied)"}
+    ]  # fmt: skip
