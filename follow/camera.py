@@ -497,7 +497,7 @@ def read_camera_data(path: str | Path):
     naming the file where it cannot be read or parsed."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a byte order mark is dropped
     except OSError as exc:
         raise CameraFileError(f"camera file {path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError as exc:

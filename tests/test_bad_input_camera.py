@@ -161,3 +161,13 @@ def test_a_malformed_yaml_file_is_said_to_be_yaml(tmp_path):
     path.write_text("pose: [1, 2\n")
     with pytest.raises(CameraFileError, match=re.escape(f"camera file {path}: not valid YAML (")):
         CameraModel.load(path)
+
+
+@pytest.mark.parametrize("name", ["cam.yaml", "cam.json"])
+def test_a_file_saved_with_a_utf8_byte_order_mark_loads(tmp_path, name):
+    # Windows editors may start UTF-8 text with a byte order mark: the JSON reader
+    # refused such a file ("Unexpected UTF-8 BOM").
+    path = tmp_path / name
+    text = yaml.safe_dump(_data()) if name.endswith(".yaml") else json.dumps(_data())
+    path.write_text(text, encoding="utf-8-sig")
+    assert CameraModel.load(path).to_dict() == CameraModel.from_dict(_data()).to_dict()
