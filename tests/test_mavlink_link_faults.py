@@ -604,3 +604,31 @@ def test_a_message_the_driver_cannot_handle_is_dropped_and_receiving_goes_on(
         assert base._receiver.is_alive()
         assert f"MAVLink message {failures[0]} not handled" in caplog.text
         assert base.state is LinkState.ACTIVE
+
+
+def test_a_receive_error_other_than_an_os_error_does_not_end_the_receiver(
+    vehicle, monkeypatch, caplog
+):
+    """pymavlink's TCP reconnect, run by the receiver and the sender at once while the
+    peer is away, can fail with AttributeError (one thread's failed attempt leaves the
+    port None under the other). The receiver logs it by its type and goes on: it ended
+    the thread, and the vehicle, back, stayed "link lost" with no odometry for good."""
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        assert wait_for(lambda: base.odometry() is not None, 2.0)
+        recv_match = base._conn.recv_match
+        failures = []
+
+        def fails_once(*args, **kwargs):
+            if not failures:
+                failures.append(1)
+                raise AttributeError("'NoneType' object has no attribute 'recv'")
+            return recv_match(*args, **kwargs)
+
+        monkeypatch.setattr(base._conn, "recv_match", fails_once)
+        assert wait_for(lambda: failures, 2.0)
+        first = base.odometry().stamp_s if base.odometry() else 0.0
+        assert wait_for(
+            lambda: base.odometry() is not None and base.odometry().stamp_s > first + 1.0, 3.0
+        ), f"no odometry after the receive error: state {base.state}"
+        assert base._receiver.is_alive() and base.state is LinkState.ACTIVE
+        assert "MAVLink receive failed (retrying): AttributeError" in caplog.text

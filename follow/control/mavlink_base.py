@@ -380,12 +380,15 @@ class MavlinkBase:
         while not self._stop.is_set():
             try:
                 msg = self._conn.recv_match(blocking=True, timeout=0.05)
-            except (OSError, ValueError) as exc:  # socket closed under us, a port gone
+            except Exception as exc:  # socket closed under us, a port gone, pymavlink's
+                # TCP reconnect raced by the sender's (AttributeError on a port gone None):
+                # the thread must go on, or the link looks lost for good once it is back
                 if not self._stop.is_set():
                     now = time.monotonic()
                     if now - self._receive_error_logged_s >= _ERROR_LOG_S:
                         self._receive_error_logged_s = now
-                        log.error("MAVLink receive failed (retrying): %s", exc)
+                        log.error("MAVLink receive failed (retrying): %s: %s",
+                                  type(exc).__name__, exc)  # fmt: skip
                     time.sleep(0.05)
                 continue
             if msg is not None:
