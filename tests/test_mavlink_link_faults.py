@@ -468,6 +468,14 @@ def test_malformed_connection_string_is_a_config_or_mavlink_error():
         MavlinkBase(MavlinkConfig(connection="udpin:0.0.0.0", **FAST))
 
 
+@pytest.mark.parametrize("connection", ["udpin:0.0.0.0:99999", "tcp:127.0.0.1:70000"])
+def test_a_port_out_of_range_is_a_mavlink_error_naming_the_connection(connection):
+    # the socket raises OverflowError ("port must be 0-65535"), which left the command
+    # line with a traceback instead of an error naming the connection string
+    with pytest.raises(MavlinkError, match=f"{connection}.*0-65535"):
+        MavlinkBase(MavlinkConfig(connection=connection, **FAST))
+
+
 class TcpRover:
     """FakeRover behind a TCP server (like SITL's 5760 or mavlink-router's TCP port) that
     can drop the client and accept a new one (a router/SITL restart, a Wi-Fi blip)."""

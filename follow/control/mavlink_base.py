@@ -134,8 +134,9 @@ class MavlinkBase:
                 source_component=config.source_component,
                 autoreconnect=True,
             )
-        except (OSError, ValueError) as exc:  # unknown host, port in use, no such device,
-            # a malformed string ("udpin:0.0.0.0" without a port)
+        except (OSError, ValueError, OverflowError) as exc:  # unknown host, port in use, no
+            # such device, a malformed string ("udpin:0.0.0.0" without a port), a port
+            # beyond 65535 (the socket's OverflowError)
             raise MavlinkError(f"MAVLink connection {config.connection!r}: {exc}") from exc
         self._receiver = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
         self._sender = threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)
