@@ -476,6 +476,14 @@ def test_a_port_out_of_range_is_a_mavlink_error_naming_the_connection(connection
         MavlinkBase(MavlinkConfig(connection=connection, **FAST))
 
 
+def test_no_heartbeat_while_every_send_fails_names_the_send_error():
+    # udpout opens without sending: the port is refused by each send (the companion's
+    # heartbeat), and the vehicle, never reached, cannot answer. "No vehicle heartbeat"
+    # alone sent the search to the vehicle's side.
+    with pytest.raises(MavlinkError, match=r"no vehicle heartbeat.*send failed.*0-65535"):
+        MavlinkBase(MavlinkConfig(connection="udpout:127.0.0.1:70000", **FAST))
+
+
 class TcpRover:
     """FakeRover behind a TCP server (like SITL's 5760 or mavlink-router's TCP port) that
     can drop the client and accept a new one (a router/SITL restart, a Wi-Fi blip)."""

@@ -281,9 +281,11 @@ class MavlinkBase:
                     raise MavlinkError(f"the autopilot on {cfg.connection} {self._other_vehicle}")
                 if not self._changed.wait(timeout=max(0.0, deadline - self._clock())):
                     if self._heartbeat is None and self._other_vehicle is None:
+                        # a send that fails (a port or network refused) is why, if any
+                        failing = f"; {self.last_error}" if self.last_error else ""
                         raise MavlinkError(
                             f"no vehicle heartbeat on {cfg.connection} within "
-                            f"{cfg.connect_timeout_s} s"
+                            f"{cfg.connect_timeout_s} s{failing}"
                         )
         log.info("vehicle %s found on %s", self._target, cfg.connection)
         interval_us = 1e6 / cfg.telemetry_rate_hz
