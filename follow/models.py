@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import http.client
 import logging
 import os
 import tempfile
@@ -314,10 +315,19 @@ def _download(url: str, target: Path, sha256: str) -> None:
             response = urllib.request.urlopen(url, timeout=DOWNLOAD_TIMEOUT_S)
         except (urllib.error.URLError, OSError) as exc:
             raise ModelError(f"cannot download {url}: {getattr(exc, 'reason', exc)}") from None
+
+        def read() -> bytes:
+            try:
+                return response.read(1 << 16)
+            except (OSError, http.client.HTTPException) as exc:  # stalled, reset, cut short
+                raise ModelError(
+                    f"download {url} broke off ({type(exc).__name__}: {exc}); the file was not kept"
+                ) from None
+
         with response, out:
             total = int(response.headers.get("Content-Length") or 0) or None
             with tqdm(total=total, unit="B", unit_scale=True, desc=target.name) as bar:
-                for chunk in iter(lambda: response.read(1 << 16), b""):
+                for chunk in iter(read, b""):
                     out.write(chunk)
                     digest.update(chunk)
                     bar.update(len(chunk))

@@ -89,6 +89,41 @@ def test_a_download_that_cannot_start_leaves_no_file_open(cache, tmp_path):
     assert len(os.listdir("/proc/self/fd")) == open_before
 
 
+def test_a_download_that_stalls_is_named_and_the_next_model_still_fetched(cache, monkeypatch,
+                                                                         capsys):  # fmt: skip
+    """A server that stops sending part-way (the read times out) fails that model with
+    its URL, leaves no file, and the other models named are still tried."""
+    release = threading.Event()
+
+    class Stalling(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):
+            self.send_response(200)
+            self.send_header("Content-Length", "100000")
+            self.end_headers()
+            self.wfile.write(b"0" * 1000)
+            self.wfile.flush()
+            release.wait(5)
+
+        def log_message(self, *args):
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Stalling)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    monkeypatch.setattr(models, "DOWNLOAD_TIMEOUT_S", 0.2)
+    url = f"http://127.0.0.1:{server.server_address[1]}"
+    try:
+        assert cli.main(["models", "fetch", "ccf10", "ccf25", "--from", url, "--json"]) == 1
+    finally:
+        release.set()
+        server.shutdown()
+        server.server_close()
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert set(result["failed"]) == {"ccf10", "ccf25"}
+    assert "broke off (TimeoutError" in result["failed"]["ccf10"]
+    assert url in result["failed"]["ccf25"]
+    assert [p for p in cache.rglob("*") if p.is_file()] == []
+
+
 def test_model_without_official_download_explains_how_to_make_it(cache):
     with pytest.raises(models.ModelError, match="ir_to_onnx"):
         models.fetch("human-pose-estimation-0001")
