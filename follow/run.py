@@ -441,11 +441,26 @@ def replay_target_id(header: dict, log_path: str, asked: int | None) -> int | No
     return asked if asked is not None else logged
 
 
+def replay_config(header: dict, log_path: str) -> Config:
+    """The configuration of a replay given no `--config`: the run's own (named in the
+    log's header); with the defaults in its place, a run made with other tracker or
+    identifier settings disagreed with its replay."""
+    logged = header.get("config")
+    if logged is None:
+        return Config()
+    if not isinstance(logged, str) or not Path(logged).is_file():
+        raise ValueError(f"--replay {log_path}: the run's configuration {logged!r} (named in "
+                         "the log's header) is not there; give it with --config")  # fmt: skip
+    return Config.load(logged)
+
+
 def replay(args, config: Config) -> dict:
     """Tracking and identification again on a log's skeletons and the same frames."""
     header, records = read_run_log(args.replay)
     check_replay_source(header, args.replay, args.source)
     target_id = replay_target_id(header, args.replay, args.target_id)
+    if not args.config:
+        config = replay_config(header, args.replay)
     # The log holds the robot's poses; a bag's odometry is read again only so that the
     # images the run skipped for want of it are skipped again, and frame numbers agree.
     # The bag's image and camera-info topics are the run's unless given again.

@@ -54,3 +54,60 @@ def test_a_replay_reads_each_record_of_its_log_as_its_frame_is_reached(
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary == {"frames": 4, "target_agreement": 1.0}
     assert events == [(step, k) for k in (0, 2, 3, 6) for step in ("read", "replayed")]
+
+
+def _one_frame_run(tmp_path, header: dict):
+    video = tmp_path / "a.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (64, 48))
+    for k in range(3):
+        writer.write(np.full((48, 64, 3), 20 * k, np.uint8))
+    writer.release()
+    camera = tmp_path / "cam.yaml"
+    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0)).save(camera)
+    log = tmp_path / "run.jsonl"
+    lines = [{"log_version": 1, "source": str(video), "image_size": [64, 48], **header}]
+    lines += [{"frame": 0, "stamp_s": 0.0, "skeletons": []}]
+    log.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    return ["run", str(video), "--camera", str(camera), "--replay", str(log), "--json"]
+
+
+def _configs_replayed_with(monkeypatch) -> list:
+    configs = []
+
+    class Recorder:
+        identifier = None
+
+        def process(self, frame, robot, index):
+            return SimpleNamespace(target=SimpleNamespace(target_id=None))
+
+    def build(config, *args, **kwargs):
+        configs.append(config)
+        return Recorder()
+
+    monkeypatch.setattr(run_module, "build_perception", build)
+    return configs
+
+
+def test_a_replay_without_config_uses_the_one_the_run_named(tmp_path, capsys, monkeypatch):
+    """The run's --config is in the log's header: replayed with the defaults instead,
+    a run made with other tracker or identifier settings disagreed with itself."""
+    config = tmp_path / "robot.toml"
+    config.write_text('[identify]\nidentifier = "channels"\nseed = 7\n')
+    argv = _one_frame_run(tmp_path, {"config": str(config)})
+    configs = _configs_replayed_with(monkeypatch)
+    assert cli.main(argv) == 0
+    assert configs[-1].identify.identifier == "channels" and configs[-1].identify.seed == 7
+
+    other = tmp_path / "other.toml"
+    other.write_text("[identify]\nseed = 3\n")
+    assert cli.main(argv + ["--config", str(other)]) == 0  # given again: that one
+    assert configs[-1].identify.seed == 3 and configs[-1].identify.identifier == "ccf10+reid"
+
+
+def test_a_replay_whose_runs_config_is_gone_says_so(tmp_path, capsys, monkeypatch):
+    argv = _one_frame_run(tmp_path, {"config": str(tmp_path / "moved.toml")})
+    configs = _configs_replayed_with(monkeypatch)
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert "moved.toml" in err and "--config" in err and "Traceback" not in err
+    assert configs == []
