@@ -278,6 +278,21 @@ def _sigma_spread_error(section) -> str | None:
     )
 
 
+def _allowed(name: str, section, key: str) -> str:
+    """What a text key takes: its choices, and true / false or a number where its type
+    allows them too (`overlap_stages`, `min_person_input_px`)."""
+    from follow.config import field_types
+
+    types = field_types(type(section), key, str)
+    words = list(CHOICES[name][key]) + (["true", "false"] if bool in types else [])
+    text = f"one of {', '.join(words)}" if len(words) > 1 else words[0]
+    if float in types:
+        text += f" or a number, {BOUNDS[name][key].describe()}"
+    if bool in types:
+        text += "; true and false are written without quotes"
+    return text
+
+
 def section_errors(name: str, section) -> list[str]:
     """One line per key of `section` (a config section instance) that is out of range."""
     import dataclasses
@@ -294,9 +309,7 @@ def section_errors(name: str, section) -> list[str]:
             if f.name in choices:
                 if value not in choices[f.name]:
                     out_of_range.add(f.name)
-                    errors.append(
-                        f"{where} = {value!r}: must be one of {', '.join(choices[f.name])}"
-                    )
+                    errors.append(f"{where} = {value!r}: must be {_allowed(name, section, f.name)}")
             elif (name, f.name) not in FREE_TEXT:
                 errors.append(f"{where}: no allowed values declared (follow/config_bounds.py)")
             continue

@@ -129,6 +129,27 @@ def test_a_switch_with_an_auto_choice_takes_either(tmp_path, value):
     )
 
 
+@pytest.mark.parametrize(
+    "text, allowed",
+    [
+        ("[control]\noverlap_stages = 'false'\n",
+         "must be one of auto, true, false; true and false are written without quotes"),
+        ("[pose]\nmin_person_input_px = '100'\n",
+         "must be auto or a number, 16 <= value <= 576"),
+    ],
+)  # fmt: skip
+def test_a_text_value_of_a_key_that_also_takes_a_number_or_a_switch_names_them(
+    tmp_path, text, allowed
+):
+    """The error listed the text choices alone ("must be one of auto"), as if the
+    documented true / false or number were not allowed."""
+    path = tmp_path / "c.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as caught:
+        Config.load(path)
+    assert str(caught.value).endswith(allowed)
+
+
 def test_a_switch_with_an_auto_choice_refuses_other_types_naming_both(tmp_path):
     path = tmp_path / "c.toml"
     path.write_text("[control]\noverlap_stages = 1\n")
