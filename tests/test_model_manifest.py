@@ -10,7 +10,7 @@ from test_pose_stages import _two_stage_graph
 
 from follow import model_manifest, models
 from follow.config import PoseConfig
-from follow.pose.detector import _source_model_file
+from follow.pose.detector import _source_model_file, model_file_for
 from follow.pose.quantize import default_int8_path
 from follow.pose.stages import initial_stage_file
 
@@ -89,6 +89,24 @@ def test_a_corrupted_int8_model_is_refused_with_how_to_rebuild(
     _corrupt(int8)
     with pytest.raises(models.ModelError, match="refusing to run it.*follow models prepare"):
         _source_model_file(PoseConfig(precision=precision))
+
+
+def test_a_named_model_file_with_a_record_is_checked_against_it(cache, tmp_path):
+    """A custom model made here (tools/quantize_pose.py -o PATH) and given as [pose]
+    model_file (or --model-file) has its record beside it: a corrupted copy ran anyway."""
+    made = tmp_path / "pose-int8-256.onnx"
+    _save_graph(made, quantized=True)
+    model_manifest.write_manifest(made, made, {"calibration": "test"})
+    assert model_file_for(PoseConfig(model_file=str(made))) == made
+    assert model_file_for(PoseConfig(), made) == made
+    _corrupt(made)
+    with pytest.raises(models.ModelError, match="corrupted or changed.*refusing to run it"):
+        model_file_for(PoseConfig(model_file=str(made)))
+    with pytest.raises(models.ModelError, match="corrupted or changed"):
+        model_file_for(PoseConfig(), made)
+    plain = tmp_path / "plain.onnx"  # a file with no record is the user's own: run as is
+    _save_graph(plain)
+    assert model_file_for(PoseConfig(model_file=str(plain))) == plain
 
 
 def test_an_int8_model_without_a_record_is_refused(cache):

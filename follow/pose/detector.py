@@ -67,6 +67,12 @@ def model_file_for(config: PoseConfig, model_path: Path | None = None) -> Path:
     source = Path(model_path) if model_path else _source_model_file(config)
     if not source.exists():
         raise models.ModelError(f"pose model file {source} does not exist")
+    if (model_path or config.model_file) and model_manifest.read_manifest(source) is not None:
+        # a file made here (tools/quantize_pose.py -o) and named: checked as the cache's are
+        model_manifest.verify_derived(
+            source, f"Make it again, or delete {model_manifest.manifest_path(source).name} "
+            "beside it if the file was replaced on purpose."
+        )  # fmt: skip
     if config.network_stages == 1:
         return initial_stage_file(source)
     return source
