@@ -67,6 +67,8 @@ def to_gray(image: np.ndarray, source: str = "image") -> np.ndarray:
 def read_image(path: str | Path) -> np.ndarray:
     """A BGR image from a file; a clear error when it is missing or not an image."""
     path = Path(path)
+    if path.is_dir():  # `intrinsics` takes folders; this command takes one image
+        raise ImageInputError(f"image {path}: a folder, not an image file (give one image)")
     if not path.is_file():
         raise ImageInputError(f"image {path}: no such file")
     try:

@@ -299,6 +299,21 @@ def test_check_command_names_a_missing_frame(data_path, tmp_path, capsys):
     assert "nothing.png: no such file" in capsys.readouterr().err
 
 
+def test_a_folder_given_for_the_one_image_is_named_a_folder(tmp_path, capsys):
+    # `intrinsics` takes folders; `ground` and `check` take one image. A folder that
+    # exists was reported as "no such file", which sent users looking for a typo.
+    from calib.chessboard import read_image
+
+    (tmp_path / "frames").mkdir()
+    with pytest.raises(ImageInputError, match="a folder, not an image file"):
+        read_image(tmp_path / "frames")
+    cam = camera(0.8, 15.0)
+    cam.save(tmp_path / "cam.yaml")
+    rc = cli.main(["check", str(tmp_path / "frames"), "--camera", str(tmp_path / "cam.yaml")])
+    assert rc == 2
+    assert "frames: a folder, not an image file" in capsys.readouterr().err
+
+
 def test_check_keeps_the_old_overlay_when_the_new_one_cannot_be_written(tmp_path, monkeypatch):
     """The overlay is replaced whole: a disk that fills up part-way leaves the last good
     overlay as it was, not a cut image, and no temporary file behind."""
