@@ -521,13 +521,16 @@ def read_camera_data(path: str | Path):
 
 def read_calibration_notes(path: str | Path) -> dict:
     """The `calibration` section of a camera file ({} if none, or if the file cannot be
-    read: `CameraModel.load` is what reports a broken file)."""
+    read: `CameraModel.load` is what reports a broken file). A section written by hand
+    as one line or a list is kept under `note`, so that the next write keeps it."""
     try:
         data = read_camera_data(path)
     except CameraFileError:
         return {}
     notes = data.get("calibration") if isinstance(data, dict) else None
-    return dict(notes) if isinstance(notes, dict) else {}
+    if isinstance(notes, dict):
+        return dict(notes)
+    return {} if notes is None or notes == "" else {"note": notes}
 
 
 def has_placeholder_pose(path: str | Path) -> bool:

@@ -99,3 +99,18 @@ def test_notes_with_dates_are_kept_as_their_text(tmp_path, name):
         "pose": "follow-calib ground",
     }
     assert CameraModel.load(path).to_dict() == CAMERA.to_dict()
+
+
+@pytest.mark.parametrize("text", ["calibration: measured by hand\n",
+                                  "calibration:\n  - tape measure\n  - level\n"])  # fmt: skip
+def test_calibration_notes_that_are_not_a_table_are_kept_under_note(tmp_path, text):
+    # Written by hand as one line or a list, they were read as no notes at all and the
+    # next `intrinsics` or `ground` write dropped them without a word.
+    (tmp_path / "old.yaml").write_text(text)
+    kept = read_calibration_notes(tmp_path / "old.yaml")["note"]
+    assert kept in ("measured by hand", ["tape measure", "level"])
+    path = tmp_path / "cam.yaml"
+    write_camera_file(
+        path, CAMERA, {"pose": "follow-calib ground"}, notes_from=tmp_path / "old.yaml"
+    )
+    assert read_calibration_notes(path) == {"note": kept, "pose": "follow-calib ground"}
