@@ -92,8 +92,16 @@ def verify_derived(model_path: Path, how_to_rebuild: str) -> dict:
     return read_manifest(model_path)  # type: ignore[return-value]
 
 
+# How the files made here are named (follow/pose/quantize.py, follow/pose/stages.py): one
+# whose record was lost is still found by its name, and reported, not passed over.
+DERIVED_NAME_PARTS = ("-int8-", "-initial-stage-")
+
+
 def derived_files(root: Path) -> list[Path]:
-    """Every derived model file recorded under `root` (the user cache)."""
-    return sorted(
-        Path(str(m)[: -len(MANIFEST_SUFFIX)]) for m in Path(root).rglob(f"*.onnx{MANIFEST_SUFFIX}")
-    )
+    """Every derived model file under `root` (the user cache): each one recorded, and
+    each one named as a made file, recorded or not."""
+    root = Path(root)
+    records = root.rglob(f"*.onnx{MANIFEST_SUFFIX}")
+    recorded = {Path(str(m)[: -len(MANIFEST_SUFFIX)]) for m in records}
+    named = {p for p in root.rglob("*.onnx") if any(part in p.name for part in DERIVED_NAME_PARTS)}
+    return sorted(recorded | named)

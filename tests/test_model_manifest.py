@@ -206,3 +206,15 @@ def test_an_interrupted_int8_model_leaves_no_half_written_file(cache, tmp_path, 
     assert list(default_int8_path().parent.iterdir()) == []
     path = quantize_pose_model(source, frames, 16)
     assert path == default_int8_path() and model_manifest.check(path) == "ok"
+
+
+def test_verify_reports_a_made_model_whose_record_was_lost(cache):
+    # `follow run` refuses such a file (no record); verify listed only recorded files
+    # and said all was well.
+    int8 = default_int8_path()
+    int8.parent.mkdir(parents=True)
+    int8.write_bytes(b"made here, record deleted")
+    (int8.parent / "notes.onnx").write_bytes(b"not named as a made file")
+    (status,) = models.verify_derived_files()
+    assert status.path == int8 and not status.ok
+    assert "no integrity record" in status.detail
