@@ -56,7 +56,8 @@ def add_arguments(p) -> None:
     p.add_argument("--frames-dir", help="write annotated frames (with a top-down view) here")
     p.add_argument("--log", help="write a JSON-lines log of every frame here")
     p.add_argument(
-        "--realtime", action="store_true", help="play a file as recorded (its frames' own times) with threads"
+        "--realtime", action="store_true",
+        help="play a file as recorded (its frames' own times) with threads",
     )
     p.add_argument("--max-frames", type=int, help="stop after this many frames")
     p.add_argument(
