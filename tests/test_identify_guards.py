@@ -28,7 +28,7 @@ from follow.identify.appearance import Appearance
 from follow.identify.context import FrameTracks, IdentityContext
 from follow.identify.identifier import TargetIdentifier
 from follow.identify.states import Initial, Probation, Reidentification, State, Tracking
-from follow.types import Observation, TargetStatus, TrackState
+from follow.types import Observation, Odometry, TargetStatus, TrackState
 
 
 class TaughtModel:
@@ -403,3 +403,44 @@ def test_a_target_first_chosen_after_a_stall_is_not_at_risk(monkeypatch):
     estimate = identifier.update(IMAGE, both, t)
     assert (estimate.status, estimate.target_id) == (TargetStatus.INITIAL_TRAINING, 1)
     assert identifier.context.identity_risk_s == -np.inf
+
+
+def test_the_targets_last_position_follows_an_odometry_jump(monkeypatch):
+    """The target is lost 3 m ahead; then the robot's heading is reset by a quarter turn
+    (an estimator's yaw reset), and the tracker moves every track into the new odom
+    frame, where it stands relative to the robot. The target's last position must move
+    with them: left in the old frame, the place the target vanished from lies 3 m to the
+    robot's side, where a look-alike is taken for it and the target, back where it was
+    ahead of the robot, is out of reach."""
+    scores = {1: 0.9, 2: 0.9, 3: 0.95}
+    identifier = _scripted_identifier(monkeypatch, scores)
+    t = 10.0
+    for _ in range(8):
+        t += 1 / 15
+        estimate = identifier.update(IMAGE, [person(1, 3.0, last_seen_s=t)], t,
+                                     robot=Odometry(0.0, 0.0, 0.0, t))  # fmt: skip
+    assert (estimate.status, estimate.target_id) == (TargetStatus.TRACKING, 1)
+    t += 1 / 15
+    estimate = identifier.update(IMAGE, [], t, robot=Odometry(0.0, 0.0, 0.0, t))
+    assert estimate.status == TargetStatus.REIDENTIFICATION
+    turned = np.pi / 2  # the robot did not move; its heading was reset
+    for _ in range(5):  # a look-alike where the old frame's "3 m ahead" is now
+        t += 1 / 15
+        stranger = person(2, 3.0, 0.5, last_seen_s=t)
+        estimate = identifier.update(IMAGE, [stranger], t, robot=Odometry(0.0, 0.0, turned, t))
+        assert estimate.target_id is None
+    for _ in range(4):  # the target back 3 m ahead of the robot, in the new frame
+        t += 1 / 15
+        both = [person(2, 3.0, 0.5, last_seen_s=t), person(3, 0.0, 3.0, last_seen_s=t)]
+        estimate = identifier.update(IMAGE, both, t, robot=Odometry(0.0, 0.0, turned, t))
+    assert estimate.target_id == 3
+
+
+def test_a_probation_undone_after_an_odometry_jump_puts_back_the_moved_position():
+    ctx = tracked_context(target_position_m=(3.0, 0.0), stamp_s=10.0)
+    ctx.note_frame(10.0, Odometry(0.0, 0.0, 0.0, 10.0))
+    named = ctx.whereabouts()  # a candidate is named: its probation begins
+    ctx.note_frame(10.1, Odometry(0.0, 0.0, np.pi / 2, 10.1))  # a yaw reset
+    ctx.last_target_position_m = np.array([5.0, 5.0])  # where the candidate walked
+    ctx.restore(named)  # the probation fails
+    assert ctx.last_target_position_m == pytest.approx([0.0, 3.0])

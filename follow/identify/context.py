@@ -16,7 +16,9 @@ import numpy as np
 
 from follow.ccf.roi import Roi, covered_fraction, person_boxes, track_rois
 from follow.config import IdentifyConfig
+from follow.frames import rotation_2d
 from follow.identify.appearance import Appearance, AppearanceModel, reid_rule_applies
+from follow.odometry_buffer import pose_jumped
 from follow.types import Odometry, TrackState
 
 
@@ -46,6 +48,9 @@ class IdentityContext:
         self.observed_frames: dict[int, int] = {}  # track id -> frames it was seen in
         self.last_frame_s: float | None = None  # the stamp of the last frame handed over
         self.frame_gap_s = 0.0  # the time since the frame before this one, if any
+        self.last_robot: Odometry | None = None  # the robot's pose in the last frame
+        # how far odometry jumps have moved the odom frame so far (3x3, homogeneous)
+        self.odom_moved = np.eye(3)
         self.forget()
 
     def forget(self) -> None:
@@ -66,14 +71,31 @@ class IdentityContext:
             for i, t in by_id.items()
         }
 
-    def note_frame(self, stamp_s: float) -> None:
+    def note_frame(self, stamp_s: float, robot: Odometry | None = None) -> None:
         """A new frame, once a frame whatever the state: the time since the frame before
         it (none for the first one, or the first after the identifier is reset). A stall
         of perception hands over no frame at all, and the target's track is matched again
         in the next one: `note_target` takes such a gap as the track unseen for as long,
-        and re-identification ends every candidate's run of passing frames across it."""
-        self.frame_gap_s = 0.0 if self.last_frame_s is None else stamp_s - self.last_frame_s
+        and re-identification ends every candidate's run of passing frames across it.
+
+        An odometry jump (a reset to the origin, an estimator's yaw reset) moves the
+        target's last position into the new odom frame, where it stood relative to the
+        robot, as the tracker moves every track: left in the old frame, re-identification
+        would look for the target where it never was."""
+        first = self.last_frame_s is None
+        self.frame_gap_s = 0.0 if first else stamp_s - self.last_frame_s
         self.last_frame_s = stamp_s
+        robot = robot if robot is not None else Odometry.origin(stamp_s)
+        before = self.last_robot
+        self.last_robot = robot
+        if first or before is None or not pose_jumped(before, robot, self.frame_gap_s):
+            return
+        move = np.eye(3)
+        move[:2, :2] = rotation_2d(robot.yaw_rad - before.yaw_rad)
+        move[:2, 2] = np.array([robot.x_m, robot.y_m]) - move[:2, :2] @ [before.x_m, before.y_m]
+        self.odom_moved = move @ self.odom_moved
+        if self.last_target_position_m is not None:
+            self.last_target_position_m = _moved(move, self.last_target_position_m)
 
     # ------------------------------------------------------------------ the frame
     def look(self, frame: FrameTracks, only: int | None = None, embed: bool = True) -> None:
@@ -190,12 +212,15 @@ class IdentityContext:
         at risk, and who was seen beside it: what `note_target` moves, besides its
         height, to be put back with `restore`."""
         return (self.last_target_position_m, self.last_target_s, self.last_target_seen_s,
-                self.identity_risk_s, set(self.seen_apart))  # fmt: skip
+                self.identity_risk_s, set(self.seen_apart), self.odom_moved.copy())  # fmt: skip
 
     def restore(self, whereabouts: tuple) -> None:
-        (self.last_target_position_m, self.last_target_s, self.last_target_seen_s,
-         self.identity_risk_s, seen_apart) = whereabouts  # fmt: skip
+        """Put back `whereabouts`, the position moved by any odometry jump since."""
+        (position, self.last_target_s, self.last_target_seen_s, self.identity_risk_s,
+         seen_apart, odom_moved) = whereabouts  # fmt: skip
         self.seen_apart = set(seen_apart)
+        since = self.odom_moved @ np.linalg.inv(odom_moved)
+        self.last_target_position_m = None if position is None else _moved(since, position)
 
     def _near_target(self, target_id: int, frame: FrameTracks) -> set[int]:
         """The other tracks within `identity_risk_distance_m` of the target on the floor."""
@@ -327,3 +352,8 @@ class IdentityContext:
         cfg = self.config
         span = cfg.reid_strict_confidence - cfg.reid_confidence
         return cfg.reid_confidence + self._strictness(stamp_s) * span
+
+
+def _moved(move: np.ndarray, position_m: np.ndarray) -> np.ndarray:
+    """A floor position moved by a 3x3 homogeneous transform."""
+    return move[:2, :2] @ position_m + move[:2, 2]

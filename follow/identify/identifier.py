@@ -125,7 +125,7 @@ class TargetIdentifier:
                         "(%.3f s)", stamp_s, self._last.stamp_s)  # fmt: skip
             return self._last
         self.context.count_observations(by_id)
-        self.context.note_frame(stamp_s)
+        self.context.note_frame(stamp_s, robot)
         frame = FrameTracks(image_bgr, list(tracks), stamp_s, robot, by_id)
         self.state = self.state.update(self.context, frame)
         target_id = self.state.target_id
