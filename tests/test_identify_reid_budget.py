@@ -126,6 +126,20 @@ def test_the_classifier_speaks_alone_only_with_two_cues_that_must_agree():
     assert trained(IdentifyConfig(), None)[0].classifier_confidence(described) is None
 
 
+def test_a_classifier_that_learnt_nothing_vouches_for_no_one():
+    """With two cues that must agree, a boosted classifier that learnt nothing usable
+    (no weak classifier better than chance) scores every candidate 0, under every bar:
+    it was left out, and re-id alone decided who the target was."""
+    from follow.ccf.channels import ChannelFeatureExtractor
+
+    grey = np.full((240, 320, 3), 128, np.uint8)
+    rois = [(10, 10, 60, 200), (200, 10, 250, 200)]
+    model = AppearanceModel(IdentifyConfig(), ChannelFeatureExtractor((48, 128)), CountingReid())
+    described = model.describe(grey, rois)
+    assert not model.classifier.is_trained
+    np.testing.assert_array_equal(model.classifier_confidence(described), [0.0, 0.0])
+
+
 class ColourReid:
     """Embeds a ROI by its mean colour about mid-grey (a unit vector), so the same
     clothes are similar and other clothes are not; counts the ROIs it ran on."""

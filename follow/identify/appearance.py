@@ -245,8 +245,10 @@ class AppearanceModel:
         of two cues that must agree (`reid_cues_must_agree`; None otherwise): one cue
         vouching strongly must not carry a stranger past a doubtful other."""
         two_cues = self.classifier is not None and self.gallery is not None
-        if not (two_cues and self.config.reid_cues_must_agree and self.classifier.is_trained):
+        if not (two_cues and self.config.reid_cues_must_agree):
             return None
+        if not self.classifier.is_trained:  # it learnt nothing usable: it vouches for no one
+            return np.zeros(len(appearances))
         if not appearances:
             return np.zeros(0)
         return self.classifier.confidence([a.maps for a in appearances])
