@@ -171,3 +171,35 @@ def test_a_person_is_found_by_a_neck_in_the_upper_part_and_an_ankle_in_the_lower
     assert found == [on, ankle_too_high]
     assert ankle_found(found, box)
     assert not ankle_found([ankle_too_high], box)
+
+
+def test_a_later_start_before_the_frames_asked_for_is_counted_once(monkeypatch):
+    """From frame 400 on, offset50 takes the original's very frames and pixels: the same
+    run, which must not count twice in the mean over the variants."""
+    from types import SimpleNamespace
+
+    from follow.config import PoseConfig
+    from follow.eval import pose
+    from follow.eval.perturb import variant
+
+    runs = []
+
+    def fake_evaluate(sequence, frames, config, model_path=None):
+        noisy = getattr(sequence, "variant", None) is not None
+        runs.append((noisy, tuple(frames)))
+        recall = 0.5 if noisy else 0.9
+        return {"neck_recall": recall, "ankle_recall": recall, "precision": 1.0, "model": "m"}
+
+    monkeypatch.setattr(pose, "evaluate_size", fake_evaluate)
+    args = SimpleNamespace(frames=10, from_frame=400, until_frame=None, sizes=[256],
+                           model_file=None, json=True, plot=None)  # fmt: skip
+    chosen = [variant("original"), variant("noise"), variant("offset50")]
+    r = pose.main_perturbed(args, PoseConfig(), SimpleNamespace(frame_count=795), chosen)
+    assert len(runs) == 2 and list(r["variants"]) == ["original", "noise"]
+    assert r["same_as"] == {"offset50": "original"}
+    assert r["mean"]["256"]["neck_recall"] == pytest.approx(0.7)
+    # Where a later start takes frames of its own, it is a run of its own.
+    runs.clear()
+    args.from_frame = 0
+    r = pose.main_perturbed(args, PoseConfig(), SimpleNamespace(frame_count=795), chosen)
+    assert len(runs) == 3 and r["same_as"] == {}
