@@ -326,7 +326,7 @@ def _run_source(args, config: Config, source) -> dict:
               "camera_info_topic": args.camera_info_topic}  # fmt: skip
     summary = RunSummary()
     watch = TargetIdWatch(args.target_id, config.control.missing_target_warn_s)
-    started = time.perf_counter()
+    elapsed = None  # the frames' time: not the base's connection, nor the closing
     with ShutdownSignals() as signals:
         outputs = Outputs(header, source.fps, args.output_video, args.frames_dir, args.log)
         base = None
@@ -334,9 +334,13 @@ def _run_source(args, config: Config, source) -> dict:
             base = open_base(config)
             signals.base = base
             frames = checked_frames(first, frames, args.source, yield_first=not source.live)
-            run_frames(args, config, source, frames,
-                       perception, camera, base, outputs, summary, watch,
-                       bag_odometry)  # fmt: skip
+            started = time.perf_counter()
+            try:
+                run_frames(args, config, source, frames,
+                           perception, camera, base, outputs, summary, watch,
+                           bag_odometry)  # fmt: skip
+            finally:
+                elapsed = time.perf_counter() - started
         except KeyboardInterrupt:
             log.warning("%s: stopping the base", signals.reason or "interrupted")
         finally:
@@ -346,12 +350,11 @@ def _run_source(args, config: Config, source) -> dict:
                     base.close()
             finally:
                 outputs.close()
-    elapsed = time.perf_counter() - started
     dropped = summary.dropped_frames
     result = {
         "frames": summary.frames,
         "dropped_frames": dropped,
-        "fps": round(summary.frames / elapsed, 2) if elapsed > 0 else None,
+        "fps": round(summary.frames / elapsed, 2) if elapsed else None,
         "states": summary.states,
         "final_target_id": summary.final_target_id,
         "commands": summary.commands,

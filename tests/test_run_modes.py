@@ -163,3 +163,48 @@ def test_a_live_cameras_size_probe_frame_is_not_run(tmp_path, monkeypatch):
     )  # fmt: skip
     run_module.main(args)
     assert seen == [1, 2, 3]
+
+
+def test_the_frame_rate_is_the_runs_own_not_the_bases_connection_or_closing(
+    tmp_path, monkeypatch
+):
+    """The summary's fps counts the time the frames took, not the seconds spent waiting
+    for the vehicle's heartbeat when the base is opened, nor closing it."""
+    now = [0.0]
+
+    class Clocked(_Perception):
+        def process(self, frame, robot, index):
+            now[0] += 0.1  # each frame takes 0.1 s
+            return super().process(frame, robot, index)
+
+    class Base(NullBase):
+        def close(self):
+            now[0] += 5.0  # the link closed slowly
+
+    def open_base(config):
+        now[0] += 10.0  # the vehicle's heartbeat came late
+        return Base()
+
+    class Source:
+        fps, live = 10.0, False
+
+        def __iter__(self):
+            return iter([Frame(np.zeros((48, 64, 3), np.uint8), k / 10) for k in range(20)])
+
+        def close(self):
+            pass
+
+    CAMERA.save(tmp_path / "camera.yaml")
+    monkeypatch.setattr(run_module, "time", SimpleNamespace(perf_counter=lambda: now[0]))
+    monkeypatch.setattr(run_module, "open_source", lambda *a, **k: Source())
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Clocked())
+    monkeypatch.setattr(run_module, "open_base", open_base)
+    args = SimpleNamespace(
+        max_frames=None, config=None, mavlink=None, replay=None, source="in.avi",
+        image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
+        realtime=False, camera=str(tmp_path / "camera.yaml"), output_video=None, log=None,
+        frames_dir=None, target_id=None, json=True, folder_fps=15.0,
+    )  # fmt: skip
+    result = run_module.main(args)
+    assert result["frames"] == 20
+    assert result["fps"] == pytest.approx(10.0)
