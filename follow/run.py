@@ -185,6 +185,7 @@ class RunSummary:
         self.frames = 0
         self.commands = 0
         self.dropped_frames = 0
+        self.frames_without_odometry: int | None = None  # threaded runs: skipped, no pose
         self.states: dict[str, int] = {}
         self.final_target_id: int | None = None
         self.capture_to_command_ms: dict | None = None  # threaded runs: median and p95
@@ -362,11 +363,13 @@ def _run_source(args, config: Config, source) -> dict:
     }
     if summary.capture_to_command_ms is not None:
         result["capture_to_command_ms"] = summary.capture_to_command_ms
-    if hasattr(source, "frames_without_odometry"):
-        result["frames_without_odometry"] = source.frames_without_odometry
+    without_odometry = getattr(source, "frames_without_odometry", summary.frames_without_odometry)
+    if without_odometry is not None:
+        result["frames_without_odometry"] = without_odometry
     if not args.json:
+        skipped = f", {without_odometry} without odometry" if without_odometry else ""
         print(f"{summary.frames} frames at {result['fps']} fps "
-              f"({dropped} dropped); states: {summary.states}")  # fmt: skip
+              f"({dropped} dropped{skipped}); states: {summary.states}")  # fmt: skip
         latency = summary.capture_to_command_ms
         if latency and latency["median"] is not None:
             print(f"capture to command: median {latency['median']} ms, p95 {latency['p95']} ms")
@@ -401,6 +404,7 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
                                         if source.live else None))  # fmt: skip
         finally:
             summary.dropped_frames = runner.dropped_frames
+            summary.frames_without_odometry = runner.skipped_without_odometry
             summary.capture_to_command_ms = runner.control.latency.summary_ms()
         return
     controller = FollowingController(config.control, view=view)

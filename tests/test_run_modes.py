@@ -208,3 +208,42 @@ def test_the_frame_rate_is_the_runs_own_not_the_bases_connection_or_closing(
     result = run_module.main(args)
     assert result["frames"] == 20
     assert result["fps"] == pytest.approx(10.0)
+
+
+def test_frames_captured_without_the_bases_odometry_are_reported(tmp_path, monkeypatch):
+    """A threaded run skips a frame captured while the base has no fresh odometry; the
+    summary says how many, as a bag's run does, rather than leaving them uncounted."""
+    import threading
+
+    class Base(RecordingBase):
+        captured = 0
+
+        def odometry(self):
+            if threading.current_thread().name == "capture":
+                self.captured += 1
+                if self.captured <= 3:  # the vehicle's clock not yet trusted
+                    return None
+            return super().odometry()
+
+    class Source:
+        fps, live = 10.0, False
+
+        def __iter__(self):
+            return iter([Frame(np.zeros((48, 64, 3), np.uint8), k / 10) for k in range(10)])
+
+        def close(self):
+            pass
+
+    CAMERA.save(tmp_path / "camera.yaml")
+    monkeypatch.setattr(run_module, "open_source", lambda *a, **k: Source())
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
+    monkeypatch.setattr(run_module, "open_base", lambda config: Base())
+    args = SimpleNamespace(
+        max_frames=None, config=None, mavlink=None, replay=None, source="in.avi",
+        image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
+        realtime=False, camera=str(tmp_path / "camera.yaml"), output_video=None, log=None,
+        frames_dir=None, target_id=None, json=True, folder_fps=15.0,
+    )  # fmt: skip
+    result = run_module.main(args)
+    assert result["frames_without_odometry"] >= 1
+    assert result["frames"] + result["dropped_frames"] + result["frames_without_odometry"] == 10
