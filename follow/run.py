@@ -266,6 +266,11 @@ def check_output_paths(args) -> None:
         if name == "--frames-dir":
             if path.exists() and not path.is_dir():
                 raise ValueError(f"--frames-dir {value} is a file, not a folder")
+            # frames are named by index: an earlier run's would stay among this one's
+            if path.is_dir() and any(p.stem.isdigit() for p in path.glob("*.jpg")):
+                raise ValueError(f"--frames-dir {value} already holds annotated frames of "
+                                 "another run, which this run's would be mixed with; "
+                                 "give an empty or new folder")  # fmt: skip
         elif path.is_dir():
             raise ValueError(f"{name} {value} is a folder; give a file name")
         elif not path.parent.is_dir():

@@ -44,6 +44,19 @@ def test_new_files_in_existing_folders_pass(tmp_path):
                              log=str(tmp_path / "run.jsonl"), frames_dir=str(tmp_path / "f")))  # fmt: skip
 
 
+def test_a_frames_dir_holding_another_runs_frames_is_refused(tmp_path):
+    """Frames are named by their index: a run into a folder of an earlier run's frames
+    would leave that run's frames among its own (past its end, and where a threaded run
+    dropped frames), so the folder read back would show two runs mixed."""
+    (tmp_path / "f").mkdir()
+    (tmp_path / "f" / "notes.txt").write_text("kept")
+    check_output_paths(_args(tmp_path, frames_dir=str(tmp_path / "f")))  # no frames in it
+    (tmp_path / "f" / "000123.jpg").write_bytes(b"jpeg")
+    with pytest.raises(ValueError, match="--frames-dir .* already holds annotated frames"):
+        check_output_paths(_args(tmp_path, frames_dir=str(tmp_path / "f")))
+    assert (tmp_path / "f" / "000123.jpg").read_bytes() == b"jpeg"
+
+
 def test_an_annotated_frame_that_cannot_be_written_is_an_error_not_lost(tmp_path):
     import shutil
 
