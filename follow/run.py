@@ -154,7 +154,7 @@ class Outputs:
         if self.video_path:
             if self._writer is None:
                 fourcc = cv2.VideoWriter_fourcc(
-                    *("mp4v" if self.video_path.endswith(".mp4") else "MJPG")
+                    *("mp4v" if self.video_path.lower().endswith(".mp4") else "MJPG")
                 )
                 self._writer = cv2.VideoWriter(
                     self.video_path, fourcc, self.fps, (canvas.shape[1], canvas.shape[0])
@@ -243,6 +243,9 @@ def checked_frames(first: Frame, rest, source_name: str, yield_first: bool = Tru
         yield frame
 
 
+VIDEO_SUFFIXES = (".mp4", ".avi")  # what --output-video writes: mp4v in MP4, MJPG in AVI
+
+
 def check_output_paths(args) -> None:
     """Refuse, before anything is opened or written, outputs that would overwrite an
     input (the video, camera, configuration or replayed log) or each other, and files
@@ -275,6 +278,10 @@ def check_output_paths(args) -> None:
             raise ValueError(f"{name} {value} is a folder; give a file name")
         elif not path.parent.is_dir():
             raise ValueError(f"{name} {value}: the folder {path.parent} does not exist")
+        elif name == "--output-video" and path.suffix.lower() not in VIDEO_SUFFIXES:
+            # found at the first frame, after the base was connected, armed and switched
+            raise ValueError(f"--output-video {value}: name it .mp4 or .avi (the video "
+                             "format follows the name)")  # fmt: skip
 
 
 def main(args) -> dict:

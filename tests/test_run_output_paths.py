@@ -25,10 +25,12 @@ def _args(tmp_path, **outputs) -> argparse.Namespace:
     [
         ({"output_video": "in.avi"}, "--output-video .* is also the source"),
         ({"log": "camera.yaml"}, "--log .* is also the --camera"),
-        ({"log": "run.jsonl", "output_video": "run.jsonl"}, "is also the --output-video"),
+        ({"log": "run.mp4", "output_video": "run.mp4"}, "is also the --output-video"),
         ({"output_video": "missing/out.mp4"}, "the folder .*missing does not exist"),
         ({"log": "."}, "--log .* is a folder"),
         ({"frames_dir": "in.avi"}, "--frames-dir .* is also the source"),
+        ({"output_video": "out.webm"}, "--output-video .*out.webm: name it .mp4 or .avi"),
+        ({"output_video": "out"}, "--output-video .*out: name it .mp4 or .avi"),
     ],
 )
 def test_outputs_that_would_lose_something_are_refused(tmp_path, outputs, message):
@@ -40,6 +42,7 @@ def test_outputs_that_would_lose_something_are_refused(tmp_path, outputs, messag
 
 
 def test_new_files_in_existing_folders_pass(tmp_path):
+    check_output_paths(_args(tmp_path, output_video=str(tmp_path / "out.AVI")))
     check_output_paths(_args(tmp_path, output_video=str(tmp_path / "out.mp4"),
                              log=str(tmp_path / "run.jsonl"), frames_dir=str(tmp_path / "f")))  # fmt: skip
 
