@@ -477,3 +477,29 @@ def test_a_person_left_behind_the_camera_is_outside_the_view():
         t += 1 / FPS
         tracks = tracker.update([], t, Odometry(0.0, 0.0, np.pi * (k + 1) / 15, t))
     assert tracks == []
+
+
+def test_an_unseen_track_near_the_camera_does_not_take_a_person_far_off():
+    # A camera 1.5 m up, pitched down: a person walks in to 1 m, their feet leave the
+    # view, then they are hidden for 0.7 s. Their track's sigma points, projected as if
+    # at min_projection_depth_m, spread over the whole image, and its pixel gate took
+    # the first person seen next, 8 m away: the track jumped 2 m toward them at once.
+    camera = CameraModel.from_fov((640, 480), 70.0, CameraPose(height_m=1.5, pitch_rad=0.3))
+    rng = np.random.default_rng(0)
+    tracker, robot, t = PeopleTracker(camera), Odometry.origin(), 0.0
+    near = np.array([1.6, 0.0])
+    for k in range(20):
+        t += 1 / FPS
+        near = near + [-0.03, 0.0]
+        tracker.update([observe(camera, robot, near, 1.45, rng, ankle=k < 12)], t, robot)
+    (first,) = tracker.tracks
+    for _ in range(int(0.7 * FPS)):
+        t += 1 / FPS
+        tracker.update([], t, robot)
+    t += 1 / FPS
+    tracks = tracker.update([observe(camera, robot, (8.0, 1.0), 1.4, rng)], t, robot)
+    by_id = {s.track_id: s for s in tracks}
+    assert by_id[first.track_id].observation is None
+    assert np.linalg.norm(by_id[first.track_id].position_m - near) < 0.5
+    (far,) = [s for s in tracks if s.track_id != first.track_id]
+    assert np.linalg.norm(far.position_m - [8.0, 1.0]) < 0.5

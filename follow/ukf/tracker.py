@@ -195,7 +195,7 @@ class PeopleTracker:
         depths = [self._depth_m(t.filter.mean, robot) for t in self._tracks]
         no_noise = np.zeros((4, 4))
         expected = [t.filter.expected_measurement(model, no_noise, True) for t in self._tracks]
-        pairs, in_some_gate = self._associate(obs, expected, depths)
+        pairs, in_some_gate = self._associate(obs, expected, depths, self._floor_gate(obs, robot))
         used = pairs + self._associate_necks(obs, expected, depths, pairs, in_some_gate)
 
         associated: dict[int, Observation] = {}
@@ -263,15 +263,46 @@ class PeopleTracker:
         for track in self._tracks:
             track.filter.move_frame(rotation, offset)
 
+    def _floor_gate(self, obs: list[Observation], robot: Odometry) -> np.ndarray:
+        """(observations, tracks): False where an observation's ground point (from its
+        ankles) lies too far from a track's predicted position for that track to take
+        it (`floor_gate_m`, `floor_gate_per_range`, 3 x the track's position std). The
+        pixel gate is no bound for an unseen track near the camera: its sigma points,
+        projected as if at `min_projection_depth_m`, spread over the whole image. A
+        neck-only observation is not gated here: its ground point depends on the height
+        the track assumes, and is ill-conditioned where the camera is near neck height."""
+        cfg = self.config
+        ok = np.ones((len(obs), len(self._tracks)), dtype=bool)
+        if not self._tracks:
+            return ok
+        positions = np.array([t.filter.mean[:2] for t in self._tracks])
+        spreads = np.array([
+            math.sqrt(max(np.linalg.eigvalsh(t.filter.cov[:2, :2])[-1], 0.0))
+            for t in self._tracks
+        ])  # fmt: skip
+        for i, o in enumerate(obs):
+            if not o.has_ankle:
+                continue
+            ground = self.camera.back_project_to_plane(o.ankle_px, cfg.ankle_height_m)
+            if not np.isfinite(ground).all():
+                continue
+            range_m = math.hypot(ground[0], ground[1])
+            limit = cfg.floor_gate_m + cfg.floor_gate_per_range * range_m + 3.0 * spreads
+            distance = np.linalg.norm(positions - base_to_odom(ground[:2], robot), axis=1)
+            ok[i] = distance <= limit
+        return ok
+
     def _associate(
         self,
         obs: list[Observation],
         expected: list[tuple[np.ndarray, np.ndarray] | None],
         depths_m: list[float],
+        allowed: np.ndarray | None = None,
     ) -> tuple[list[tuple[int, int]], np.ndarray]:
         """GNN pairs (observation, track), and for each observation whether it fell in
         any track's gate. `expected` holds each track's predicted measurement and its
-        covariance without measurement noise."""
+        covariance without measurement noise; `allowed` (observations, tracks), where
+        given, rules pairs out beforehand (`_floor_gate`)."""
         cost = np.full((len(obs), len(expected)), np.inf)
         q = self.config.gate_chi2_quantile
         # Observations by kind: each track's gate for a kind scores them all at once.
@@ -298,6 +329,8 @@ class PeopleTracker:
                 R = self._measurement_cov(depths_m[j], kind == "single")
                 d2, nll = InnovationGate(zp[:k], S0[:k, :k] + R[:k, :k]).costs(Z)
                 cost[rows, j] = np.where(d2 <= limit, nll, np.inf)
+        if allowed is not None:
+            cost[~allowed] = np.inf
         return global_nearest_neighbour(cost), np.isfinite(cost).any(axis=1)
 
     def _associate_necks(self, obs, expected, depths_m, pairs, in_some_gate):
