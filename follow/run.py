@@ -120,6 +120,9 @@ def camera_for_frames(camera: CameraModel, width: int, height: int) -> CameraMod
     return scaled
 
 
+MAX_VIDEO_REPEAT_S = 2.0  # the longest one processed frame stands in the video
+
+
 class Outputs:
     """Annotated video, annotated frame files and the JSON-lines log."""
 
@@ -137,6 +140,8 @@ class Outputs:
             self.frames_dir.mkdir(parents=True, exist_ok=True)
         self.fps = fps
         self._writer = None
+        self._video_first_stamp_s: float | None = None
+        self._video_frames = 0  # written so far, repeats included
         self.log = RunLogWriter(log_path, header) if log_path else None
 
     def write(self, frame: Frame, result: FrameResult, command: VelocityCommand | None) -> None:
@@ -161,11 +166,26 @@ class Outputs:
                 )
                 if not self._writer.isOpened():
                     raise OSError(f"cannot write video {self.video_path}")
-            self._writer.write(canvas)
+            for _ in range(self._video_copies(result.stamp_s)):
+                self._writer.write(canvas)
         if self.frames_dir:
             path = self.frames_dir / f"{result.frame_index:06d}.jpg"
             if not cv2.imwrite(str(path), canvas):  # OpenCV reports a failed write so only
                 raise OSError(f"cannot write frame {path}")
+
+    def _video_copies(self, stamp_s: float) -> int:
+        """How many times a frame stamped `stamp_s` goes into the video, at `fps`, so that
+        the video plays in the frames' own time: a threaded run processes only some of
+        the camera's frames (each processed frame stands until the next), a
+        variable-frame-rate file has gaps. At least once; at most `MAX_VIDEO_REPEAT_S`
+        of repeats for one frame (a stall is shown short, not encoded at length)."""
+        if self._video_first_stamp_s is None:
+            self._video_first_stamp_s = stamp_s
+        due = round((stamp_s - self._video_first_stamp_s) * self.fps) + 1
+        most = max(1, round(MAX_VIDEO_REPEAT_S * self.fps))
+        copies = min(max(due - self._video_frames, 1), most)
+        self._video_frames += copies
+        return copies
 
     def close(self) -> None:
         """Close the video and the log; a video that fails to close still lets the log

@@ -95,3 +95,35 @@ def test_the_log_is_closed_even_when_the_video_fails_to_close(tmp_path):
     assert outputs.log._fh.closed
     header, records = read_run_log(tmp_path / "run.jsonl")
     assert header["run"] == "test" and list(records) == []
+
+
+def test_the_video_plays_in_the_frames_own_time(tmp_path):
+    # A threaded run processes only some of a 10 fps camera's frames: each stands in the
+    # video until the next, which played 3.75x fast with every processed frame written
+    # once. A frame never goes in fewer than once, nor longer than 2 s.
+    import cv2
+    import numpy as np
+
+    from follow.pipeline import FrameResult
+    from follow.run import Outputs
+    from follow.types import Frame, Odometry, TargetEstimate, TargetStatus
+
+    path = tmp_path / "out.avi"
+    outputs = Outputs({}, 10.0, video_path=path)
+    estimate = TargetEstimate(TargetStatus.INITIAL, None, {}, 0.0)
+    for index, stamp in enumerate([0.0, 0.1, 0.4, 0.45, 0.6, 9.0]):
+        frame = Frame(np.full((48, 64, 3), 40 * index, np.uint8), stamp)
+        result = FrameResult(index, stamp, Odometry.origin(stamp), [], [], estimate)
+        outputs.write(frame, result, None)
+    outputs.close()
+    video = cv2.VideoCapture(str(path))
+    shades = []
+    while True:
+        ok, image = video.read()
+        if not ok:
+            break
+        shades.append(round(float(image[5, 5].mean()) / 40))
+    video.release()
+    # frames due by each stamp at 10 fps: 1, 2, 5, 5 (+1: never fewer than once), 7, 91
+    # (capped at 2 s: 20)
+    assert shades == [0, 1, 2, 2, 2, 3, 4] + [5] * 20
