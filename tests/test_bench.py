@@ -85,3 +85,35 @@ def test_peak_rss_is_reported_in_megabytes(monkeypatch):
     monkeypatch.setattr(sys, "platform", "darwin")
     monkeypatch.setattr(resource, "getrusage", lambda who: SimpleNamespace(ru_maxrss=350_000_000))
     assert peak_rss_mb() == pytest.approx(350.0)
+
+
+class _PeopleSizedDetector:
+    """A detector whose people-sized input runs 256 px on five frames in six, the full
+    368 px on the sixth; the network takes 40 ms at 368 px and 20 ms at 256 px."""
+
+    backend_name = "scripted"
+
+    def __init__(self):
+        self.input_sizing = object()
+        self.reset_input_sizing()
+
+    def reset_input_sizing(self):
+        self.frame = 0
+
+    def infer(self, image, input_height_px=None):
+        height = input_height_px or 368
+        self.last_timing_ms = {"preprocess": 0.1, "inference": 40.0 if height == 368 else 20.0}
+        self.last_input_height_px = height
+
+    def detect(self, image):
+        self.infer(image, 368 if self.frame % 6 == 0 else 256)
+        self.frame += 1
+        return []
+
+
+def test_bare_inference_runs_at_the_input_heights_the_stack_runs_the_frames_at():
+    """The end-to-end frame is compared with it: timed at the full height while the stack
+    ran 256 px on most frames, the ratio fell below the 1.0 it has for a floor."""
+    image = np.zeros((48, 64, 3), np.uint8)
+    setup = SimpleNamespace(sequence=SimpleNamespace(read_frame=lambda index: image))
+    assert bench.bare_inference_ms(_PeopleSizedDetector(), setup, 14, 2, quiet=True) == 20.0
