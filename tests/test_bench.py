@@ -117,3 +117,30 @@ def test_bare_inference_runs_at_the_input_heights_the_stack_runs_the_frames_at()
     image = np.zeros((48, 64, 3), np.uint8)
     setup = SimpleNamespace(sequence=SimpleNamespace(read_frame=lambda index: image))
     assert bench.bare_inference_ms(_PeopleSizedDetector(), setup, 14, 2, quiet=True) == 20.0
+
+
+def test_a_runner_that_processed_no_more_than_its_warm_up_reports_no_rate(monkeypatch):
+    """A slow stack fed a short camera run takes only a few of its frames: the rate and
+    latencies of those (the warm-up's own) were reported as the timed figures."""
+    r = _runner_times(monkeypatch, _WarmingPerception(slow=0, fast_s=0.05), frames=3,
+                      warmup=5, camera_fps=1000.0)  # fmt: skip
+    assert r["runner_frames"] <= 5, r
+    assert r["runner_fps"] is None and r["runner_frame_ms"] is None, r
+    assert r["capture_to_command_samples"] == 0, r
+
+
+def test_the_matrix_prints_a_dash_for_a_figure_no_run_of_a_cell_had(monkeypatch, capsys):
+    import json
+    import subprocess
+
+    row = dict.fromkeys(bench.MATRIX_KEYS, 1.0)
+    row.update(runner_fps=None, end_to_end_over_inference=None, pose_backend="cpu",
+               pose_model="m.onnx", overlap_stages=False, reid_backend=None, notes=[])  # fmt: skip
+    monkeypatch.setattr(subprocess, "run", lambda command, capture_output, text: SimpleNamespace(
+        returncode=0, stdout=json.dumps(row) + "\n", stderr=""))  # fmt: skip
+    args = SimpleNamespace(providers=("cpu",), repeats=1, json=False, frames=2, warmup=5,
+                           camera_fps=30.0, scene="pets", people=5, far_m=5.0, config=None)  # fmt: skip
+    table = bench.run_matrix(args)["matrix"]
+    assert table["robot/cpu"]["runner_fps"] is None
+    line = next(t for t in capsys.readouterr().out.splitlines() if t.startswith("robot/cpu"))
+    assert line.split()[1:5] == ["1.0", "1.0", "-", "-"]

@@ -86,7 +86,8 @@ def test_whole_sequence_scoring_counts_undecided_wrong_time_within_wrong_time(pe
 
 
 def test_bench_times_every_stage_and_the_runner_against_bare_inference(pets, capsys):
-    r = _run(capsys, "bench", "--frames", "4", "--warmup", "1", "--json")
+    # no warm-up: a slow runner takes 2-3 of the 4 frames, and none of the warm-up's is timed
+    r = _run(capsys, "bench", "--frames", "4", "--warmup", "0", "--json")
     assert r["frames"] == 4
     for key in ("pose_ms", "inference_ms", "decode_ms", "tracker_ms", "identify_ms",
                 "control_ms", "in_turn_ms", "bare_inference_ms"):  # fmt: skip
@@ -103,7 +104,7 @@ def test_bench_times_every_stage_and_the_runner_against_bare_inference(pets, cap
         r["runner_frame_ms"] / r["bare_inference_ms"], rel=0.01
     )
     assert 0 < r["capture_to_command_median_ms"] <= r["capture_to_command_p95_ms"]
-    # 4 frames after the warm-up: a p95 of so few latencies is said to be about their largest
+    # 4 frames: a p95 of so few latencies is said to be about their largest
     assert 1 <= r["capture_to_command_samples"] <= 4
     assert any(f"p95 comes from {r['capture_to_command_samples']} latencies" in n
                for n in r["notes"])  # fmt: skip

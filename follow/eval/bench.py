@@ -159,6 +159,9 @@ def main(args) -> dict:
     if result["runner_fps"] and result["runner_fps"] >= 0.95 * args.camera_fps:
         notes.append(f"the runner kept up with the {args.camera_fps:g} fps camera: its figures "
                      "are the camera's rate, not the stack's limit")  # fmt: skip
+    if result["runner_fps"] is None:
+        notes.append(f"the runner processed {result['runner_frames']} frames, under two after "
+                     f"the {args.warmup} of warm-up: no frame rate; more --frames")  # fmt: skip
     samples = result["capture_to_command_samples"]
     if samples < MIN_P95_SAMPLES:
         notes.append(f"the capture-to-command p95 comes from {samples} latencies (under "
@@ -277,10 +280,9 @@ def runner_times(config, detector, setup, total: int, warmup: int, camera_fps: f
     if not quiet:
         print(f"bench: runner at {camera_fps:g} fps ({total} frames)...", file=sys.stderr)
     runner.run(camera(), pace_hz=camera_fps, on_result=on_result)
-    skip = min(warmup, max(0, len(done_s) - 2))  # the warm-up, leaving two results
-    timed = done_s[skip:]
+    timed = done_s[warmup:]  # after the warm-up; none where it took every result
     fps = (len(timed) - 1) / (timed[-1] - timed[0]) if len(timed) >= 2 else None
-    latency = runner.control.latency.summary_ms(skip)  # the same results' latencies
+    latency = runner.control.latency.summary_ms(warmup)  # the same results' latencies
     return {
         "overlap_stages": runner.overlap_stages,
         "camera_fps": camera_fps,
@@ -368,6 +370,11 @@ MATRIX_KEYS = ("bare_inference_ms", "in_turn_fps", "runner_fps", "end_to_end_ove
                "capture_to_command_samples", "peak_rss_mb")  # fmt: skip
 
 
+def _cell(value, width: int, digits: int) -> str:
+    """A matrix figure, or a dash where no run of the cell had one."""
+    return f"{value:{width}.{digits}f}" if value is not None else f"{'-':>{width}}"
+
+
 def ran_on(row: dict) -> str:
     """What a cell ran: pose model and runtime, the runner's stages, the re-id runtime."""
     stages = "stages overlapped" if row["overlap_stages"] else "stages in turn"
@@ -409,12 +416,13 @@ def run_matrix(args) -> dict:
               f"{'peak RSS MB':>11s}  "
               f"ran on")  # fmt: skip
         for name, row in table.items():
-            print(f"{name:18s} {row['bare_inference_ms']:12.1f} {row['in_turn_fps']:11.1f} "
-                  f"{row['runner_fps']:10.1f} {row['end_to_end_over_inference']:11.2f} "
-                  f"{row['capture_to_command_median_ms']:11.1f} "
-                  f"{row['capture_to_command_p95_ms']:7.1f} "
-                  f"{row['capture_to_command_samples']:4.0f} {row['peak_rss_mb']:11.0f}  "
-                  f"{ran_on(row)}")  # fmt: skip
+            print(f"{name:18s} {_cell(row['bare_inference_ms'], 12, 1)} "
+                  f"{_cell(row['in_turn_fps'], 11, 1)} {_cell(row['runner_fps'], 10, 1)} "
+                  f"{_cell(row['end_to_end_over_inference'], 11, 2)} "
+                  f"{_cell(row['capture_to_command_median_ms'], 11, 1)} "
+                  f"{_cell(row['capture_to_command_p95_ms'], 7, 1)} "
+                  f"{_cell(row['capture_to_command_samples'], 4, 0)} "
+                  f"{_cell(row['peak_rss_mb'], 11, 0)}  {ran_on(row)}")  # fmt: skip
         for name, row in table.items():
             for note in row["notes"]:
                 print(f"note ({name}): {note}")
