@@ -85,6 +85,8 @@ def bench(
     for k in range(4 * config.sample_bank_size):  # warm: full banks, settled selectors
         classifier.update(maps[k % people], 1 if k % 2 else -1)
     reid = build_reid(config) if with_reid else None
+    if reid is not None:  # warm: its first run allocates and chooses kernels, once
+        reid.embed_crops(crops)
     shape = (config.num_selectors, config.weak_classifiers_per_selector)
     a, b = np.ones(shape), np.ones(shape)
 
