@@ -34,6 +34,31 @@ class _Perception:
         return self.conclude(frame, robot, index, self.detect_people(frame))
 
 
+def _run_args(camera_path, source: str = "in.avi", json: bool = True) -> SimpleNamespace:
+    """`follow run`'s arguments for `source` with a camera file and no outputs."""
+    return SimpleNamespace(
+        max_frames=None, config=None, mavlink=None, replay=None, source=source,
+        image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
+        realtime=False, camera=str(camera_path), output_video=None, log=None,
+        frames_dir=None, target_id=None, json=json, folder_fps=15.0,
+    )  # fmt: skip
+
+
+class _StillFile:
+    """A 10 fps file of `frames` black frames."""
+
+    fps, live = 10.0, False
+
+    def __init__(self, frames: int):
+        self.frames = frames
+
+    def __iter__(self):
+        return iter([Frame(np.zeros((48, 64, 3), np.uint8), k / 10) for k in range(self.frames)])
+
+    def close(self):
+        pass
+
+
 def _run(base, monkeypatch, offline_allowed):
     if not offline_allowed:
         monkeypatch.setattr(run_module, "run_offline", lambda *a, **k: pytest.fail("offline"))
@@ -90,12 +115,7 @@ def test_the_source_is_released_when_the_run_fails_before_it_starts(tmp_path, mo
 
     source = Source()
     monkeypatch.setattr(run_module, "open_source", lambda *a, **k: source)
-    args = SimpleNamespace(
-        max_frames=None, config=None, mavlink=None, replay=None, source="0",
-        image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
-        realtime=False, camera=str(tmp_path / "missing.yaml"), output_video=None, log=None,
-        frames_dir=None, target_id=None, folder_fps=15.0,
-    )  # fmt: skip
+    args = _run_args(tmp_path / "missing.yaml", source="0", json=False)
     with pytest.raises((ValueError, OSError)):
         run_module.main(args)
     assert source.closed
@@ -155,12 +175,7 @@ def test_a_live_cameras_size_probe_frame_is_not_run(tmp_path, monkeypatch):
     CAMERA.save(tmp_path / "camera.yaml")
     monkeypatch.setattr(run_module, "open_source", lambda *a, **k: LiveSource())
     monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recording())
-    args = SimpleNamespace(
-        max_frames=None, config=None, mavlink=None, replay=None, source="0",
-        image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
-        realtime=False, camera=str(tmp_path / "camera.yaml"), output_video=None, log=None,
-        frames_dir=None, target_id=None, json=True, folder_fps=15.0,
-    )  # fmt: skip
+    args = _run_args(tmp_path / "camera.yaml", source="0")
     run_module.main(args)
     assert seen == [1, 2, 3]
 
@@ -185,26 +200,12 @@ def test_the_frame_rate_is_the_runs_own_not_the_bases_connection_or_closing(
         now[0] += 10.0  # the vehicle's heartbeat came late
         return Base()
 
-    class Source:
-        fps, live = 10.0, False
-
-        def __iter__(self):
-            return iter([Frame(np.zeros((48, 64, 3), np.uint8), k / 10) for k in range(20)])
-
-        def close(self):
-            pass
-
     CAMERA.save(tmp_path / "camera.yaml")
     monkeypatch.setattr(run_module, "time", SimpleNamespace(perf_counter=lambda: now[0]))
-    monkeypatch.setattr(run_module, "open_source", lambda *a, **k: Source())
+    monkeypatch.setattr(run_module, "open_source", lambda *a, **k: _StillFile(20))
     monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Clocked())
     monkeypatch.setattr(run_module, "open_base", open_base)
-    args = SimpleNamespace(
-        max_frames=None, config=None, mavlink=None, replay=None, source="in.avi",
-        image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
-        realtime=False, camera=str(tmp_path / "camera.yaml"), output_video=None, log=None,
-        frames_dir=None, target_id=None, json=True, folder_fps=15.0,
-    )  # fmt: skip
+    args = _run_args(tmp_path / "camera.yaml", source="in.avi")
     result = run_module.main(args)
     assert result["frames"] == 20
     assert result["fps"] == pytest.approx(10.0)
@@ -225,25 +226,11 @@ def test_frames_captured_without_the_bases_odometry_are_reported(tmp_path, monke
                     return None
             return super().odometry()
 
-    class Source:
-        fps, live = 10.0, False
-
-        def __iter__(self):
-            return iter([Frame(np.zeros((48, 64, 3), np.uint8), k / 10) for k in range(10)])
-
-        def close(self):
-            pass
-
     CAMERA.save(tmp_path / "camera.yaml")
-    monkeypatch.setattr(run_module, "open_source", lambda *a, **k: Source())
+    monkeypatch.setattr(run_module, "open_source", lambda *a, **k: _StillFile(10))
     monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
     monkeypatch.setattr(run_module, "open_base", lambda config: Base())
-    args = SimpleNamespace(
-        max_frames=None, config=None, mavlink=None, replay=None, source="in.avi",
-        image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
-        realtime=False, camera=str(tmp_path / "camera.yaml"), output_video=None, log=None,
-        frames_dir=None, target_id=None, json=True, folder_fps=15.0,
-    )  # fmt: skip
+    args = _run_args(tmp_path / "camera.yaml", source="in.avi")
     result = run_module.main(args)
     assert result["frames_without_odometry"] >= 1
     assert result["frames"] + result["dropped_frames"] + result["frames_without_odometry"] == 10

@@ -15,17 +15,7 @@ from follow.camera import CameraModel, CameraPose
 def test_a_replay_reads_each_record_of_its_log_as_its_frame_is_reached(
     tmp_path, capsys, monkeypatch
 ):
-    video = tmp_path / "a.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (64, 48))
-    for k in range(10):
-        writer.write(np.full((48, 64, 3), 20 * k, np.uint8))
-    writer.release()
-    camera = tmp_path / "cam.yaml"
-    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0)).save(camera)
-    log = tmp_path / "run.jsonl"
-    lines = [{"log_version": 1, "source": str(video), "image_size": [64, 48]}]
-    lines += [{"frame": k, "stamp_s": k / 15.0, "skeletons": []} for k in (0, 2, 3, 6)]
-    log.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    argv = _logged_run(tmp_path, 10, {}, (0, 2, 3, 6))
 
     events = []
     read_run_log = run_module.read_run_log
@@ -49,24 +39,26 @@ def test_a_replay_reads_each_record_of_its_log_as_its_frame_is_reached(
 
     monkeypatch.setattr(run_module, "read_run_log", reading)
     monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recorder())
-    argv = ["run", str(video), "--camera", str(camera), "--replay", str(log), "--json"]
     assert cli.main(argv) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary == {"frames": 4, "target_agreement": 1.0}
     assert events == [(step, k) for k in (0, 2, 3, 6) for step in ("read", "replayed")]
 
 
-def _one_frame_run(tmp_path, header: dict):
+def _logged_run(tmp_path, frames: int, header: dict, logged=(0,)) -> list[str]:
+    """A 15 fps video of `frames` frames, its camera file and the log of a run that
+    processed the frames `logged` (no skeletons, `header` added to the log's header):
+    the arguments that replay it."""
     video = tmp_path / "a.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (64, 48))
-    for k in range(3):
+    for k in range(frames):
         writer.write(np.full((48, 64, 3), 20 * k, np.uint8))
     writer.release()
     camera = tmp_path / "cam.yaml"
     CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0)).save(camera)
     log = tmp_path / "run.jsonl"
     lines = [{"log_version": 1, "source": str(video), "image_size": [64, 48], **header}]
-    lines += [{"frame": 0, "stamp_s": 0.0, "skeletons": []}]
+    lines += [{"frame": k, "stamp_s": k / 15.0, "skeletons": []} for k in logged]
     log.write_text("".join(json.dumps(line) + "\n" for line in lines))
     return ["run", str(video), "--camera", str(camera), "--replay", str(log), "--json"]
 
@@ -93,7 +85,7 @@ def test_a_replay_without_config_uses_the_one_the_run_named(tmp_path, capsys, mo
     a run made with other tracker or identifier settings disagreed with itself."""
     config = tmp_path / "robot.toml"
     config.write_text('[identify]\nidentifier = "channels"\nseed = 7\n')
-    argv = _one_frame_run(tmp_path, {"config": str(config)})
+    argv = _logged_run(tmp_path, 3, {"config": str(config)})
     configs = _configs_replayed_with(monkeypatch)
     assert cli.main(argv) == 0
     assert configs[-1].identify.identifier == "channels" and configs[-1].identify.seed == 7
@@ -105,7 +97,7 @@ def test_a_replay_without_config_uses_the_one_the_run_named(tmp_path, capsys, mo
 
 
 def test_a_replay_whose_runs_config_is_gone_says_so(tmp_path, capsys, monkeypatch):
-    argv = _one_frame_run(tmp_path, {"config": str(tmp_path / "moved.toml")})
+    argv = _logged_run(tmp_path, 3, {"config": str(tmp_path / "moved.toml")})
     configs = _configs_replayed_with(monkeypatch)
     assert cli.main(argv) == 1
     err = capsys.readouterr().err
