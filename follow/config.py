@@ -57,9 +57,11 @@ class PoseConfig:
     input_height_from_people: bool = True
     full_input_every_frames: int = 6
     provider: str = "auto"  # auto | cpu | cuda | tensorrt | openvino
-    # int8: the INT8 model made by tools/quantize_pose.py (user cache), the fast CPU path;
-    # auto: that model when it has been made, else fp32.
-    precision: str = "auto"  # auto | fp32 | int8
+    # int8: the INT8 model made by `follow models prepare` (user cache), the fast CPU
+    # path; auto: that model when it has been made and the CPU has 8-bit dot products
+    # (VNNI), else fp32; int8_if_made: that model when it has been made, on any CPU (for
+    # settings chosen with it: pets2009.toml), else fp32.
+    precision: str = "auto"  # auto | fp32 | int8 | int8_if_made
     # An explicit model file (e.g. an INT8 ONNX from tools/quantize_pose.py); empty = `model`.
     model_file: str = ""
     # 2: the whole network (its refinement stage finds the ankles of people seen large);

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 # Text keys that take one of a fixed set of values.
 POSE_PROVIDERS = ("auto", "cpu", "cuda", "tensorrt", "openvino")
-POSE_PRECISIONS = ("auto", "fp32", "int8")
+POSE_PRECISIONS = ("auto", "fp32", "int8", "int8_if_made")
 # A rule of the identifier that may apply only beside a re-id cue
 # (follow.identify.appearance.reid_rule_applies).
 REID_RULE_CHOICES = ("with_reid", "always", "never")

@@ -28,7 +28,7 @@ def test_auto_precision_uses_the_int8_model_once_it_is_made(tmp_path, monkeypatc
     int8.write_bytes(b"onnx")
     write_manifest(int8, model_path("pose/human-pose-estimation-0001.onnx"))
     assert model_file_for(config) == int8
-    with pytest.raises(ValueError, match="choose auto, fp32 or int8"):
+    with pytest.raises(ValueError, match="choose auto, fp32, int8 or int8_if_made"):
         model_file_for(PoseConfig(precision="int4", network_stages=2))
 
 
@@ -71,3 +71,29 @@ def test_auto_precision_runs_fp32_where_the_network_goes_to_a_gpu(
     write_manifest(int8, fp32)
     chosen = model_file_for(PoseConfig(precision="auto", provider=provider, network_stages=2))
     assert chosen == (fp32 if expected == "fp32" else int8)
+
+
+def test_int8_if_made_runs_the_made_int8_model_on_a_cpu_without_dot_products(
+    tmp_path, monkeypatch, model_path
+):
+    # PETS's settings were chosen with the INT8 model; "auto" runs FP32 on a CPU without
+    # VNNI, where the same frames then gave other figures (docs/pose.md). int8_if_made
+    # keeps the INT8 model wherever it has been made, and runs FP32 where it has not
+    # (the tests' own cache: nothing is made there).
+    from follow.pose import cpu_features
+    from follow.pose.detector import resolved_precision
+
+    monkeypatch.setattr(cpu_features, "cpu_flags", lambda: frozenset({"avx2"}))
+    source = model_path("pose/human-pose-estimation-0001.onnx")
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path / "cache"))
+    config = PoseConfig(precision="int8_if_made", provider="cpu", network_stages=2)
+    assert resolved_precision(config) == "fp32"
+    assert model_file_for(config).name == "human-pose-estimation-0001.onnx"
+    int8 = default_int8_path()
+    int8.parent.mkdir(parents=True)
+    int8.write_bytes(b"onnx")
+    write_manifest(int8, source)
+    assert resolved_precision(config) == "int8" and model_file_for(config) == int8
+    auto = PoseConfig(precision="auto", provider="cpu", network_stages=2)
+    assert resolved_precision(auto) == "fp32"  # "auto" on this CPU: FP32, made or not
+    assert model_file_for(auto).name == "human-pose-estimation-0001.onnx"

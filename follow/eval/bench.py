@@ -150,7 +150,7 @@ def main(args) -> dict:
     )
     result["peak_rss_mb"] = round(peak_rss_mb(), 1)
     notes = []
-    if (config.pose.precision == "auto" and not config.pose.model_file
+    if (config.pose.precision in ("auto", "int8_if_made") and not config.pose.model_file
             and "int8" not in detector.model_path.name):
         from follow.pose.detector import auto_fp32_reason
 

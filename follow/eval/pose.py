@@ -176,7 +176,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--provider", default=None, help="override the pose provider")
     parser.add_argument(
-        "--precision", choices=("fp32", "int8"), default=None, help="override the pose precision"
+        "--precision", choices=("fp32", "int8", "auto"), default=None,
+        help="override the pose precision (the PETS settings: int8_if_made)",
     )
     parser.add_argument("--model-file", type=Path, default=None, help="a pose model file")
     parser.add_argument(

@@ -86,13 +86,19 @@ def resolved_precision(config: PoseConfig) -> str:
     people less well (docs/pose.md). A named `model_file` is what its name says."""
     if config.model_file:
         return "int8" if "int8" in Path(config.model_file).name.lower() else "fp32"
-    if config.precision != "auto":
+    if config.precision not in CHOSEN_HERE:
         return config.precision
     return "fp32" if auto_fp32_reason(config) else "int8"
 
 
+# The precisions settled on the machine that runs: "auto" by its CPU and cache,
+# "int8_if_made" by its cache alone (settings chosen with the INT8 model, on any CPU).
+CHOSEN_HERE = ("auto", "int8_if_made")
+
+
 def auto_fp32_reason(config: PoseConfig) -> str | None:
-    """Why `precision = "auto"` runs FP32 here, or None where it runs INT8."""
+    """Why `precision = "auto"` (or "int8_if_made") runs FP32 here, or None where it
+    runs INT8."""
     from follow.pose.cpu_features import cpu_flags, has_int8_dot_product
     from follow.pose.quantize import default_int8_path
 
@@ -100,7 +106,7 @@ def auto_fp32_reason(config: PoseConfig) -> str | None:
         return f"the INT8 model is made from {SOURCE_MODEL}, not {config.model}"
     if runs_on_gpu(config.provider):
         return "on a GPU (the INT8 model is for CPUs)"
-    if has_int8_dot_product(cpu_flags()) is False:
+    if config.precision == "auto" and has_int8_dot_product(cpu_flags()) is False:
         return ("this CPU has no 8-bit dot-product instructions (VNNI): INT8 would run no "
                 "faster and find far people less well")  # fmt: skip
     if not default_int8_path().exists():
@@ -120,12 +126,12 @@ def _source_model_file(config: PoseConfig) -> Path:
             f"pose precision 'int8': the INT8 model is made from {SOURCE_MODEL}, not "
             f"[pose] model '{config.model}'; use precision 'fp32' or 'auto' with it"
         )
-    if config.precision == "auto":
+    if config.precision in CHOSEN_HERE:
         reason = auto_fp32_reason(config)
         if reason is None:
             model_manifest.verify_derived(default_int8_path(), REBUILD_INT8)
             return default_int8_path()
-        log.info("pose: precision 'auto': FP32, %s", reason)
+        log.info("pose: precision '%s': FP32, %s", config.precision, reason)
         config = dataclasses.replace(config, precision="fp32")
     if config.precision == "int8":
         path = default_int8_path()
@@ -137,7 +143,8 @@ def _source_model_file(config: PoseConfig) -> Path:
         model_manifest.verify_derived(path, REBUILD_INT8)
         return path
     if config.precision != "fp32":
-        raise ValueError(f"pose precision '{config.precision}' unknown; choose auto, fp32 or int8")
+        raise ValueError(f"pose precision '{config.precision}' unknown; choose auto, fp32, "
+                         "int8 or int8_if_made")  # fmt: skip
     return models.resolve(config.model)
 
 
@@ -182,7 +189,8 @@ class PoseDetector:
         self.last_timing_ms: dict[str, float] = {}
         log.info("pose: running %s (sha256 %s) on %s", self.model_path,
                  models.sha256_of(self.model_path)[:16], self.backend.name)  # fmt: skip
-        _advise_on_int8_without_dot_product(self.model_path, self.backend.name)
+        if config.precision != "int8_if_made":  # chosen for settings made with INT8
+            _advise_on_int8_without_dot_product(self.model_path, self.backend.name)
         self._input_buffers: dict[tuple, np.ndarray] = {}
         self._frame_filter = FrameFilter.from_config(self.config)
         self.reset_input_sizing()
