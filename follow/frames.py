@@ -38,6 +38,15 @@ def rotation_2d(angle_rad: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
+def odom_jump_transform(before: Odometry, after: Odometry) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation 2x2, offset 2) that carry a point of the old `odom` frame into the new one
+    when the robot's pose jumped from `before` to `after` (an odometry reset) while the
+    robot itself stood still: the point keeps where it stood relative to the robot."""
+    rotation = rotation_2d(after.yaw_rad - before.yaw_rad)
+    offset = np.array([after.x_m, after.y_m]) - rotation @ [before.x_m, before.y_m]
+    return rotation, offset
+
+
 def wrap_angle(angle_rad: float | np.ndarray) -> float | np.ndarray:
     """Angle wrapped to [-pi, pi)."""
     return (np.asarray(angle_rad) + np.pi) % (2.0 * np.pi) - np.pi

@@ -16,7 +16,7 @@ import numpy as np
 
 from follow.ccf.roi import Roi, covered_fraction, person_boxes, track_rois
 from follow.config import IdentifyConfig
-from follow.frames import rotation_2d
+from follow.frames import odom_jump_transform
 from follow.identify.appearance import Appearance, AppearanceModel, reid_rule_applies
 from follow.odometry_buffer import pose_jumped
 from follow.types import Odometry, TrackState
@@ -91,8 +91,7 @@ class IdentityContext:
         if first or before is None or not pose_jumped(before, robot, self.frame_gap_s):
             return
         move = np.eye(3)
-        move[:2, :2] = rotation_2d(robot.yaw_rad - before.yaw_rad)
-        move[:2, 2] = np.array([robot.x_m, robot.y_m]) - move[:2, :2] @ [before.x_m, before.y_m]
+        move[:2, :2], move[:2, 2] = odom_jump_transform(before, robot)
         self.odom_moved = move @ self.odom_moved
         if self.last_target_position_m is not None:
             self.last_target_position_m = _moved(move, self.last_target_position_m)

@@ -20,7 +20,7 @@ import numpy as np
 
 from follow.camera import CameraModel
 from follow.config import TrackerConfig
-from follow.frames import base_to_odom, odom_to_base, rotation_2d
+from follow.frames import base_to_odom, odom_jump_transform, odom_to_base, rotation_2d
 from follow.odometry_buffer import pose_jumped
 from follow.types import L_ANKLE, R_ANKLE, Observation, Odometry, TrackState
 from follow.ukf.association import InnovationGate, gate_mahalanobis_sq, global_nearest_neighbour
@@ -65,6 +65,11 @@ def check_observation(
         log.warning("ignoring an ankle %s on or above the horizon (on no floor)", obs.ankle_px)
         return Observation(obs.neck_px, None, obs.touches_border, obs.skeleton)
     return obs
+
+
+def _position_std_m(track: _Track) -> float:
+    """The track's position std along its most uncertain direction on the floor."""
+    return math.sqrt(max(np.linalg.eigvalsh(track.filter.cov[:2, :2])[-1], 0.0))
 
 
 def _single_ankle(obs: Observation) -> bool:
@@ -258,8 +263,7 @@ class PeopleTracker:
     def _follow_odometry_jump(self, before: Odometry, after: Odometry) -> None:
         """Move every track into the new odom frame, where it stood relative to the
         robot (which cannot have moved far in one frame)."""
-        rotation = rotation_2d(after.yaw_rad - before.yaw_rad)
-        offset = np.array([after.x_m, after.y_m]) - rotation @ [before.x_m, before.y_m]
+        rotation, offset = odom_jump_transform(before, after)
         for track in self._tracks:
             track.filter.move_frame(rotation, offset)
 
@@ -273,13 +277,10 @@ class PeopleTracker:
         the track assumes, and is ill-conditioned where the camera is near neck height."""
         cfg = self.config
         ok = np.ones((len(obs), len(self._tracks)), dtype=bool)
-        if not self._tracks:
+        if not self._tracks or not any(o.has_ankle for o in obs):
             return ok
         positions = np.array([t.filter.mean[:2] for t in self._tracks])
-        spreads = np.array([
-            math.sqrt(max(np.linalg.eigvalsh(t.filter.cov[:2, :2])[-1], 0.0))
-            for t in self._tracks
-        ])  # fmt: skip
+        spreads = np.array([_position_std_m(t) for t in self._tracks])
         for i, o in enumerate(obs):
             if not o.has_ankle:
                 continue
@@ -433,9 +434,9 @@ class PeopleTracker:
             limit_s = self._max_unseen_s(t)
             if t.track_id in outside_view:
                 limit_s = min(limit_s, cfg.max_unseen_outside_view_s)
-            mean, P = t.filter.mean, t.filter.cov
+            mean = t.filter.mean
             range_m = math.hypot(mean[0] - robot.x_m, mean[1] - robot.y_m)
-            pos_std = math.sqrt(max(np.linalg.eigvalsh(P[:2, :2])[-1], 0.0))
+            pos_std = _position_std_m(t)
             max_std = cfg.max_position_std_m + cfg.max_position_std_per_range * range_m
             if unseen_s > limit_s or pos_std > max_std or not np.isfinite(mean).all():
                 log.debug(
