@@ -24,6 +24,7 @@ from tqdm import tqdm
 
 from follow.cli_args import non_negative_int, plot_path, positive_int
 from follow.config import PoseConfig
+from follow.config_bounds import POSE_PRECISIONS
 from follow.eval.perturb import PerturbedSequence, add_perturb_arguments, plot_spread, print_suite
 from follow.eval.perturb import selected_variants as perturb_variants
 from follow.eval.pets import GtBox, PetsSequence, evenly_spaced_frames
@@ -176,7 +177,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--provider", default=None, help="override the pose provider")
     parser.add_argument(
-        "--precision", choices=("fp32", "int8", "auto"), default=None,
+        "--precision", choices=POSE_PRECISIONS, default=None,
         help="override the pose precision (the PETS settings: int8_if_made)",
     )
     parser.add_argument("--model-file", type=Path, default=None, help="a pose model file")
