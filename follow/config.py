@@ -80,6 +80,10 @@ class PoseConfig:
     keypoint_min_confidence: float = 0.05  # keypoints below this are not used as observations
     min_keypoints_per_person: int = 2  # e.g. neck + one shoulder, joined by their PAF
     border_margin_px: float = 4.0
+    # Keypoints within this many heatmap cells (8 network-input px) of the frame's top or
+    # bottom edge are dropped (0 = none): there the network puts joints that are beyond
+    # the frame (the ankles of feet cut off by the bottom edge).
+    edge_keypoint_margin_cells: float = 2.0
     # Decoding (heatmap cells are 8 network-input pixels). The network's published peak
     # threshold; PETS uses 0.03 to keep its small, faint people.
     heatmap_peak_threshold: float = 0.1

@@ -98,6 +98,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "keypoint_min_confidence": UNIT,
         "min_keypoints_per_person": closed(1, 18),
         "border_margin_px": closed(0.0, 100.0),
+        "edge_keypoint_margin_cells": closed(0.0, 4.0),
         "heatmap_peak_threshold": fraction_open(),
         "paf_samples": closed(2, 100),
         "paf_min_sample_score": UNIT,

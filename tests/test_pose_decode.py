@@ -176,3 +176,42 @@ def test_non_finite_network_outputs_count_as_nothing():
     for p in found:
         assert np.isfinite(p.confidences).all() and np.isfinite(p.score)
         Skeleton(p.keypoints_cells, p.confidences, p.score)
+
+
+def test_joints_beyond_the_frame_edges_are_not_reported_on_its_edge_rows():
+    """Feet just below the frame peak on its last heatmap row, a neck just above it on
+    the first: that is where they left the view, not where they are."""
+    from follow.config import PoseConfig
+
+    low = person(15.0, H - 1 - 13.0)  # ankles two cells below the last row
+    high = person(40.0, -0.8)  # neck just above the first row, the rest inside
+    heatmaps, pafs = render([low, high])
+    kept = sorted(decode(heatmaps, pafs, DecodeParams()), key=lambda p: p.keypoints_cells[1, 0])
+    raw = sorted(decode(heatmaps, pafs, DecodeParams(edge_keypoint_margin_cells=0.0)),
+                 key=lambda p: p.keypoints_cells[1, 0])  # fmt: skip
+    assert PoseConfig().edge_keypoint_margin_cells == DecodeParams().edge_keypoint_margin_cells > 0
+    ankles = [10, 13]
+    assert np.allclose(raw[0].keypoints_cells[ankles, 1], H - 1)  # what the network says
+    assert np.isnan(kept[0].keypoints_cells[ankles]).all()
+    assert np.all(kept[0].confidences[ankles] == 0)
+    knees = [9, 12]
+    assert np.allclose(kept[0].keypoints_cells[knees], low[knees], atol=0.15)
+    assert np.allclose(raw[1].keypoints_cells[1, 1], 0.0)
+    assert np.isnan(kept[1].keypoints_cells[1]).all()
+    assert np.allclose(kept[1].keypoints_cells[8], high[8], atol=0.15)  # a hip, inside
+
+
+def test_a_person_with_every_keypoint_on_the_edge_rows_is_dropped():
+    from follow.pose.decode import without_edge_keypoints
+
+    on_edges = np.full((18, 2), np.nan)
+    on_edges[1] = (10.0, 0.0)
+    on_edges[2] = (12.0, H - 1.0)
+    inside = on_edges.copy()
+    inside[3] = (12.0, H - 2.6)
+    people = [DecodedPerson(k, np.where(np.isfinite(k[:, 0]), 0.8, 0.0), 3.0)
+              for k in (on_edges, inside)]  # fmt: skip
+    left = without_edge_keypoints(people, H, 1.0)
+    assert len(left) == 1
+    assert np.flatnonzero(np.isfinite(left[0].keypoints_cells[:, 0])).tolist() == [3]
+    assert len(without_edge_keypoints(people, H, 2.5)) == 0

@@ -34,7 +34,7 @@ LIMB_PAF_CHANNELS: tuple[tuple[int, int], ...] = (
 )  # fmt: skip
 REDUNDANT_LIMBS = frozenset({17, 18})
 # Changes whenever the same maps decode into different skeletons (keys cached results).
-DECODER_VERSION = 2  # 2: duplicate skeletons of one body suppressed
+DECODER_VERSION = 3  # 2: duplicate skeletons of one body suppressed; 3: edge keypoints
 
 
 @dataclass(frozen=True)
@@ -51,6 +51,7 @@ class DecodeParams:
     duplicate_keypoint_distance: float = PoseConfig.duplicate_keypoint_distance
     duplicate_shared_keypoints: int = PoseConfig.duplicate_shared_keypoints
     duplicate_box_containment: float = PoseConfig.duplicate_box_containment
+    edge_keypoint_margin_cells: float = PoseConfig.edge_keypoint_margin_cells
 
 
 @dataclass(frozen=True)
@@ -219,7 +220,42 @@ def decode(heatmaps: np.ndarray, pafs: np.ndarray, params: DecodeParams) -> list
             kps[k] = peaks[k][slot[k], :2]
             conf[k] = peaks[k][slot[k], 2]
         people.append(DecodedPerson(kps, conf, float(scores[p])))
-    return suppress_duplicates(people, params)
+    people = suppress_duplicates(people, params)
+    if params.edge_keypoint_margin_cells > 0:
+        margin = params.edge_keypoint_margin_cells
+        people = without_edge_keypoints(people, heatmaps.shape[1], margin)
+    return people
+
+
+def without_edge_keypoints(people: list[DecodedPerson], rows: int, margin_cells: float
+                           ) -> list[DecodedPerson]:  # fmt: skip
+    """The people without their keypoints within `margin_cells` of the heatmap's top or
+    bottom edge (persons left with none are dropped).
+
+    A joint just beyond the frame's top or bottom edge leaves its peak on or next to the
+    outermost row: real person crops cut off at the frame's bottom had their ankles
+    reported there with the feet 2-4 cells below the frame (docs/pose.md, *Joints
+    beyond the frame*). Taken as the ankle, such a point puts a near person farther
+    away than they are, and the robot drives on toward them; a neck on the top row
+    does the same. The outermost row's centre is half a cell from the edge.
+    """
+    out = []
+    for person in people:
+        y = person.keypoints_cells[:, 1]
+        with np.errstate(invalid="ignore"):
+            near_edge = (y + 0.5 <= margin_cells) | (rows - 0.5 - y <= margin_cells)
+        if not near_edge.any():
+            out.append(person)
+            continue
+        if not (np.isfinite(y) & ~near_edge).any():
+            continue
+        kps = person.keypoints_cells.copy()
+        kps[near_edge] = np.nan
+        conf = np.where(near_edge, 0.0, person.confidences)
+        out.append(DecodedPerson(kps, conf, person.score))
+    return out
+
+
 
 
 def _finite(maps: np.ndarray) -> np.ndarray:

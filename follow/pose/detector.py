@@ -43,6 +43,7 @@ def decode_params(config: PoseConfig) -> DecodeParams:
         duplicate_keypoint_distance=config.duplicate_keypoint_distance,
         duplicate_shared_keypoints=config.duplicate_shared_keypoints,
         duplicate_box_containment=config.duplicate_box_containment,
+        edge_keypoint_margin_cells=config.edge_keypoint_margin_cells,
     )
 
 
