@@ -40,9 +40,28 @@ def add_arguments(p) -> None:
     )
     p.add_argument("--max-crops", type=non_negative_int, default=0,
                    help="use at most this many crops, evenly spaced in name order (0 = all)")
+    p.add_argument("--cut-bottom", type=cut_share, default=0.0,
+                   help="share of each person's height placed below the frame's bottom edge "
+                        "(feet out of view, as a near person is seen; default 0)")  # fmt: skip
+    p.add_argument("--cut-top", type=cut_share, default=0.0,
+                   help="share of each person's height placed above the frame's top edge "
+                        "(head out of view; default 0)")  # fmt: skip
     p.add_argument("--variants", default="original",
                    help="comma-separated pixel changes of the perturbation suite to apply to "
                         "the frames (docs/robustness.md; default original)")  # fmt: skip
+
+
+def cut_share(text: str) -> float:
+    """A share of a person's height in [0, 0.5), for --cut-bottom and --cut-top."""
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= value < 0.5:
+        raise argparse.ArgumentTypeError(f"must be at least 0 and under 0.5, got {text}")
+    return value
 
 
 def crop_files(given: str | None, max_crops: int = 0) -> list[Path]:
@@ -62,10 +81,16 @@ def crop_files(given: str | None, max_crops: int = 0) -> list[Path]:
     return crops
 
 
-def frames_with_people(crop_paths, person_height_px: int):
-    """(frame, (x0, y0, w, h)) with each crop scaled to the height, centred."""
+def frames_with_people(crop_paths, person_height_px: int, cut_bottom: float = 0.0,
+                       cut_top: float = 0.0):  # fmt: skip
+    """(frame, (x0, y0, w, h)) with each crop scaled to the height, centred; or, with a
+    cut, placed with that share of its height beyond the frame's bottom (`cut_bottom`) or
+    top (`cut_top`) edge, `y0` then lying beyond the frame."""
     width, height = FRAME_SIZE
-    if not 0 < person_height_px <= height - 16:
+    if cut_bottom and cut_top:
+        raise ValueError("a person can be cut at the bottom or at the top, not both")
+    shown_px = person_height_px * (1.0 - cut_bottom - cut_top)
+    if not 0 < person_height_px or shown_px > height - (0 if cut_bottom or cut_top else 16):
         raise ValueError(f"person height {person_height_px} px does not fit a {height} px frame")
     out = []
     for path in crop_paths:
@@ -76,8 +101,15 @@ def frames_with_people(crop_paths, person_height_px: int):
         crop = cv2.resize(crop, None, fx=scale, fy=scale, interpolation=cv2.INTER_CUBIC)
         h, w = crop.shape[:2]
         frame = np.full((height, width, 3), 128, np.uint8)
-        y0, x0 = (height - h) // 2, (width - w) // 2
-        frame[y0 : y0 + h, x0 : x0 + w] = crop
+        x0 = (width - w) // 2
+        if cut_bottom:
+            y0 = height - int(round(h * (1.0 - cut_bottom)))
+        elif cut_top:
+            y0 = -int(round(h * cut_top))
+        else:
+            y0 = (height - h) // 2
+        top, bottom = max(y0, 0), min(y0 + h, height)
+        frame[top:bottom, x0 : x0 + w] = crop[top - y0 : bottom - y0]
         out.append((frame, (x0, y0, w, h)))
     return out
 
@@ -125,7 +157,7 @@ def main(args) -> dict:
     variants = selected_pixel_variants(args, "pose-near")
     rows = []
     for person_px in args.person_heights:
-        pasted = frames_with_people(crop_paths, person_px)
+        pasted = frames_with_people(crop_paths, person_px, args.cut_bottom, args.cut_top)
         for v in variants:
             frames = [(v.apply(frame, i), box) for i, (frame, box) in enumerate(pasted)]
             for stages in args.stages:
@@ -137,12 +169,15 @@ def main(args) -> dict:
                     neck, ankle, dup = detection_rates(PoseDetector(pose), frames)
                     rows.append({"person_px": person_px,
                                  "person_input_px": round(person_px * size / FRAME_SIZE[1], 1),
-                                 "variant": v.name,
+                                 "variant": v.name, "cut_bottom": args.cut_bottom,
+                                 "cut_top": args.cut_top,
                                  "network_stages": stages, "input_height_px": size,
                                  "neck": neck, "ankle": ankle,
                                  "duplicates_per_person": dup})  # fmt: skip
     if not args.json:
-        print(f"{len(crop_paths)} real person crops pasted into a 640x480 frame")
+        cut = (f", {args.cut_bottom:.0%} of each below its bottom edge" if args.cut_bottom else
+               f", {args.cut_top:.0%} of each above its top edge" if args.cut_top else "")
+        print(f"{len(crop_paths)} real person crops pasted into a 640x480 frame{cut}")
         print(f"{'person px':>9s} {'in input':>8s} {'variant':>12s} {'stages':>6s} "
               f"{'input':>5s} {'neck':>6s} {'ankle':>6s} {'dup':>5s}")  # fmt: skip
         for r in rows:
