@@ -203,3 +203,41 @@ def test_a_later_start_before_the_frames_asked_for_is_counted_once(monkeypatch):
     args.from_frame = 0
     r = pose.main_perturbed(args, PoseConfig(), SimpleNamespace(frame_count=795), chosen)
     assert len(runs) == 3 and r["same_as"] == {}
+
+
+def test_feet_beyond_the_frame_give_no_ankle_on_its_edge(data_path, model_path, capsys,
+                                                         tmp_path):  # fmt: skip
+    """Real crops with a fifth of the person below the frame (the feet 2-5 heatmap cells
+    beyond it): the network still reports ankles, on the frame's last rows; the decoder
+    drops them, and keeps the neck."""
+    import json
+
+    from follow import cli
+
+    data_path("ccf_crops/p01.jpg")
+    model_path("pose/human-pose-estimation-0001.onnx")
+    keep = tmp_path / "keep.toml"
+    keep.write_text("[pose]\nedge_keypoint_margin_cells = 0\n")
+    argv = ["eval", "pose-near", "--person-heights", "432", "--sizes", "368", "--stages", "2",
+            "--cut-bottom", "0.2", "--max-crops", "14", "--json"]  # fmt: skip
+    capsys.readouterr()
+    rows = {}
+    for name, extra in (("dropped", []), ("kept", ["--config", str(keep)])):
+        assert cli.main(argv + extra) == 0
+        [rows[name]] = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["rows"]
+    assert rows["kept"]["cut_bottom"] == 0.2
+    assert rows["kept"]["ankle"] >= 0.5 and rows["dropped"]["ankle"] <= 0.1, rows
+    assert rows["kept"]["neck"] >= 0.9 and rows["dropped"]["neck"] >= 0.9, rows
+
+
+def test_a_cut_is_a_share_under_one_half_at_one_edge():
+    import argparse
+
+    from follow.eval.pose_near import cut_share, frames_with_people
+
+    assert cut_share("0.15") == 0.15
+    for bad in ("0.5", "-0.1", "x"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            cut_share(bad)
+    with pytest.raises(ValueError, match="not both"):
+        frames_with_people([], 320, cut_bottom=0.1, cut_top=0.1)
