@@ -24,6 +24,7 @@ from follow.camera import CameraModel, check_pose_measured
 from follow.capture import DEFAULT_FOLDER_FPS, open_source, played_at_own_stamps
 from follow.cli_args import non_negative_int, positive_float
 from follow.config import Config
+from follow.person_in_view import log_person_in_view
 from follow.pipeline import FrameResult, Perception, build_runner, run_offline
 from follow.render import annotate, top_down
 from follow.runlog import RunLogWriter, read_run_log
@@ -349,6 +350,7 @@ def _run_source(args, config: Config, source) -> dict:
         raise ValueError(f"source {args.source}: no frames")
     height, width = first.image.shape[:2]
     camera = source_camera(args.camera, source, width, height)
+    log_person_in_view(camera, config)
     detect = source.recorded_skeletons if args.skeletons_topic else None
     perception = build_perception(config, camera, detect)
     if args.target_id is not None:

@@ -87,7 +87,8 @@ def test_a_placeholder_pose_without_a_base_runs_with_a_warning(scene, tmp_path, 
     camera = _camera_file(tmp_path / "cam.json", INTRINSICS_NOTES)  # JSON is read alike
     with caplog.at_level(logging.WARNING, logger="follow.run"):
         assert cli.main(["run", str(video), "--camera", str(camera)]) == 0
-    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    warnings = [r.getMessage() for r in caplog.records
+                if r.levelno == logging.WARNING and r.name == "follow.run"]  # fmt: skip
     assert len(warnings) == 1, warnings
     assert f"camera file {camera}" in warnings[0]
     assert "placeholder" in warnings[0] and "distances to people are not measured" in warnings[0]
@@ -119,3 +120,24 @@ def test_a_camera_file_without_notes_drives_the_base(scene, tmp_path, capsys, ca
             assert cli.main(argv) == rc, capsys.readouterr().err
     assert base.commands and base.commands[-1].is_stop
     assert not [r for r in caplog.records if "placeholder" in r.getMessage()]
+
+
+def test_a_camera_that_cannot_see_the_target_at_the_following_distance_is_named(
+        scene, tmp_path, caplog):  # fmt: skip
+    """A camera 0.5 m up and level loses a standing person's neck nearer than about
+    1.9 m: at the default following distance (1.8 m) the target would be lost."""
+    video, _ = scene
+    low = CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=0.5))
+    low.save(tmp_path / "low.yaml")
+    with caplog.at_level(logging.INFO, logger="follow.person_in_view"):
+        assert cli.main(["run", str(video), "--camera", str(tmp_path / "low.yaml")]) == 0
+    said = {r.levelno: r.getMessage() for r in caplog.records if r.name == "follow.person_in_view"}
+    assert "neck in view from" in said[logging.INFO]
+    assert "following distance (1.8 m)" in said[logging.WARNING]
+    assert "neck is out of view" in said[logging.WARNING]
+    caplog.clear()
+    (tmp_path / "far.toml").write_text("[control]\nfollowing_distance_m = 3.0\n")
+    with caplog.at_level(logging.WARNING, logger="follow.person_in_view"):
+        assert cli.main(["run", str(video), "--camera", str(tmp_path / "low.yaml"),
+                         "--config", str(tmp_path / "far.toml")]) == 0  # fmt: skip
+    assert not [r for r in caplog.records if r.name == "follow.person_in_view"]

@@ -390,6 +390,9 @@ class FollowNode(Node):
                 return None
             camera = camera_from_info(self.camera_info, self.mounted)
         camera = camera_for_frames(camera, width, height)
+        from follow.person_in_view import log_person_in_view
+
+        log_person_in_view(camera, self.config)
         if self.control is not None:  # as in follow run: no blind drive out of the view
             from follow.control.target import ViewCone
 
