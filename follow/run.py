@@ -122,6 +122,11 @@ def camera_for_frames(camera: CameraModel, width: int, height: int) -> CameraMod
 
 
 MAX_VIDEO_REPEAT_S = 2.0  # the longest one processed frame stands in the video
+# OpenCV's video writer reports no failed write: the file is checked to have grown once
+# this many bytes of raw frames went in since it last grew. The writers hold 256 kB
+# before the file grows; a still 1120x480 scene took 336 frames (540 MB raw) to fill
+# that with mp4v, 71 with MJPG: 2 GiB leaves a margin of four.
+VIDEO_GROWTH_CHECK_BYTES = 2 * 2**30
 
 
 class Outputs:
@@ -143,6 +148,8 @@ class Outputs:
         self._writer = None
         self._video_first_stamp_s: float | None = None
         self._video_frames = 0  # written so far, repeats included
+        self._video_raw_bytes = 0  # of raw frames written since the file last grew
+        self._video_size_bytes = 0  # the file's size then
         self.log = RunLogWriter(log_path, header) if log_path else None
 
     def write(self, frame: Frame, result: FrameResult, command: VelocityCommand | None) -> None:
@@ -167,12 +174,30 @@ class Outputs:
                 )
                 if not self._writer.isOpened():
                     raise OSError(f"cannot write video {self.video_path}")
-            for _ in range(self._video_copies(result.stamp_s)):
+            copies = self._video_copies(result.stamp_s)
+            for _ in range(copies):
                 self._writer.write(canvas)
+            self._check_video_grows(copies * canvas.nbytes)
         if self.frames_dir:
             path = self.frames_dir / f"{result.frame_index:06d}.jpg"
             if not cv2.imwrite(str(path), canvas):  # OpenCV reports a failed write so only
                 raise OSError(f"cannot write frame {path}")
+
+    def _check_video_grows(self, raw_bytes: int) -> None:
+        """Raise OSError when the video file has not grown over
+        VIDEO_GROWTH_CHECK_BYTES of raw frames: the writer failed silently (a full
+        disk), and the run must not go on as if it were recorded."""
+        self._video_raw_bytes += raw_bytes
+        if self._video_raw_bytes < VIDEO_GROWTH_CHECK_BYTES:
+            return
+        size = Path(self.video_path).stat().st_size
+        if size <= self._video_size_bytes:
+            raise OSError(
+                f"video {self.video_path} stopped growing at {size} bytes although "
+                f"{self._video_raw_bytes / 2**20:.0f} MiB of frames went in since: is the "
+                "disk full?"
+            )
+        self._video_raw_bytes, self._video_size_bytes = 0, size
 
     def _video_copies(self, stamp_s: float) -> int:
         """How many times a frame stamped `stamp_s` goes into the video, at `fps`, so that

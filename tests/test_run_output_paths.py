@@ -127,3 +127,41 @@ def test_the_video_plays_in_the_frames_own_time(tmp_path):
     # frames due by each stamp at 10 fps: 1, 2, 5, 5 (+1: never fewer than once), 7, 91
     # (capped at 2 s: 20)
     assert shades == [0, 1, 2, 2, 2, 3, 4] + [5] * 20
+
+
+@pytest.mark.parametrize("full", [False, True])
+def test_a_video_that_stops_growing_is_an_error(tmp_path, monkeypatch, full):
+    """OpenCV's writer says nothing when its writes fail (a full disk: here a video file
+    that is /dev/full): the run learns of it within VIDEO_GROWTH_CHECK_BYTES of frames,
+    while a video that grows is written on."""
+    import os
+
+    import numpy as np
+
+    from follow import run as run_module
+    from follow.pipeline import FrameResult
+    from follow.types import Frame, Odometry, TargetEstimate, TargetStatus
+
+    if full and not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full on this system")
+    path = tmp_path / "out.avi"
+    if full:
+        path.symlink_to("/dev/full")
+    monkeypatch.setattr(run_module, "VIDEO_GROWTH_CHECK_BYTES", 2_000_000)
+    outputs = run_module.Outputs({}, 10.0, video_path=path)
+    estimate = TargetEstimate(TargetStatus.INITIAL, None, {}, 0.0)
+    noise = np.random.default_rng(0).integers(0, 256, (48, 64, 3), dtype=np.uint8)
+
+    def write_frames():
+        for index in range(300):  # the canvas is 112x48: 16 kB a frame, 4.8 MB in all
+            stamp = index / 10.0
+            result = FrameResult(index, stamp, Odometry.origin(stamp), [], [], estimate)
+            outputs.write(Frame(np.roll(noise, index, axis=1), stamp), result, None)
+
+    if full:
+        with pytest.raises(OSError, match="stopped growing at 0 bytes.*disk full"):
+            write_frames()
+    else:
+        write_frames()
+        outputs.close()
+        assert path.stat().st_size > 1_000_000
