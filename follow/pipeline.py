@@ -209,6 +209,10 @@ class ControlLoop:
         self.error: BaseException | None = None
         self.latency = LatencyRecorder()  # capture of a frame -> first command from it
         self._last_result: FrameResult | None = None
+        # frame index -> the first command sent after its result was taken (the newest
+        # COMMANDS_KEPT), for the log's record of what the base did about each frame
+        self._commands_from: dict[int, VelocityCommand] = {}
+        self._commanded_changed = threading.Condition()
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._send_lock = threading.Lock()  # a command and the check before it, as one
@@ -282,7 +286,32 @@ class ControlLoop:
         if result is not None and result is not self._last_result:
             self._last_result = result
             self.latency.add(now - result.stamp_s)
+            with self._commanded_changed:
+                self._commands_from[result.frame_index] = self.last_command
+                while len(self._commands_from) > COMMANDS_KEPT:
+                    del self._commands_from[next(iter(self._commands_from))]
+                self._commanded_changed.notify_all()
         return command
+
+    def command_from(self, result: FrameResult, timeout_s: float) -> VelocityCommand | None:
+        """The first command sent after `result` was taken (what the base did about that
+        frame), waiting up to `timeout_s` for the loop to take it or a later result. For
+        a result the loop never took (a newer one replaced it first), the command then
+        in force: the one from the latest earlier result. The last command sent when the
+        loop stopped or did not get there in time."""
+        index = result.frame_index
+
+        def reached() -> bool:
+            return self._stop.is_set() or any(i >= index for i in self._commands_from)
+
+        with self._commanded_changed:
+            if self._commanded_changed.wait_for(reached, timeout=timeout_s):
+                if index in self._commands_from:
+                    return self._commands_from[index]
+                earlier = [i for i in self._commands_from if i < index]
+                if earlier:
+                    return self._commands_from[max(earlier)]
+        return self.last_command
 
     def _send(
         self, command: VelocityCommand, overridden: bool = False, clears: int | None = None
@@ -316,6 +345,10 @@ class ControlLoop:
             self.error = exc
             log.exception("control loop failed: stopping the base")
             self._send_last_stop()
+
+
+# Commands remembered by the frame they answer: more than the outputs' queue can lag.
+COMMANDS_KEPT = 64
 
 
 def run_offline(

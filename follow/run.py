@@ -121,6 +121,9 @@ def camera_for_frames(camera: CameraModel, width: int, height: int) -> CameraMod
     return scaled
 
 
+# How long the log waits for the control loop's command from a frame (it comes within a
+# millisecond of the frame's result; longer only when the loop is starved).
+COMMAND_WAIT_S = 0.25
 MAX_VIDEO_REPEAT_S = 2.0  # the longest one processed frame stands in the video
 # OpenCV's video writer reports no failed write: the file is checked to have grown once
 # this many bytes of raw frames went in since it last grew. The writers hold 256 kB
@@ -453,7 +456,9 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
         def on_result(frame, result):
             summary.add_result(result)
             watch.check(result)
-            outputs.write(frame, result, runner.control.last_command)
+            # the outputs' own thread: waiting for the control loop holds up no frame
+            command = runner.control.command_from(result, COMMAND_WAIT_S)
+            outputs.write(frame, result, command)
 
         if not source.live:
             frames = played_at_own_stamps(frames)

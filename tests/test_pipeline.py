@@ -181,3 +181,40 @@ def test_control_loop_failure_stops_the_base():
     assert base.commands and base.commands[-1].is_stop
     loop.stop()
     assert base.commands[-1].is_stop
+
+
+def test_the_command_logged_for_a_frame_is_the_one_sent_about_it():
+    """`command_from` gives the first command sent after a frame's result was taken, not
+    whatever the loop sent last; a frame the loop never took (a newer result replaced
+    it) gets the command then in force, and one not yet taken waits for it."""
+    import dataclasses
+
+    now = [10.0]
+    slot = LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), NullBase(), slot, rate_hz=15.0,
+                       perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
+    near, skipped, far, later = (dataclasses.replace(_result(10.0, (x, 0.0)), frame_index=i)
+                                 for i, x in enumerate((1.0, 3.0, 8.0, 8.0)))  # fmt: skip
+    slot.put(near)
+    from_near = loop.tick()
+    assert from_near.is_stop  # 1 m away: nearer than the following distance
+    slot.put(skipped)
+    slot.put(far)  # before a tick: `skipped` is never taken
+    for _ in range(4):
+        now[0] += 1 / 15
+        last = loop.tick()
+    assert last.forward_mps > 0
+    assert loop.command_from(near, 0.0) is from_near  # not the loop's last command
+    assert loop.command_from(skipped, 0.0) is from_near
+    from_far = loop.command_from(far, 0.0)
+    assert from_far is not last and abs(from_far.stamp_s - (10.0 + 1 / 15)) < 1e-9
+    got = []
+    waiter = threading.Thread(target=lambda: got.append(loop.command_from(later, 5.0)))
+    waiter.start()
+    time.sleep(0.05)
+    assert not got  # waits for the loop to take `later`
+    slot.put(later)
+    now[0] += 1 / 15
+    from_later = loop.tick()
+    waiter.join(timeout=5.0)
+    assert got == [from_later]
