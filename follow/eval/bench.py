@@ -117,8 +117,13 @@ def main(args) -> dict:
         return run_matrix(args)
     from follow.pose.detector import PoseDetector
 
+    from follow.pose.input_size import pose_config_for_camera
+
     config = bench_config(args)
     setup, scene = bench_scene(args)
+    # the input height `follow run` would choose for this camera (the PETS settings fix it)
+    chosen = pose_config_for_camera(config.pose, setup.camera)
+    config = config.replace("pose", input_height_px=chosen.input_height_px)
     total = min(args.warmup + args.frames, setup.frame_count)
     first = setup.sequence.read_frame(0)
     detector = PoseDetector(config.pose, frame_size=(first.shape[1], first.shape[0]))
