@@ -80,10 +80,13 @@ class PoseConfig:
     keypoint_min_confidence: float = 0.05  # keypoints below this are not used as observations
     min_keypoints_per_person: int = 2  # e.g. neck + one shoulder, joined by their PAF
     border_margin_px: float = 4.0
-    # Keypoints within this many heatmap cells (8 network-input px) of the frame's top or
+    # Keypoints within this many heatmap cells (8 network-input px) of the frame's top /
     # bottom edge are dropped (0 = none): there the network puts joints that are beyond
-    # the frame (the ankles of feet cut off by the bottom edge).
-    edge_keypoint_margin_cells: float = 2.0
+    # the frame (the ankles of feet cut off by the bottom edge, the neck of a head cut off
+    # by the top). Half a cell is the outermost row alone; a neck dropped loses the
+    # person, an ankle only its range (docs/pose.md, *Joints beyond the frame*).
+    top_edge_margin_cells: float = 0.5
+    bottom_edge_margin_cells: float = 2.0
     # Decoding (heatmap cells are 8 network-input pixels). The network's published peak
     # threshold; PETS uses 0.03 to keep its small, faint people.
     heatmap_peak_threshold: float = 0.1

@@ -46,11 +46,11 @@ class InView:
         return f"from {self.from_m:.2f} m to {self.until_m:.2f} m"
 
 
-def edge_margin_px(camera, pose_config) -> float:
-    """How near the image's top or bottom edge a keypoint is dropped
-    (`[pose] edge_keypoint_margin_cells` heatmap cells, in the camera's pixels) at the
-    input height the detector runs for this camera (its full height: the margin is
-    widest there)."""
+def edge_margins_px(camera, pose_config) -> tuple[float, float]:
+    """How near the image's top and bottom edges keypoints are dropped (`[pose]
+    top_edge_margin_cells`, `bottom_edge_margin_cells`, in the camera's pixels) at the
+    input height the detector runs for this camera (its full height: the people-sized
+    input's smaller ones widen the margins while everyone in view is near)."""
     from follow.pose.input_size import input_height_for_camera
 
     height_px = pose_config.input_height_px
@@ -58,13 +58,15 @@ def edge_margin_px(camera, pose_config) -> float:
         height_px = input_height_for_camera(float(camera.K[1, 1]), camera.image_size[1],
                                             pose_config)  # fmt: skip
     cell_px = NETWORK_STRIDE_PX * camera.image_size[1] / height_px
-    return pose_config.edge_keypoint_margin_cells * cell_px
+    top, bottom = pose_config.top_edge_margin_cells, pose_config.bottom_edge_margin_cells
+    return top * cell_px, bottom * cell_px
 
 
-def in_view(camera, point_height_m: float, farthest_m: float, margin_px: float) -> InView:
+def in_view(camera, point_height_m: float, farthest_m: float, margins_px: tuple[float, float]
+            ) -> InView:  # fmt: skip
     """The distances along `base` x at which a point `point_height_m` over the floor is in
-    the image, at least `margin_px` from its top and bottom edges (the nearest stretch
-    when the camera sees it over more than one)."""
+    the image, at least `margins_px` (top, bottom) from its top and bottom edges (the
+    nearest stretch when the camera sees it over more than one)."""
     distances = np.arange(NEAREST_M, farthest_m + STEP_M / 2, STEP_M)
     points = np.column_stack(
         [distances, np.zeros_like(distances), np.full_like(distances, point_height_m)]
@@ -73,8 +75,8 @@ def in_view(camera, point_height_m: float, farthest_m: float, margin_px: float) 
     _, height = camera.image_size
     seen = (
         camera.in_image(uv)
-        & (uv[:, 1] >= -0.5 + margin_px)
-        & (uv[:, 1] <= height - 0.5 - margin_px)
+        & (uv[:, 1] >= -0.5 + margins_px[0])
+        & (uv[:, 1] <= height - 0.5 - margins_px[1])
     )
     if not seen.any():
         return InView(None, None, farthest_m)
@@ -89,11 +91,11 @@ def person_in_view(camera, config) -> dict[str, InView]:
     their neck and their ankles in view (`config` a Config)."""
     from follow.ukf.models import population_ankle_height_m
 
-    margin = edge_margin_px(camera, config.pose)
+    margins = edge_margins_px(camera, config.pose)
     farthest = max(config.pose.far_person_distance_m, config.control.following_distance_m)
     return {
-        "neck": in_view(camera, config.tracker.default_neck_height_m, farthest, margin),
-        "ankles": in_view(camera, population_ankle_height_m(config.tracker), farthest, margin),
+        "neck": in_view(camera, config.tracker.default_neck_height_m, farthest, margins),
+        "ankles": in_view(camera, population_ankle_height_m(config.tracker), farthest, margins),
     }
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from follow.camera import CameraModel, CameraPose
 from follow.config import Config, ControlConfig
-from follow.person_in_view import edge_margin_px, person_in_view, view_warnings
+from follow.person_in_view import edge_margins_px, person_in_view, view_warnings
 from follow.ukf.models import population_ankle_height_m
 
 
@@ -18,15 +18,15 @@ def _camera(height_m: float, pitch_deg: float = 0.0) -> CameraModel:
 def test_a_level_camera_sees_the_neck_and_ankles_from_where_the_pinhole_model_says():
     config = Config()
     camera = _camera(0.9)
-    margin = edge_margin_px(camera, config.pose)
-    assert 8.0 < margin < 30.0  # two heatmap cells of a 368-576 px input, in 480 px
+    top, bottom = edge_margins_px(camera, config.pose)
+    assert 2.0 < top < 8.0 and 8.0 < bottom < 30.0  # half / two cells of a 368-576 px input
     f, cy = camera.K[1, 1], camera.K[1, 2]
     neck_rise = config.tracker.default_neck_height_m - 0.9
     ankle_drop = 0.9 - population_ankle_height_m(config.tracker)
     views = person_in_view(camera, config)
     # the neck reaches the top margin, the ankles the bottom one
-    assert views["neck"].from_m == pytest.approx(f * neck_rise / (cy + 0.5 - margin), abs=0.011)
-    assert views["ankles"].from_m == pytest.approx(f * ankle_drop / (479.5 - margin - cy),
+    assert views["neck"].from_m == pytest.approx(f * neck_rise / (cy + 0.5 - top), abs=0.011)
+    assert views["ankles"].from_m == pytest.approx(f * ankle_drop / (479.5 - bottom - cy),
                                                    abs=0.011)  # fmt: skip
     for view in views.values():
         assert view.until_m == config.pose.far_person_distance_m
@@ -59,5 +59,5 @@ def test_no_margin_without_edge_dropping():
     config = Config()
     import dataclasses
 
-    pose = dataclasses.replace(config.pose, edge_keypoint_margin_cells=0.0)
-    assert edge_margin_px(_camera(0.9), pose) == 0.0
+    pose = dataclasses.replace(config.pose, top_edge_margin_cells=0.0, bottom_edge_margin_cells=0.0)
+    assert edge_margins_px(_camera(0.9), pose) == (0.0, 0.0)

@@ -187,9 +187,11 @@ def test_joints_beyond_the_frame_edges_are_not_reported_on_its_edge_rows():
     high = person(40.0, -0.8)  # neck just above the first row, the rest inside
     heatmaps, pafs = render([low, high])
     kept = sorted(decode(heatmaps, pafs, DecodeParams()), key=lambda p: p.keypoints_cells[1, 0])
-    raw = sorted(decode(heatmaps, pafs, DecodeParams(edge_keypoint_margin_cells=0.0)),
+    raw = sorted(decode(heatmaps, pafs, DecodeParams(top_edge_margin_cells=0.0,
+                                                     bottom_edge_margin_cells=0.0)),
                  key=lambda p: p.keypoints_cells[1, 0])  # fmt: skip
-    assert PoseConfig().edge_keypoint_margin_cells == DecodeParams().edge_keypoint_margin_cells > 0
+    assert PoseConfig().bottom_edge_margin_cells == DecodeParams().bottom_edge_margin_cells > 0
+    assert PoseConfig().top_edge_margin_cells == DecodeParams().top_edge_margin_cells > 0
     ankles = [10, 13]
     assert np.allclose(raw[0].keypoints_cells[ankles, 1], H - 1)  # what the network says
     assert np.isnan(kept[0].keypoints_cells[ankles]).all()
@@ -211,7 +213,8 @@ def test_a_person_with_every_keypoint_on_the_edge_rows_is_dropped():
     inside[3] = (12.0, H - 2.6)
     people = [DecodedPerson(k, np.where(np.isfinite(k[:, 0]), 0.8, 0.0), 3.0)
               for k in (on_edges, inside)]  # fmt: skip
-    left = without_edge_keypoints(people, H, 1.0)
+    left = without_edge_keypoints(people, H, 0.5, 1.0)
     assert len(left) == 1
     assert np.flatnonzero(np.isfinite(left[0].keypoints_cells[:, 0])).tolist() == [3]
-    assert len(without_edge_keypoints(people, H, 2.5)) == 0
+    assert len(without_edge_keypoints(people, H, 0.5, 2.5)) == 0
+    assert len(without_edge_keypoints(people, H, 0.0, 1.0)) == 2  # the neck on row 0 kept

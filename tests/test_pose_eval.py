@@ -217,7 +217,7 @@ def test_feet_beyond_the_frame_give_no_ankle_on_its_edge(data_path, model_path, 
     data_path("ccf_crops/p01.jpg")
     model_path("pose/human-pose-estimation-0001.onnx")
     keep = tmp_path / "keep.toml"
-    keep.write_text("[pose]\nedge_keypoint_margin_cells = 0\n")
+    keep.write_text("[pose]\nbottom_edge_margin_cells = 0\n")
     argv = ["eval", "pose-near", "--person-heights", "432", "--sizes", "368", "--stages", "2",
             "--cut-bottom", "0.2", "--max-crops", "14", "--json"]  # fmt: skip
     capsys.readouterr()

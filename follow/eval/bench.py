@@ -116,7 +116,6 @@ def main(args) -> dict:
     if args.matrix:
         return run_matrix(args)
     from follow.pose.detector import PoseDetector
-
     from follow.pose.input_size import pose_config_for_camera
 
     config = bench_config(args)

@@ -51,7 +51,8 @@ class DecodeParams:
     duplicate_keypoint_distance: float = PoseConfig.duplicate_keypoint_distance
     duplicate_shared_keypoints: int = PoseConfig.duplicate_shared_keypoints
     duplicate_box_containment: float = PoseConfig.duplicate_box_containment
-    edge_keypoint_margin_cells: float = PoseConfig.edge_keypoint_margin_cells
+    top_edge_margin_cells: float = PoseConfig.top_edge_margin_cells
+    bottom_edge_margin_cells: float = PoseConfig.bottom_edge_margin_cells
 
 
 @dataclass(frozen=True)
@@ -221,29 +222,30 @@ def decode(heatmaps: np.ndarray, pafs: np.ndarray, params: DecodeParams) -> list
             conf[k] = peaks[k][slot[k], 2]
         people.append(DecodedPerson(kps, conf, float(scores[p])))
     people = suppress_duplicates(people, params)
-    if params.edge_keypoint_margin_cells > 0:
-        margin = params.edge_keypoint_margin_cells
-        people = without_edge_keypoints(people, heatmaps.shape[1], margin)
+    if params.top_edge_margin_cells > 0 or params.bottom_edge_margin_cells > 0:
+        people = without_edge_keypoints(people, heatmaps.shape[1], params.top_edge_margin_cells,
+                                        params.bottom_edge_margin_cells)  # fmt: skip
     return people
 
 
-def without_edge_keypoints(people: list[DecodedPerson], rows: int, margin_cells: float
-                           ) -> list[DecodedPerson]:  # fmt: skip
-    """The people without their keypoints within `margin_cells` of the heatmap's top or
-    bottom edge (persons left with none are dropped).
+def without_edge_keypoints(people: list[DecodedPerson], rows: int, top_margin_cells: float,
+                           bottom_margin_cells: float) -> list[DecodedPerson]:  # fmt: skip
+    """The people without their keypoints within `top_margin_cells` of the heatmap's top
+    edge or `bottom_margin_cells` of its bottom edge (persons left with none are
+    dropped). The outermost row's centre is half a cell from the edge.
 
     A joint just beyond the frame's top or bottom edge leaves its peak on or next to the
     outermost row: real person crops cut off at the frame's bottom had their ankles
-    reported there with the feet 2-4 cells below the frame (docs/pose.md, *Joints
-    beyond the frame*). Taken as the ankle, such a point puts a near person farther
-    away than they are, and the robot drives on toward them; a neck on the top row
-    does the same. The outermost row's centre is half a cell from the edge.
+    reported up to 2 cells inside it with the feet up to 5 cells below it, and the necks
+    of heads cut off at the top on its first row (docs/pose.md, *Joints beyond the
+    frame*). Taken as the ankle, such a point puts a near person farther away than they
+    are, and the robot drives on toward them; such a neck does the same.
     """
     out = []
     for person in people:
         y = person.keypoints_cells[:, 1]
         with np.errstate(invalid="ignore"):
-            near_edge = (y + 0.5 <= margin_cells) | (rows - 0.5 - y <= margin_cells)
+            near_edge = (y + 0.5 <= top_margin_cells) | (rows - 0.5 - y <= bottom_margin_cells)
         if not near_edge.any():
             out.append(person)
             continue

@@ -43,7 +43,8 @@ def decode_params(config: PoseConfig) -> DecodeParams:
         duplicate_keypoint_distance=config.duplicate_keypoint_distance,
         duplicate_shared_keypoints=config.duplicate_shared_keypoints,
         duplicate_box_containment=config.duplicate_box_containment,
-        edge_keypoint_margin_cells=config.edge_keypoint_margin_cells,
+        top_edge_margin_cells=config.top_edge_margin_cells,
+        bottom_edge_margin_cells=config.bottom_edge_margin_cells,
     )
 
 
