@@ -128,14 +128,17 @@ def ankle_found(on_person, box) -> bool:
     return any(o.ankle_px is not None and o.ankle_px[1] >= y0 + ANKLE_ZONE * h for o in on_person)
 
 
-def detection_rates(detector, frames) -> tuple[float, float, float]:
+def detection_rates(detector, frames) -> tuple[float, float, float, float | None]:
     """(share with the neck found, share with neck and ankle found, extra skeletons
-    on the person per person)."""
+    on the person per person, median height of the found ankles over the frame's bottom
+    edge in heatmap cells (None when none was found): 0.5 is the centre of the last row,
+    where the network puts the ankles of feet below the frame)."""
     from tqdm import tqdm
 
     from follow.pose.observations import skeletons_to_observations
 
     necks = ankles = extra = 0
+    over_edge_cells = []
     for frame, box in tqdm(frames, desc=f"pose-near h={detector.config.input_height_px}",
                            unit="frame", leave=False):  # fmt: skip
         observations = skeletons_to_observations(detector.detect(frame), FRAME_SIZE,
@@ -144,7 +147,11 @@ def detection_rates(detector, frames) -> tuple[float, float, float]:
         necks += bool(on_person)
         extra += max(len(on_person) - 1, 0)
         ankles += ankle_found(on_person, box)
-    return necks / len(frames), ankles / len(frames), extra / len(frames)
+        cell_px = 8 * FRAME_SIZE[1] / detector.last_input_height_px
+        over_edge_cells += [(FRAME_SIZE[1] - 0.5 - o.ankle_px[1]) / cell_px
+                            for o in on_person[:1] if o.ankle_px is not None]  # fmt: skip
+    median = float(np.median(over_edge_cells)) if over_edge_cells else None
+    return necks / len(frames), ankles / len(frames), extra / len(frames), median
 
 
 def main(args) -> dict:
@@ -166,22 +173,25 @@ def main(args) -> dict:
                     pose = dataclasses.replace(config.pose, input_height_px=size,
                                                network_stages=stages, warmup_runs=0,
                                                input_height_from_people=False)  # fmt: skip
-                    neck, ankle, dup = detection_rates(PoseDetector(pose), frames)
+                    neck, ankle, dup, over_edge = detection_rates(PoseDetector(pose), frames)
                     rows.append({"person_px": person_px,
                                  "person_input_px": round(person_px * size / FRAME_SIZE[1], 1),
                                  "variant": v.name, "cut_bottom": args.cut_bottom,
                                  "cut_top": args.cut_top,
                                  "network_stages": stages, "input_height_px": size,
                                  "neck": neck, "ankle": ankle,
-                                 "duplicates_per_person": dup})  # fmt: skip
+                                 "duplicates_per_person": dup,
+                                 "ankle_over_bottom_edge_cells": over_edge})  # fmt: skip
     if not args.json:
         cut = (f", {args.cut_bottom:.0%} of each below its bottom edge" if args.cut_bottom else
                f", {args.cut_top:.0%} of each above its top edge" if args.cut_top else "")
         print(f"{len(crop_paths)} real person crops pasted into a 640x480 frame{cut}")
         print(f"{'person px':>9s} {'in input':>8s} {'variant':>12s} {'stages':>6s} "
-              f"{'input':>5s} {'neck':>6s} {'ankle':>6s} {'dup':>5s}")  # fmt: skip
+              f"{'input':>5s} {'neck':>6s} {'ankle':>6s} {'dup':>5s} {'ankle over edge':>15s}")  # fmt: skip
         for r in rows:
+            over = r["ankle_over_bottom_edge_cells"]
+            over = "-" if over is None else f"{over:.2f} cells"
             print(f"{r['person_px']:9d} {r['person_input_px']:8.0f} {r['variant']:>12s} "
                   f"{r['network_stages']:6d} {r['input_height_px']:5d} {r['neck']:6.2f} "
-                  f"{r['ankle']:6.2f} {r['duplicates_per_person']:5.2f}")  # fmt: skip
+                  f"{r['ankle']:6.2f} {r['duplicates_per_person']:5.2f} {over:>15s}")  # fmt: skip
     return {"crops": len(crop_paths), "rows": rows}
