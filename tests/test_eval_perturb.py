@@ -301,3 +301,23 @@ def test_scoring_can_stop_before_the_end_of_the_run(small_pose, capsys):
     assert counts[0] + counts[1] == counts[2] and 0 < counts[0] < counts[2]
     assert cli.main([*args[:-1], "--score-from-frame", "6", "--score-until-frame", "6"]) != 0
     assert "--score-until-frame 6 leaves no frame to score" in capsys.readouterr().err
+
+
+def test_the_cache_key_follows_the_runtime_auto_picks(tmp_path, monkeypatch):
+    """`provider = "auto"` runs OpenVINO where it is installed, onnxruntime where not:
+    their skeletons differ, so one's cache must not serve the other."""
+    from follow.eval.pets_setup import _cache_path, frames_digest
+    from follow.pose import runtime
+
+    model = tmp_path / "pose.onnx"
+    model.write_bytes(b"model one")
+    pixels = frames_digest(FakeSequence(), [0, 1])
+    auto = PoseConfig(model_file=str(model), network_stages=2, provider="auto")
+    monkeypatch.setattr(runtime, "openvino_installed", lambda: False)
+    monkeypatch.setattr(runtime, "ort_available_providers", lambda: ["CPUExecutionProvider"])
+    on_ort = _cache_path(auto, [0, 1], pixels)
+    assert on_ort == _cache_path(PoseConfig(model_file=str(model), network_stages=2,
+                                            provider="cpu"), [0, 1], pixels)  # fmt: skip
+    monkeypatch.setattr(runtime, "openvino_installed", lambda: True)
+    assert runtime.auto_provider(model) == "openvino"
+    assert _cache_path(auto, [0, 1], pixels) != on_ort

@@ -158,9 +158,14 @@ def _cache_path(pose_config: PoseConfig, frames: list[int], pixels_digest: str) 
     from follow.models import cache_dir
     from follow.pose.decode import DECODER_VERSION
     from follow.pose.detector import model_file_for
+    from follow.pose.runtime import auto_provider
 
     model = model_file_for(pose_config)  # "auto" precision differs between machines
-    key = json.dumps({"pose": pose_config.__dict__, "frames": frames, "pixels": pixels_digest,
+    # and so does the runtime "auto" picks: OpenVINO's skeletons are not onnxruntime's
+    pose = dict(pose_config.__dict__)
+    if pose["provider"] == "auto":
+        pose["provider"] = auto_provider(model)
+    key = json.dumps({"pose": pose, "frames": frames, "pixels": pixels_digest,
                       "model_sha256": _model_digest(model), "decoder": DECODER_VERSION},
                      sort_keys=True)  # fmt: skip
     digest = hashlib.sha256(key.encode()).hexdigest()[:16]

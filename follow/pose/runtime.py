@@ -225,6 +225,15 @@ def _auto_gpu(available: list[str], is_ir: bool) -> str | None:
     return None
 
 
+def auto_provider(model_path: Path) -> str:
+    """The provider `auto` runs `model_path` on here: TensorRT, else CUDA (not for an
+    OpenVINO IR), else OpenVINO where installed, else onnxruntime on the CPU."""
+    is_ir = Path(model_path).suffix == ".xml"
+    return _auto_gpu(ort_available_providers(), is_ir) or (
+        "openvino" if openvino_installed() else "cpu"
+    )
+
+
 def runs_on_gpu(provider: str) -> bool:
     """Whether `provider` will put the network on a GPU here, as `create_backend` does:
     `auto` with a GPU provider offered, or `cuda` / `tensorrt` with any of theirs
@@ -272,7 +281,7 @@ def _create_backend(provider: str, model_path: Path, cpu_threads: int) -> PoseBa
     is_ir = model_path.suffix == ".xml"
     available = ort_available_providers()
     if provider == "auto":
-        provider = _auto_gpu(available, is_ir) or ("openvino" if openvino_installed() else "cpu")
+        provider = auto_provider(model_path)
         log.info("pose: provider 'auto' chose '%s'", provider)
     if provider == "openvino":
         if openvino_installed():
