@@ -35,7 +35,7 @@ def test_a_level_camera_sees_the_neck_and_ankles_from_where_the_pinhole_model_sa
 
 def test_the_following_distance_inside_the_blind_band_is_named():
     config = Config()
-    low = person_in_view(_camera(0.5), config)  # neck above the image nearer than ~1.9 m
+    low = person_in_view(_camera(0.5), config)  # neck above the image nearer than ~1.85 m
     [warning] = view_warnings(low, config)
     assert "following distance (1.8 m)" in warning and "neck is out of view" in warning
     high = person_in_view(_camera(1.5), config)  # feet below the image nearer than ~2.8 m

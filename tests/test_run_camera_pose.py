@@ -125,7 +125,7 @@ def test_a_camera_file_without_notes_drives_the_base(scene, tmp_path, capsys, ca
 def test_a_camera_that_cannot_see_the_target_at_the_following_distance_is_named(
         scene, tmp_path, caplog):  # fmt: skip
     """A camera 0.5 m up and level loses a standing person's neck nearer than about
-    1.9 m: at the default following distance (1.8 m) the target would be lost."""
+    1.85 m: at the default following distance (1.8 m) the target would be lost."""
     video, _ = scene
     low = CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=0.5))
     low.save(tmp_path / "low.yaml")
