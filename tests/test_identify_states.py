@@ -31,6 +31,8 @@ IMAGE = np.zeros((480, 640, 3), np.uint8)
 
 
 SCRIPTED_CONFIDENCES: dict[int, float] = {}  # id(appearance) -> the confidence `frame` gave
+# id(appearance without an embedding) -> its confidence once `complete` embeds it
+SCRIPTED_WITH_REID: dict[int, float] = {}
 
 
 class RecordingModel:
@@ -94,6 +96,17 @@ class RecordingModel:
 
     def lacks_embedding(self, appearance) -> bool:
         return self.reid and appearance.embedding is None
+
+    def complete(self, image_bgr, rois, appearances):
+        """The appearances with an embedding each, scored as SCRIPTED_WITH_REID says."""
+        out = []
+        for a in appearances:
+            if self.lacks_embedding(a):
+                embedded = dataclasses.replace(a, embedding=np.array([0.0]))
+                SCRIPTED_CONFIDENCES[id(embedded)] = SCRIPTED_WITH_REID[id(a)]
+                a = embedded
+            out.append(a)
+        return out
 
 
 def person(track_id, x_m, y_m=0.0, neck_height_m=1.45, observed=True, last_seen_s=0.0,
@@ -282,6 +295,26 @@ def test_after_a_crossing_the_target_is_not_learnt_while_another_looks_more_like
     assert learnt_after(CFG, {1: 0.1, 2: 0.6}, reid=False) == 1
     always = dataclasses.replace(CFG, learn_needs_lead_at_risk="always")
     assert learnt_after(always, {1: 0.1, 2: 0.6}, reid=False) == 0
+
+
+@pytest.mark.parametrize(("with_reid", "learnt"), [(0.8, 0), (0.3, 1)])
+def test_at_risk_the_others_are_scored_with_re_id_as_the_target_is(with_reid, learnt):
+    """The look that checks the target embeds the target alone: the others are scored
+    by the classifier, on another scale than the target's re-id-fused score. Whether the
+    target leads is asked of them scored alike (their embeddings completed)."""
+    ctx = tracked_context(stamp_s=10.0)
+    crossing = [person(1, 2.0, last_seen_s=10.1),
+                person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m, last_seen_s=10.1)]  # fmt: skip
+    looked = frame(crossing, 10.1, {1: 0.6, 2: 0.1})  # 0.1: track 2 by the classifier alone
+    unembedded = dataclasses.replace(looked.appearances[2], embedding=None)
+    looked.appearances[2] = unembedded
+    SCRIPTED_CONFIDENCES[id(unembedded)] = 0.1
+    SCRIPTED_WITH_REID[id(unembedded)] = with_reid
+    state = Tracking(1)
+    assert state.update(ctx, looked) is state  # still named
+    assert len(ctx.model.learnt) == learnt
+    assert looked.appearances[2].embedding is not None
+    assert looked.confidences == {1: 0.6, 2: with_reid}
 
 
 def test_after_a_gap_the_target_is_not_learnt_while_a_new_track_looks_more_like_it():

@@ -256,11 +256,16 @@ class IdentityContext:
         stranger on the target's track, the target on another (or on a new one);
         learning that frame teaches the model the stranger, and the next frames trust
         it. The boosted classifier alone scores others too unsteadily to be outscored
-        by them as evidence (docs/identification.md)."""
+        by them as evidence (docs/identification.md). The others are scored as the
+        target is, re-id included: a look that embedded the target alone left them
+        scored by the classifier, which is not the target's scale (`confidence`, the
+        target's score when the frame was first looked at, is that of the same model)."""
         if not reid_rule_applies(self.config.learn_needs_lead_at_risk, self.model.has_reid):
             return True
         if self.identity_trusted(frame.stamp_s):
             return True
+        self.look(frame)  # embeds those left out, and scores everyone again alike
+        confidence = frame.confidences.get(target_id, confidence)
         return all(c < confidence for i, c in frame.confidences.items() if i != target_id)
 
     def crop_shows_another(self, target_id: int, frame: FrameTracks) -> bool:
