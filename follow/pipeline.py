@@ -263,6 +263,7 @@ class ControlLoop:
             self.controller.update(None, now)
             command = VelocityCommand.stop(now)
             self._send(command, overridden=True)
+            self._remember_command(self.results.peek())
             return command
         clears = self._clears  # before the peek: a result dropped after it is noticed
         result: FrameResult | None = self.results.peek()
@@ -286,12 +287,21 @@ class ControlLoop:
         if result is not None and result is not self._last_result:
             self._last_result = result
             self.latency.add(now - result.stamp_s)
-            with self._commanded_changed:
-                self._commands_from[result.frame_index] = self.last_command
-                while len(self._commands_from) > COMMANDS_KEPT:
-                    del self._commands_from[next(iter(self._commands_from))]
-                self._commanded_changed.notify_all()
+        self._remember_command(result)
         return command
+
+    def _remember_command(self, result: FrameResult | None) -> None:
+        """Note the command just sent as the one about `result`, the first time a tick
+        took it (with or without odometry), for `command_from`."""
+        if result is None:
+            return
+        with self._commanded_changed:
+            if result.frame_index in self._commands_from:
+                return
+            self._commands_from[result.frame_index] = self.last_command
+            while len(self._commands_from) > COMMANDS_KEPT:
+                del self._commands_from[next(iter(self._commands_from))]
+            self._commanded_changed.notify_all()
 
     def command_from(self, result: FrameResult, timeout_s: float) -> VelocityCommand | None:
         """The first command sent after `result` was taken (what the base did about that

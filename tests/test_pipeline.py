@@ -218,3 +218,29 @@ def test_the_command_logged_for_a_frame_is_the_one_sent_about_it():
     from_later = loop.tick()
     waiter.join(timeout=5.0)
     assert got == [from_later]
+
+
+def test_a_frame_taken_without_odometry_has_its_stop_logged_at_once():
+    """Without fresh odometry the loop sends zero and looks at no target, but the frame
+    it took still has its command: the log's thread must not wait out its time-out on
+    every frame (it would hold up perception behind it)."""
+    import dataclasses
+
+    from follow.control.odometry import OdometryPolicy
+
+    class NoOdometry(NullBase):
+        def odometry(self):
+            return None
+
+    base = NoOdometry()
+    slot = LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=15.0,
+                       perception_timeout_s=0.5, clock=lambda: 10.0,
+                       odometry=OdometryPolicy(base))  # fmt: skip
+    result = dataclasses.replace(_result(10.0), frame_index=3)
+    slot.put(result)
+    sent = loop.tick()
+    assert sent.is_stop
+    started = time.monotonic()
+    assert loop.command_from(result, 5.0) is loop.last_command
+    assert time.monotonic() - started < 1.0
