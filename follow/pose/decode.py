@@ -258,8 +258,6 @@ def without_edge_keypoints(people: list[DecodedPerson], rows: int, top_margin_ce
     return out
 
 
-
-
 def _finite(maps: np.ndarray) -> np.ndarray:
     """The maps with NaN and infinite values set to 0: a back-end fault (an FP16
     overflow) is no evidence of a keypoint or a limb, and an infinite peak would give a
