@@ -38,11 +38,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-range-m", type=positive_float, default=20.0,
         help="draw the grid up to this distance from the camera (default 20 m)",
     )  # fmt: skip
-    parser.add_argument(
-        "--config", type=Path,
-        help="follow's TOML configuration, for the following distance and the farthest "
-             "person checked against the view (default: follow's defaults)",
-    )  # fmt: skip
 
 
 def _frame(source: str, index: int):
@@ -83,15 +78,12 @@ def main(args: argparse.Namespace) -> dict:
     horizon_v = None
     if horizon is not None and abs(horizon[1]) > 1e-9:
         horizon_v = float(-(horizon[0] * (w - 1) / 2.0 + horizon[2]) / horizon[1])
-    views, warnings = _person_in_view(seen, args.config)
     out = {
         "overlay": str(args.output),
         "frame_size": [w, h],
         "camera_scaled_from": None if seen is camera else list(camera.image_size),
         "visible_ground_m": None if extent is None else [float(v) for v in extent],
         "horizon_row_at_centre_px": horizon_v,
-        "person_in_view_m": {name: [v.from_m, v.until_m] for name, v in views.items()},
-        "warnings": warnings,
     }
     if not args.json:
         print(f"wrote {args.output} ({w}x{h})")
@@ -101,19 +93,4 @@ def main(args: argparse.Namespace) -> dict:
             x0, x1, y0, y1 = extent
             print(f"  floor in view (within {args.max_range_m:g} m): x {x0:.1f}..{x1:.1f} m, "
                   f"y {y0:.1f}..{y1:.1f} m")  # fmt: skip
-        print(f"  a standing person straight ahead: neck in view "
-              f"{views['neck'].describe()}, ankles {views['ankles'].describe()}")
-        for warning in warnings:
-            print(f"  warning: {warning}")
     return out
-
-
-def _person_in_view(camera: CameraModel, config_path: Path | None):
-    """`follow.person_in_view`'s views and warnings for the camera, with follow's
-    configuration (following distance, farthest person, pose input)."""
-    from follow.config import Config
-    from follow.person_in_view import person_in_view, view_warnings
-
-    config = Config.load(config_path) if config_path is not None else Config()
-    views = person_in_view(camera, config)
-    return views, view_warnings(views, config)

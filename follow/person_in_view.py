@@ -5,9 +5,9 @@ leave the bottom of the image (then only the neck gives range), nearer still the
 leaves the top (then the person is not seen at all); a camera pitched steeply down loses
 far people's necks instead. This works out, from the camera file alone, the distances
 along the robot's x axis at which a person of the tracker's default neck height has their
-neck and their ankles in view, so that `follow run`, the ROS 2 node and
-`follow-calib check` can say before the robot moves whether the following distance and
-the farthest person lie where the camera can range them.
+neck and their ankles in view, so that `follow run` and the ROS 2 node can say before
+the robot moves whether the following distance and the farthest person lie where the
+camera can range them.
 """
 
 from __future__ import annotations

@@ -370,26 +370,3 @@ def test_ground_command_to_a_new_folder_writes_the_file_and_its_overlay(board_sc
     assert CameraModel.load(output).pose.height_m == pytest.approx(0.8, abs=0.01)
     assert cv2.imread(str(folder / "robot" / "cam_ground.png")).shape == (480, 640, 3)
 
-
-def test_check_says_where_a_standing_person_is_in_view(tmp_path, capsys):
-    """A level camera 0.5 m up (75 deg wide) loses a person's neck nearer than ~1.6 m:
-    `check` names a following distance inside that band, and is quiet about the default
-    one, which lies beyond."""
-    frame = tmp_path / "frame.png"
-    cv2.imwrite(str(frame), np.full((480, 640, 3), 90, np.uint8))
-    camera(0.5, 0.0).save(tmp_path / "cam.yaml")
-    argv = ["check", str(frame), "--camera", str(tmp_path / "cam.yaml"),
-            "-o", str(tmp_path / "check.png")]  # fmt: skip
-    (tmp_path / "near.toml").write_text("[control]\nfollowing_distance_m = 1.5\n")
-    assert cli.main([*argv, "--config", str(tmp_path / "near.toml")]) == 0
-    out = capsys.readouterr().out
-    assert "a standing person straight ahead: neck in view from 1.5" in out
-    assert "warning: at the following distance (1.5 m)" in out
-    assert cli.main([*argv, "--json"]) == 0
-    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert result["warnings"] == []
-    assert 1.5 < result["person_in_view_m"]["neck"][0] < 1.7
-    assert result["person_in_view_m"]["neck"][1] == 8.0
-    (tmp_path / "bad.toml").write_text("[control]\nfollowing_distance_m = -1\n")
-    assert cli.main([*argv, "--config", str(tmp_path / "bad.toml")]) == 2
-    assert "following_distance_m" in capsys.readouterr().err
