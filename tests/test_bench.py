@@ -179,3 +179,22 @@ def test_bench_identify_times_the_reid_network_after_its_first_run(monkeypatch):
     monkeypatch.setattr(factory, "build_reid", lambda config: Reid())
     result = bench_identify.bench(IdentifyConfig(), 2, 10, True, numpy_boosting=True)
     assert result["reid_ms_per_person"] == pytest.approx(2.0, abs=0.01)
+
+
+def test_the_robot_scene_runs_the_input_height_follow_run_chooses_for_its_camera():
+    """`follow run` sizes the pose input for the camera (a person 8 m away found); the
+    bench's robot scene runs that height, its PETS frames the configured one."""
+    import math
+    from types import SimpleNamespace
+
+    from follow.camera import CameraModel, CameraPose
+    from follow.eval.robot_scene import FRAME_SIZE, HORIZONTAL_FOV_DEG
+    from follow.pose.input_size import input_height_for_camera
+
+    camera = CameraModel.from_fov(FRAME_SIZE, HORIZONTAL_FOV_DEG, CameraPose(height_m=1.0))
+    setup = SimpleNamespace(camera=camera)
+    wide = Config().replace("pose", far_person_distance_m=4.0)  # sized down to 256 px
+    robot = bench.config_for_scene(wide, setup, "robot").pose.input_height_px
+    focal_px = FRAME_SIZE[0] / 2 / math.tan(math.radians(HORIZONTAL_FOV_DEG) / 2)
+    assert robot == input_height_for_camera(focal_px, FRAME_SIZE[1], wide.pose) == 256
+    assert bench.config_for_scene(wide, setup, "pets").pose.input_height_px == 368
