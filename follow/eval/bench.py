@@ -115,7 +115,7 @@ def main(args) -> dict:
         raise ValueError("--frames must be >= 1 and --warmup >= 0")
     if args.matrix:
         return run_matrix(args)
-    from follow.pose.detector import PoseDetector
+    from follow.pose.detector import CHOSEN_HERE, PoseDetector, auto_fp32_reason
 
     setup, scene = bench_scene(args)
     config = config_for_scene(bench_config(args), setup, args.scene)
@@ -150,10 +150,8 @@ def main(args) -> dict:
     )
     result["peak_rss_mb"] = round(peak_rss_mb(), 1)
     notes = []
-    if (config.pose.precision in ("auto", "int8_if_made") and not config.pose.model_file
+    if (config.pose.precision in CHOSEN_HERE and not config.pose.model_file
             and "int8" not in detector.model_path.name):
-        from follow.pose.detector import auto_fp32_reason
-
         # the reason names the missing model (and how to make it), the CPU or the GPU
         notes.append(f"FP32 ran, not the INT8 pose model: {auto_fp32_reason(config.pose)}")
     if result["runner_fps"] and result["runner_fps"] >= 0.95 * args.camera_fps:
