@@ -22,6 +22,7 @@ import numpy as np
 
 from follow.cli_args import non_negative_int, positive_int
 from follow.eval.pose import input_height
+from follow.pose.preprocess import NETWORK_STRIDE_PX
 
 FRAME_SIZE = (640, 480)
 NECK_ZONE = 0.4  # upper share of the person where the neck must lie
@@ -147,7 +148,7 @@ def detection_rates(detector, frames) -> tuple[float, float, float, float | None
         necks += bool(on_person)
         extra += max(len(on_person) - 1, 0)
         ankles += ankle_found(on_person, box)
-        cell_px = 8 * FRAME_SIZE[1] / detector.last_input_height_px
+        cell_px = NETWORK_STRIDE_PX * FRAME_SIZE[1] / detector.last_input_height_px
         over_edge_cells += [(FRAME_SIZE[1] - 0.5 - o.ankle_px[1]) / cell_px
                             for o in on_person[:1] if o.ankle_px is not None]  # fmt: skip
     median = float(np.median(over_edge_cells)) if over_edge_cells else None
