@@ -125,6 +125,7 @@ def camera_for_frames(camera: CameraModel, width: int, height: int) -> CameraMod
 # millisecond of the frame's result; longer only when the loop is starved).
 COMMAND_WAIT_S = 0.25
 MAX_VIDEO_REPEAT_S = 2.0  # the longest one processed frame stands in the video
+VIDEO_FOURCCS = {".mp4": "mp4v", ".avi": "MJPG"}  # what --output-video writes, by its name
 # OpenCV's video writer reports no failed write: the file is checked to have grown once
 # this many bytes of raw frames went in since it last grew. The writers hold 256 kB
 # before the file grows; a still 1120x480 scene took 336 frames (540 MB raw) to fill
@@ -169,9 +170,8 @@ class Outputs:
         canvas = np.hstack([picture, side])
         if self.video_path:
             if self._writer is None:
-                fourcc = cv2.VideoWriter_fourcc(
-                    *("mp4v" if self.video_path.lower().endswith(".mp4") else "MJPG")
-                )
+                suffix = Path(self.video_path).suffix.lower()
+                fourcc = cv2.VideoWriter_fourcc(*VIDEO_FOURCCS.get(suffix, "MJPG"))
                 self._writer = cv2.VideoWriter(
                     self.video_path, fourcc, self.fps, (canvas.shape[1], canvas.shape[0])
                 )
@@ -292,7 +292,6 @@ def checked_frames(first: Frame, rest, source_name: str, yield_first: bool = Tru
         yield frame
 
 
-VIDEO_SUFFIXES = (".mp4", ".avi")  # what --output-video writes: mp4v in MP4, MJPG in AVI
 
 
 def check_output_paths(args) -> None:
@@ -327,7 +326,7 @@ def check_output_paths(args) -> None:
             raise ValueError(f"{name} {value} is a folder; give a file name")
         elif not path.parent.is_dir():
             raise ValueError(f"{name} {value}: the folder {path.parent} does not exist")
-        elif name == "--output-video" and path.suffix.lower() not in VIDEO_SUFFIXES:
+        elif name == "--output-video" and path.suffix.lower() not in VIDEO_FOURCCS:
             # found at the first frame, after the base was connected, armed and switched
             raise ValueError(f"--output-video {value}: name it .mp4 or .avi (the video "
                              "format follows the name)")  # fmt: skip
