@@ -51,13 +51,9 @@ def edge_margins_px(camera, pose_config) -> tuple[float, float]:
     top_edge_margin_cells`, `bottom_edge_margin_cells`, in the camera's pixels) at the
     input height the detector runs for this camera (its full height: the people-sized
     input's smaller ones widen the margins while everyone in view is near)."""
-    from follow.pose.input_size import input_height_for_camera
+    from follow.pose.input_size import camera_input_height_px
 
-    height_px = pose_config.input_height_px
-    if pose_config.input_height_from_camera:
-        height_px = input_height_for_camera(float(camera.K[1, 1]), camera.image_size[1],
-                                            pose_config)  # fmt: skip
-    cell_px = NETWORK_STRIDE_PX * camera.image_size[1] / height_px
+    cell_px = NETWORK_STRIDE_PX * camera.image_size[1] / camera_input_height_px(pose_config, camera)
     top, bottom = pose_config.top_edge_margin_cells, pose_config.bottom_edge_margin_cells
     return top * cell_px, bottom * cell_px
 

@@ -61,13 +61,19 @@ def far_person_input_px(config, camera) -> float:
     return person_px * config.input_height_px / camera.image_size[1]
 
 
+def camera_input_height_px(config, camera) -> int:
+    """The full input height the detector runs for `camera`: chosen for it with
+    `input_height_from_camera`, else the configured one."""
+    if not config.input_height_from_camera:
+        return config.input_height_px
+    return input_height_for_camera(float(camera.K[1, 1]), camera.image_size[1], config)
+
+
 def pose_config_for_camera(config, camera):
     """`config` (a PoseConfig) with its input height chosen for `camera` when
     `input_height_from_camera` is on (unchanged otherwise); logs the choice, and warns
     when a configured height leaves the far person under the reliable size."""
-    if config.input_height_from_camera:
-        height = input_height_for_camera(float(camera.K[1, 1]), camera.image_size[1], config)
-        config = dataclasses.replace(config, input_height_px=height)
+    config = dataclasses.replace(config, input_height_px=camera_input_height_px(config, camera))
     in_input = far_person_input_px(config, camera)
     reliable_px = reliable_person_input_px(config)
     source = "chosen for the camera" if config.input_height_from_camera else "as configured"
