@@ -185,6 +185,10 @@ class IdentifyConfig:
     gaussian_memory_samples: float = 30.0  # effective sample count of a class Gaussian
     min_feature_std: float = 0.01  # floor of a class Gaussian's std (features in [0, 1])
     selector_error_decay: float = 0.99  # forgetting factor of the selectors' error counts
+    # Learn with numba's compiled loops (the `numba` extra): the same classifier, an
+    # update 3.4x faster (about 1 ms a frame with five people), but numba's compiler stays
+    # resident: about 105 MB more memory.
+    compiled_boosting: bool = False
     # Target state machine.
     initial_training_frames: int = 10
     max_initial_distance_m: float = 5.0

@@ -177,7 +177,7 @@ def test_bench_identify_times_the_reid_network_after_its_first_run(monkeypatch):
                         SimpleNamespace(perf_counter=clock, thread_time=clock))  # fmt: skip
     monkeypatch.setattr(factory, "build_extractor", extractor)
     monkeypatch.setattr(factory, "build_reid", lambda config: Reid())
-    result = bench_identify.bench(IdentifyConfig(), 2, 10, True, numpy_boosting=True)
+    result = bench_identify.bench(IdentifyConfig(), 2, 10, True)
     assert result["reid_ms_per_person"] == pytest.approx(2.0, abs=0.01)
 
 

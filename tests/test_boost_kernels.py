@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -63,6 +66,36 @@ def test_loops_match_numpy_uncompiled(monkeypatch):
 
 def test_compiled_without_numba_is_an_error(monkeypatch):
     monkeypatch.setattr(kernels, "learn_step", None)
+    monkeypatch.setitem(sys.modules, "numba", None)  # as if not installed
+    with pytest.raises(ValueError, match="compiled_boosting = false"):
+        OnlineBoostingClassifier(4, IdentifyConfig(compiled_boosting=True))
     with pytest.raises(ValueError, match="numba"):
         OnlineBoostingClassifier(4, IdentifyConfig(), compiled=True)
-    assert OnlineBoostingClassifier(4, IdentifyConfig())._kernel is None  # falls back
+    assert OnlineBoostingClassifier(4, IdentifyConfig())._kernel is None
+
+
+def test_the_configuration_chooses_the_compiled_loops():
+    pytest.importorskip("numba")
+    assert OnlineBoostingClassifier(4, IdentifyConfig())._kernel is None
+    compiled = OnlineBoostingClassifier(4, IdentifyConfig(compiled_boosting=True))
+    assert compiled._kernel is kernels.learn_step is not None
+
+
+def test_an_identifier_on_the_default_settings_does_not_load_numba():
+    """numba's compiler stays resident once imported (about 105 MB): a process that has
+    not asked for the compiled loops must not carry it. A fresh interpreter, since this
+    one may have imported numba for another test."""
+    script = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from follow.boost.online_boosting import OnlineBoostingClassifier\n"
+        "from follow.ccf.features import FeatureMaps\n"
+        "from follow.config import IdentifyConfig\n"
+        "clf = OnlineBoostingClassifier(4, IdentifyConfig())\n"
+        "maps = FeatureMaps.from_maps(np.random.default_rng(0).random((16, 8, 4)))\n"
+        "clf.train([maps], [maps])\n"
+        "print('numba' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         check=True)  # fmt: skip
+    assert out.stdout.strip() == "False"

@@ -1,19 +1,17 @@
-"""The online boosting learning step as one compiled loop (numba), when numba is present.
+"""The online boosting learning step as one compiled loop (numba), on request.
 
 The numpy implementation in `online_boosting` spends most of an update in Python's
 per-call overhead (~40 whole-array operations on 225 values); this does the same
-arithmetic in one pass, in the same order, so both give the same results. Without
-numba, `learn_step` is None and the numpy implementation is used.
+arithmetic in one pass, in the same order, so both give the same results. It is used
+only with `[identify] compiled_boosting = true` and numba installed (the `numba` extra):
+numba's compiler stays resident once loaded, about 105 MB of the process for about 1 ms
+a frame (docs/identification.md, *Learning*). numba is imported by `load()`, never at
+import time, so a process that does not ask for the loops does not carry it.
 """
 
 from __future__ import annotations
 
 import math
-
-try:  # optional accelerator
-    import numba
-except ImportError:  # pragma: no cover - exercised where numba is absent
-    numba = None
 
 MIN_SELECTOR_ERROR = 0.01  # keeps alpha finite (<= 2.3) for a flawless weak classifier
 MAX_IMPORTANCE = 1e3  # cap of lambda along the selector chain
@@ -148,22 +146,33 @@ def _replace_step(
     return n
 
 
-if numba is not None:
-    learn_step = numba.njit(cache=True, nogil=True)(_learn_step)
-    replace_step = numba.njit(cache=True, nogil=True)(_replace_step)
-else:  # pragma: no cover
-    learn_step = replace_step = None
+learn_step = replace_step = None  # the compiled loops, once `load()` has made them
 python_learn_step = _learn_step  # the same loops uncompiled, for tests without numba
 python_replace_step = _replace_step
 
 _warmed_up = False
 
 
-def warm_up() -> None:
-    """Compile (or load from numba's cache) both loops now, on a tiny problem with the
-    real argument types, so that the first training frame does not stall."""
+def load() -> bool:
+    """Compile both loops with numba (or load them from its cache) and warm them up;
+    False where numba is not installed."""
+    global learn_step, replace_step
+    if learn_step is None:
+        try:
+            import numba
+        except ImportError:
+            return False
+        learn_step = numba.njit(cache=True, nogil=True)(_learn_step)
+        replace_step = numba.njit(cache=True, nogil=True)(_replace_step)
+    _warm_up()
+    return True
+
+
+def _warm_up() -> None:
+    """Run both loops now, on a tiny problem with the real argument types, so that the
+    first training frame does not stall on their compilation."""
     global _warmed_up
-    if _warmed_up or learn_step is None:
+    if _warmed_up:
         return
     import numpy as np
 

@@ -18,9 +18,9 @@ chosen before this sample (its error updated with this sample), so the chain is 
 recurrence. Each selector's new best weak classifier and alpha are then chosen exactly.
 The Gaussians have a bounded memory (`gaussian_memory_samples`) and the error counts a
 forgetting factor (`selector_error_decay`), so that the classifier follows an appearance
-that changes. Everything random comes from one seeded generator. With numba installed,
-the learning step and the replacement run as the compiled loops of `kernels`, which
-give the same classifier.
+that changes. Everything random comes from one seeded generator. With
+`compiled_boosting` (and numba installed), the learning step and the replacement run as
+the compiled loops of `kernels`, which give the same classifier.
 """
 
 from __future__ import annotations
@@ -51,7 +51,8 @@ class OnlineBoostingClassifier:
         seed: int | None = None,
         compiled: bool | None = None,
     ):
-        """`compiled`: learn with the numba loop (None: when numba is installed)."""
+        """`compiled`: learn with numba's compiled loops (None: as the configuration's
+        `compiled_boosting` says)."""
         if num_channels < 1:
             raise ValueError(f"online boosting needs at least one channel, got {num_channels}")
         if config.num_selectors < 1 or config.weak_classifiers_per_selector < 2:
@@ -88,12 +89,13 @@ class OnlineBoostingClassifier:
         self._inv_area = np.zeros((s, w))
         self._min_var = config.min_feature_std**2
         self._row_offsets = np.arange(s) * w
-        if compiled and kernels.learn_step is None:
-            raise ValueError("compiled online boosting needs the `numba` package")
-        use_kernel = kernels.learn_step is not None if compiled is None else compiled
+        use_kernel = config.compiled_boosting if compiled is None else compiled
+        if use_kernel and not kernels.load():
+            raise ValueError(
+                "compiled online boosting (compiled_boosting = true) needs the `numba` "
+                "package: pip install numba, or set [identify] compiled_boosting = false"
+            )
         self._kernel = kernels.learn_step if use_kernel else None
-        if self._kernel is not None:
-            kernels.warm_up()
         self._hit = np.zeros(s * w, dtype=bool)
         self._replaced = np.zeros(s, dtype=np.intp)
         self._reached = np.zeros(s, dtype=bool)  # selectors reached since the last replacement

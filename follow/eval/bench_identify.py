@@ -38,8 +38,9 @@ def add_arguments(p) -> None:
     p.add_argument("--people", type=int, default=4, help="people per frame (default 4)")
     p.add_argument("--repeats", type=positive_int, default=200, help="timed repetitions (default 200)")
     p.add_argument("--reid", action="store_true", help="also time the re-id embedding")
-    p.add_argument("--numpy-boosting", action="store_true",
-                   help="time the numpy boosting update even when numba is installed")  # fmt: skip
+    p.add_argument("--compiled-boosting", action="store_true",
+                   help="time numba's compiled boosting update, as with [identify] "
+                   "compiled_boosting = true (needs numba)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration ([identify] section used)")
 
 
@@ -66,7 +67,8 @@ def _timed(fn) -> np.ndarray:
 
 
 def bench(
-    config: IdentifyConfig, people: int, repeats: int, with_reid: bool, numpy_boosting: bool = False
+    config: IdentifyConfig, people: int, repeats: int, with_reid: bool,
+    compiled_boosting: bool = False,
 ) -> dict:
     from tqdm import tqdm
 
@@ -80,7 +82,7 @@ def bench(
     crop_size = extractor.crop_size
     maps = extractor.extract_crops(crops)
     classifier = OnlineBoostingClassifier(
-        extractor.num_channels, config, compiled=False if numpy_boosting else None
+        extractor.num_channels, config, compiled=True if compiled_boosting else None
     )
     for k in range(4 * config.sample_bank_size):  # warm: full banks, settled selectors
         classifier.update(maps[k % people], 1 if k % 2 else -1)
@@ -149,7 +151,7 @@ def bench(
 
 def main(args) -> dict:
     config = Config.load(args.config).identify if args.config else IdentifyConfig()
-    result = bench(config, args.people, args.repeats, args.reid, args.numpy_boosting)
+    result = bench(config, args.people, args.repeats, args.reid, args.compiled_boosting)
     if not args.json:
         r = result
         print(f"CCF10 on {r['people_per_frame']} crops of {r['crop_size_px'][1]} px "
