@@ -255,6 +255,19 @@ def test_annotated_images_come_with_every_frame(ros_run):
     assert np.abs(last.astype(int) - frame).sum() > 0  # tracks and skeletons drawn on it
 
 
+def test_the_node_logs_where_a_standing_person_is_in_view_for_its_camera(ros_run):
+    """As `follow run` does, for the camera the node built perception with (the mounted
+    camera at the images' size): where a person's neck and ankles are in view."""
+    from follow.config import Config
+    from follow.person_in_view import person_in_view
+
+    views = person_in_view(ros_run["camera"], Config.load(ros_run["config"]))
+    line = (f"a standing person straight ahead has the neck in view {views['neck'].describe()}, "
+            f"the ankles {views['ankles'].describe()}")  # fmt: skip
+    log = ros_run["log"].read_text()
+    assert log.count(line) == 1, log[-3000:]
+
+
 def test_sigint_leaves_the_base_stopped(ros_run):
     assert ros_run["returncode"] == 0, ros_run["log"].read_text()[-2000:]
     after = [m for t, m in ros_run["received"]["cmd"] if t > ros_run["sigint_s"]]
