@@ -5,7 +5,7 @@ per-call overhead (~40 whole-array operations on 225 values); this does the same
 arithmetic in one pass, in the same order, so both give the same results. It is used
 only with `[identify] compiled_boosting = true` and numba installed (the `numba` extra):
 numba's compiler stays resident once loaded, about 105 MB of the process for about 1 ms
-a frame (docs/identification.md, *Learning*). numba is imported by `load()`, never at
+a frame (docs/identification.md, *How it works*, 3). numba is imported by `load()`, never at
 import time, so a process that does not ask for the loops does not carry it.
 """
 
