@@ -93,7 +93,8 @@ class OnlineBoostingClassifier:
         if use_kernel and not kernels.load():
             raise ValueError(
                 "compiled online boosting (compiled_boosting = true) needs the `numba` "
-                "package: pip install numba, or set [identify] compiled_boosting = false"
+                "package: install follow's `numba` extra, or set [identify] "
+                "compiled_boosting = false"
             )
         self._kernel = kernels.learn_step if use_kernel else None
         self._hit = np.zeros(s * w, dtype=bool)
