@@ -292,8 +292,6 @@ def checked_frames(first: Frame, rest, source_name: str, yield_first: bool = Tru
         yield frame
 
 
-
-
 def check_output_paths(args) -> None:
     """Refuse, before anything is opened or written, outputs that would overwrite an
     input (the video, camera, configuration or replayed log) or each other, and files
