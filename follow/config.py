@@ -245,6 +245,15 @@ class IdentifyConfig:
     # carry a classifier that doubts them. Costs re-acquisitions where the classifier
     # is weak (PETS's 50-px people; docs/identification.md).
     reid_cues_must_agree: bool = True
+    # Unless the re-id network alone is decisive among the people in view: a candidate
+    # in view since the target was lost whose similarity to the gallery reaches the bar
+    # and exceeds every other person's seen in the same frame by this much passes
+    # without the classifier's vote (0 = never). A change of focus or light can leave
+    # the classifier doubting the target for good while re-id still tells it from
+    # everyone present (docs/identification.md); a newcomer, or anyone alone in view,
+    # needs each cue to agree as before. Chosen on PETS blurred and darkened, checked on
+    # the other variants, the unchanged video and the simulated strangers.
+    reid_decisive_margin: float = 0.15
     # Clothes can match; stature rarely does: a candidate whose estimated neck height
     # differs from the target's last estimate by more than this and
     # reid_height_tolerance_stds of the two estimates' combined std, added in quadrature,

@@ -179,6 +179,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "min_target_observations": closed(1, 1000),
         "reid_accept_similarity": closed(-1.0, 1.0),
         "reid_strict_similarity": closed(-1.0, 1.0),
+        "reid_decisive_margin": closed(0.0, 2.0),
         "reid_strict_confidence": closed(-1.0, 1.0),
         "reid_strict_after_s": positive(600.0),
         "reid_height_tolerance_m": closed(0.0, 1.0),

@@ -393,6 +393,46 @@ def test_with_two_cues_each_must_agree_not_only_their_mean():
     assert isinstance(run(CFG.reid_confidence - 0.05)[-1], Probation)
 
 
+def test_re_id_decisive_among_the_people_in_view_passes_without_the_classifier():
+    """Under blur or in the dark the classifier can doubt the target for good while
+    re-id still tells it from everyone present: with `reid_decisive_margin`, a candidate
+    in view since the target was lost whose similarity reaches the bar and exceeds every
+    other person's in the frame by the margin passes without the classifier's vote.
+    Alone in view, beside a look-alike within the margin, under the bar, or new since
+    the loss (someone coming in where the target left), each cue must agree as before."""
+    decisive = dataclasses.replace(CFG, reid_decisive_margin=0.15)
+    never = dataclasses.replace(CFG, reid_decisive_margin=0.0)
+    doubted = CFG.reid_confidence - 0.3  # the classifier alone, under its bar
+    high = CFG.reid_strict_similarity + 0.1
+    back, other = person(7, 2.5), person(8, 4.0)
+
+    def run(config, people, sims, at_loss=None):
+        ctx = tracked_context(stamp_s=10.0, config=config, observed={7: 5, 8: 5})
+        state = Reidentification()
+        if at_loss is not None:  # who was in view in the frame the target was lost in
+            state.update(ctx, frame(at_loss, 10.05, dict.fromkeys([t.track_id for t in at_loss], 0.0)))
+        fused = dict.fromkeys(sims, 0.0)  # the fused confidence passes no bar either
+        classifier = dict.fromkeys(sims, doubted)
+        return [
+            state.update(ctx, frame(people, 10.1 + 0.1 * k, fused, sims, classifier=classifier))
+            for k in range(3 * CFG.reid_frames)
+        ]
+
+    apart = {7: high, 8: high - 0.2}
+    taken = run(decisive, [back, other], apart)
+    assert isinstance(taken[-1], Probation) and taken[-1].target_id == 7
+    assert taken[: CFG.reid_frames - 1] == [taken[0]] * (CFG.reid_frames - 1)  # a full streak
+    assert all(isinstance(s, Reidentification) for s in run(never, [back, other], apart))
+    newcomer = run(decisive, [back, other], apart, at_loss=[other])
+    assert all(isinstance(s, Reidentification) for s in newcomer)
+    for people, sims in (
+        ([back], {7: high}),  # nobody to be decisive against
+        ([back, other], {7: high, 8: high - 0.1}),  # a look-alike within the margin
+        ([back, other], {7: CFG.reid_accept_similarity - 0.05, 8: 0.0}),  # under the bar
+    ):
+        assert all(isinstance(s, Reidentification) for s in run(decisive, people, sims))
+
+
 def test_the_evidence_needed_rises_the_longer_the_target_is_gone():
     ctx = tracked_context(stamp_s=10.0, observed={7: 5})
     between = 0.5 * (CFG.reid_accept_similarity + CFG.reid_strict_similarity)

@@ -170,8 +170,10 @@ class Tracking(State):
 
 class Reidentification(State):
     """The target is unknown and nothing is learnt. A track becomes the target again
-    after `reid_frames` consecutive frames in which it passes every test of
-    `_may_pass` and `_passes`; the evidence needed rises the longer the target is gone.
+    after `reid_frames` consecutive frames in which it passes every test of `_placed`,
+    `_classifier_agrees` and `_passes`, or, for a track in view in the frame the target
+    was lost in, of `_placed` and `_reid_decisive`; the evidence needed rises the longer
+    the target is gone.
     A frame in which a track is unseen ends its run, and so does a gap between frames
     longer than `identity_risk_unseen_s` for every track (`IdentityContext.note_frame`)."""
 
@@ -179,27 +181,42 @@ class Reidentification(State):
 
     def __init__(self):
         self.streaks: dict[int, int] = {}  # track id -> consecutive frames passed
+        self.present_at_loss: set[int] | None = None  # the tracks of the first frame
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
+        if self.present_at_loss is None:
+            self.present_at_loss = set(frame.by_id)
         self.streaks = {k: v for k, v in self.streaks.items() if k in frame.by_id}
         if context.frame_gap_s > context.config.identity_risk_unseen_s:
             # No frame for as long (perception stalled): every track went unseen, and
             # the tracker may have moved one onto someone else. Every streak ends.
             self.streaks = {}
         # The re-id network runs only on a frame where some track passes every test that
-        # needs no embedding: on any other frame no track can pass, whatever re-id says.
+        # needs no embedding (or where re-id alone may decide, below): on any other frame
+        # no track can pass, whatever re-id says.
         context.look(frame, embed=False)
         classifier = context.classifier_confidences(frame)
         parts = context.part_distances(frame)
-        eligible = {
-            i for i in frame.confidences if self._may_pass(context, frame, i, classifier, parts)
-        }
-        if eligible:
+        placed = {i for i in frame.confidences if self._placed(context, frame, i, parts)}
+        eligible = {i for i in placed if self._classifier_agrees(context, frame, i, classifier)}
+        # Where re-id alone may decide (for a track in view since the target was lost), it
+        # needs its embedding, and so does everyone it is compared with (a lone person
+        # has no one to be decisive against).
+        may_decide = (
+            classifier is not None and context.config.reid_decisive_margin > 0.0
+            and len(frame.confidences) > 1
+        )  # fmt: skip
+        if eligible or (may_decide and placed & self.present_at_loss):
             context.look(frame)
         confidences = frame.confidences
         similarities = context.similarities(frame)
         for track_id in frame.by_id:  # unseen this frame: no evidence, the streak ends
-            passed = track_id in eligible and self._passes(context, frame, track_id, similarities)
+            passed = (
+                track_id in eligible and self._passes(context, frame, track_id, similarities)
+            ) or (
+                may_decide and track_id in placed and track_id in self.present_at_loss
+                and self._reid_decisive(context, frame, track_id, similarities)
+            )  # fmt: skip
             self.streaks[track_id] = self.streaks.get(track_id, 0) + 1 if passed else 0
         ready = [
             i for i, n in self.streaks.items()
@@ -212,32 +229,67 @@ class Reidentification(State):
         return Probation(target_id, frame.stamp_s)
 
     @staticmethod
-    def _may_pass(
+    def _placed(
         context: IdentityContext,
         frame: FrameTracks,
         track_id: int,
-        classifier: dict[int, float] | None,
         parts: dict[int, float] | None,
     ) -> bool:
-        """The tests that need no re-id embedding: with two cues, the boosted classifier's
-        own confidence reaches the required one (`reid_confidence` rising to
-        `reid_strict_confidence`); the track is confirmed by the tracker and was seen in
-        `min_target_observations` frames, did not fail probation and was never beside the
-        confirmed target (`reid_excludes_seen_beside`); it stands where the target could have walked
+        """The tests that ask where and who the track is, not how much it looks like the
+        target: confirmed by the tracker and seen in `min_target_observations` frames,
+        did not fail probation and was never beside the confirmed target
+        (`reid_excludes_seen_beside`); it stands where the target could have walked
         (`reid_reach_m` + `reid_reach_speed_mps`); its neck height agrees with the
         target's (`reid_height_tolerance_m`); and its torso and legs are each of the
         target's colours (`reid_part_colour_distance`)."""
         track = frame.by_id[track_id]
         return (
-            (classifier is None
-             or classifier[track_id] >= context.required_confidence(frame.stamp_s))
-            and context.established(track)
+            context.established(track)
             and track_id not in context.rejected
             and not context.seen_beside_target(track_id)
             and context.reachable(track, frame.stamp_s)
             and context.same_height(track)
             and context.parts_match(parts, track_id)
-        )  # fmt: skip
+        )
+
+    @staticmethod
+    def _classifier_agrees(
+        context: IdentityContext,
+        frame: FrameTracks,
+        track_id: int,
+        classifier: dict[int, float] | None,
+    ) -> bool:
+        """With two cues, the boosted classifier's own confidence reaches the required
+        one (`reid_confidence` rising to `reid_strict_confidence`); the last test that
+        needs no re-id embedding."""
+        return classifier is None or classifier[track_id] >= context.required_confidence(
+            frame.stamp_s
+        )
+
+    @staticmethod
+    def _reid_decisive(
+        context: IdentityContext,
+        frame: FrameTracks,
+        track_id: int,
+        similarities: dict[int, float] | None,
+    ) -> bool:
+        """Whether re-id alone tells the track from everyone in view: its similarity
+        to the gallery reaches the required one and exceeds every other seen track's by
+        `reid_decisive_margin`. Such a frame passes without the classifier's vote, for a
+        track that was in view when the target was lost (the target's own track, doubted
+        at a crossing, or the one it may have been swapped onto): telling a handful of
+        people present apart is what re-id does well, while a newcomer may be anyone
+        (a look-alike coming in where the target left) and needs both cues."""
+        if similarities is None:
+            return False
+        others = [v for i, v in similarities.items() if i != track_id]
+        if not others or not all(math.isfinite(v) for v in others):
+            return False  # nobody to compare with, or someone not embedded: undecided
+        similarity = similarities[track_id]
+        return (
+            similarity >= context.required_similarity(frame.stamp_s)
+            and similarity - max(others) >= context.config.reid_decisive_margin
+        )
 
     @staticmethod
     def _passes(
@@ -246,7 +298,7 @@ class Reidentification(State):
         track_id: int,
         similarities: dict[int, float] | None,
     ) -> bool:
-        """The rest, for a track that passed `_may_pass`: its fused confidence reaches the
+        """The rest, for a track placed where the classifier agrees: its fused confidence reaches the
         required one and leads every other seen track's by `reid_margin` (a lead over
         nobody is no evidence); with a re-id cue its similarity to the gallery reaches
         the required one (`reid_accept_similarity` rising to `reid_strict_similarity` at
