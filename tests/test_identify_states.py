@@ -410,7 +410,8 @@ def test_re_id_decisive_among_the_people_in_view_passes_without_the_classifier()
         ctx = tracked_context(stamp_s=10.0, config=config, observed={7: 5, 8: 5})
         state = Reidentification()
         if at_loss is not None:  # who was in view in the frame the target was lost in
-            state.update(ctx, frame(at_loss, 10.05, dict.fromkeys([t.track_id for t in at_loss], 0.0)))
+            ids = [t.track_id for t in at_loss]
+            state.update(ctx, frame(at_loss, 10.05, dict.fromkeys(ids, 0.0)))
         fused = dict.fromkeys(sims, 0.0)  # the fused confidence passes no bar either
         classifier = dict.fromkeys(sims, doubted)
         return [
@@ -431,6 +432,16 @@ def test_re_id_decisive_among_the_people_in_view_passes_without_the_classifier()
         ([back, other], {7: CFG.reid_accept_similarity - 0.05, 8: 0.0}),  # under the bar
     ):
         assert all(isinstance(s, Reidentification) for s in run(decisive, people, sims))
+
+
+def test_a_failed_probation_hands_back_who_was_in_view_at_the_loss():
+    """Re-identification after a failed probation still counts as present only those in
+    view when the target was lost: a newcomer since never becomes one."""
+    ctx = tracked_context(stamp_s=10.0, observed={7: 5})
+    probation = Probation(7, 10.5, present_at_loss={8})
+    taller = person(7, 2.5, neck_height_m=1.45 + 0.2)
+    state = probation.update(ctx, frame([taller], 10.6, {7: 0.9}, {7: 0.9}))
+    assert isinstance(state, Reidentification) and state.present_at_loss == {8}
 
 
 def test_the_evidence_needed_rises_the_longer_the_target_is_gone():

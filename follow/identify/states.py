@@ -179,9 +179,11 @@ class Reidentification(State):
 
     status = TargetStatus.REIDENTIFICATION
 
-    def __init__(self):
+    def __init__(self, present_at_loss: set[int] | None = None):
         self.streaks: dict[int, int] = {}  # track id -> consecutive frames passed
-        self.present_at_loss: set[int] | None = None  # the tracks of the first frame
+        # The tracks in view when the target was lost (None: those of the first frame);
+        # a failed probation hands them back, so a newcomer never becomes one.
+        self.present_at_loss = present_at_loss
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self.present_at_loss is None:
@@ -226,7 +228,7 @@ class Reidentification(State):
             return self
         target_id = max(ready, key=lambda i: confidences[i])
         log.info("target re-identified as track %d: on probation", target_id)
-        return Probation(target_id, frame.stamp_s)
+        return Probation(target_id, frame.stamp_s, self.present_at_loss)
 
     @staticmethod
     def _placed(
@@ -298,11 +300,11 @@ class Reidentification(State):
         track_id: int,
         similarities: dict[int, float] | None,
     ) -> bool:
-        """The rest, for a track placed where the classifier agrees: its fused confidence reaches the
-        required one and leads every other seen track's by `reid_margin` (a lead over
-        nobody is no evidence); with a re-id cue its similarity to the gallery reaches
-        the required one (`reid_accept_similarity` rising to `reid_strict_similarity` at
-        `reid_strict_after_s`)."""
+        """The rest, for a track placed where the classifier agrees: its fused
+        confidence reaches the required one and leads every other seen track's by
+        `reid_margin` (a lead over nobody is no evidence); with a re-id cue its
+        similarity to the gallery reaches the required one (`reid_accept_similarity`
+        rising to `reid_strict_similarity` at `reid_strict_after_s`)."""
         confidences = frame.confidences
         confidence = confidences[track_id]
         runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
@@ -334,9 +336,10 @@ class Probation(Tracking):
     the model and where it walked, so a wrong pick leaves nothing behind. Then it is the
     target: tracking."""
 
-    def __init__(self, target_id: int, since_s: float):
+    def __init__(self, target_id: int, since_s: float, present_at_loss: set[int] | None = None):
         super().__init__(target_id, reidentified=True)
         self.since_s = since_s
+        self.present_at_loss = present_at_loss  # handed back to re-identification on undo
         self.observed = 0  # frames of probation in which the candidate's stature was judged
         self.before: tuple | None = None  # the model and the target's whereabouts when named
 
@@ -379,4 +382,4 @@ class Probation(Tracking):
         context.model.restore(model)
         context.restore(whereabouts)
         context.rescore(frame)  # this frame was scored by the model the candidate taught
-        return Reidentification().update(context, frame)
+        return Reidentification(self.present_at_loss).update(context, frame)
