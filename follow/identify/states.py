@@ -208,7 +208,8 @@ class Reidentification(State):
             classifier is not None and context.config.reid_decisive_margin > 0.0
             and len(frame.confidences) > 1
         )  # fmt: skip
-        if eligible or (may_decide and placed & self.present_at_loss):
+        decidable = placed & self.present_at_loss if may_decide else set()
+        if eligible or decidable:
             context.look(frame)
         confidences = frame.confidences
         similarities = context.similarities(frame)
@@ -216,9 +217,9 @@ class Reidentification(State):
             passed = (
                 track_id in eligible and self._passes(context, frame, track_id, similarities)
             ) or (
-                may_decide and track_id in placed and track_id in self.present_at_loss
+                track_id in decidable
                 and self._reid_decisive(context, frame, track_id, similarities)
-            )  # fmt: skip
+            )
             self.streaks[track_id] = self.streaks.get(track_id, 0) + 1 if passed else 0
         ready = [
             i for i, n in self.streaks.items()
