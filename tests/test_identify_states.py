@@ -434,6 +434,41 @@ def test_re_id_decisive_among_the_people_in_view_passes_without_the_classifier()
         assert all(isinstance(s, Reidentification) for s in run(decisive, people, sims))
 
 
+def test_re_id_decides_only_for_people_seen_at_the_loss_and_against_everyone_seen():
+    """"In view" means observed: a track coasting unseen in the frame the target was lost
+    in may be carried onto anyone later, so it is no one present; and a person seen now
+    without a crop (too small, cut by the image's edge) cannot be led by a re-id that did
+    not embed them, so the frame is undecided."""
+    decisive = dataclasses.replace(CFG, reid_decisive_margin=0.15)
+    doubted = CFG.reid_confidence - 0.3
+    high = CFG.reid_strict_similarity + 0.1
+
+    def run(at_loss, people, sims, uncropped=()):
+        ctx = tracked_context(stamp_s=10.0, config=decisive, observed={7: 5, 8: 5, 9: 5})
+        state = Reidentification()
+        seen_at_loss = [t.track_id for t in at_loss if t.observation is not None]
+        state = state.update(ctx, frame(at_loss, 10.05, dict.fromkeys(seen_at_loss, 0.0)))
+        for k in range(3 * CFG.reid_frames):
+            f = frame(people, 10.1 + 0.1 * k, dict.fromkeys(sims, 0.0), sims,
+                      classifier=dict.fromkeys(sims, doubted))  # fmt: skip
+            for track_id in uncropped:  # seen, but no crop to describe
+                for described in (f.rois, f.boxes, f.appearances, f.confidences):
+                    described.pop(track_id, None)
+            state = state.update(ctx, f)
+        return state
+
+    people, apart = [person(7, 2.5), person(8, 4.0)], {7: high, 8: high - 0.2}
+    assert isinstance(run(people, people, apart), Probation)  # both seen at the loss
+    coasting = [person(7, 2.5, observed=False, last_seen_s=9.0), person(8, 4.0)]
+    assert isinstance(run(coasting, people, apart), Reidentification)
+    look_alike = person(9, 3.0)  # within the margin, seen but not embedded
+    three = [*people, look_alike]
+    sims = {7: high, 8: high - 0.2, 9: high - 0.05}
+    assert isinstance(run(three, three, sims), Reidentification)  # embedded: within margin
+    assert isinstance(run(three, three, sims, uncropped=(9,)), Reidentification)
+    assert isinstance(run(three, three, {7: high, 8: high - 0.2, 9: high - 0.3}), Probation)
+
+
 def test_a_failed_probation_hands_back_who_was_in_view_at_the_loss():
     """Re-identification after a failed probation still counts as present only those in
     view when the target was lost: a newcomer since never becomes one."""

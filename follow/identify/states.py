@@ -181,13 +181,14 @@ class Reidentification(State):
 
     def __init__(self, present_at_loss: set[int] | None = None):
         self.streaks: dict[int, int] = {}  # track id -> consecutive frames passed
-        # The tracks in view when the target was lost (None: those of the first frame);
-        # a failed probation hands them back, so a newcomer never becomes one.
+        # The tracks seen in the frame the target was lost in (None: those of the first
+        # frame; a track coasting unseen then may be carried onto anyone later); a
+        # failed probation hands them back, so a newcomer never becomes one.
         self.present_at_loss = present_at_loss
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self.present_at_loss is None:
-            self.present_at_loss = set(frame.by_id)
+            self.present_at_loss = _seen(frame)
         self.streaks = {k: v for k, v in self.streaks.items() if k in frame.by_id}
         if context.frame_gap_s > context.config.identity_risk_unseen_s:
             # No frame for as long (perception stalled): every track went unseen, and
@@ -285,7 +286,9 @@ class Reidentification(State):
         (a look-alike coming in where the target left) and needs both cues."""
         if similarities is None:
             return False
-        others = [v for i, v in similarities.items() if i != track_id]
+        # Everyone else seen in the frame, a person without a crop (too small, cut by the
+        # image's edge) included: re-id cannot lead someone it did not embed.
+        others = [similarities.get(i, math.nan) for i in _seen(frame) if i != track_id]
         if not others or not all(math.isfinite(v) for v in others):
             return False  # nobody to compare with, or someone not embedded: undecided
         similarity = similarities[track_id]
@@ -384,3 +387,8 @@ class Probation(Tracking):
         context.restore(whereabouts)
         context.rescore(frame)  # this frame was scored by the model the candidate taught
         return Reidentification(self.present_at_loss).update(context, frame)
+
+
+def _seen(frame: FrameTracks) -> set[int]:
+    """The tracks observed in the frame (not coasting on the tracker's prediction)."""
+    return {i for i, track in frame.by_id.items() if track.observation is not None}
