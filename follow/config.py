@@ -246,8 +246,8 @@ class IdentifyConfig:
     # is weak (PETS's 50-px people; docs/identification.md).
     reid_cues_must_agree: bool = True
     # Unless the re-id network alone is decisive among the people in view: a candidate
-    # in view since the target was lost whose similarity to the gallery reaches the bar
-    # and exceeds every other person's seen in the same frame by this much passes
+    # seen in the frame the target was lost in whose similarity to the gallery reaches
+    # the bar and exceeds every other person's seen in the same frame by this much passes
     # without the classifier's vote (0 = never). A change of focus or light can leave
     # the classifier doubting the target for good while re-id still tells it from
     # everyone present (docs/identification.md); a newcomer, or anyone alone in view,
