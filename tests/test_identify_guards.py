@@ -108,7 +108,9 @@ def _ended_probation(monkeypatch, reid: bool):
     model = TaughtModel(clean={7: 0.0, 8: -0.5}, taught={7: -0.5, 8: 0.9}, reid=reid)
     ctx = IdentityContext(config, model)
     ctx.observed_frames = {7: 20, 8: 20}
-    ctx.note_target(1, frame([person(1, 2.0, last_seen_s=10.0)], 10.0, {1: 0.9}))
+    seen = frame([person(1, 2.0, last_seen_s=10.0)], 10.0, {1: 0.9})
+    ctx.note_target(1, seen)
+    ctx.note_stature(1, seen)
     state = Probation(7, since_s=10.5).update(ctx, _unscored([person(7, 2.5, last_seen_s=10.6)],
                                                              10.6))  # fmt: skip
     assert isinstance(state, Probation) and model.learnt
@@ -227,7 +229,9 @@ def test_nothing_is_learnt_while_a_person_half_out_of_view_covers_the_target():
     their own, they still hide the target."""
     likes_everyone = collections.defaultdict(lambda: 0.9)
     ctx = IdentityContext(CFG, TaughtModel(clean=likes_everyone, taught=likes_everyone))
-    ctx.note_target(1, frame([person(1, 2.0, last_seen_s=10.0)], 10.0, {1: 0.9}))
+    seen = frame([person(1, 2.0, last_seen_s=10.0)], 10.0, {1: 0.9})
+    ctx.note_target(1, seen)
+    ctx.note_stature(1, seen)
     cov = np.eye(5) * 1e-4
     target = TrackState(1, np.array([2.0, 0, 0, 0, 1.45]), cov, True, 10.1,
                         observation=Observation(np.array([320.0, 120.0]),

@@ -152,9 +152,9 @@ def context(config=CFG, reid=True, observed=None):
 def tracked_context(target_position_m=(2.0, 0.0), stamp_s=10.0, **kwargs):
     """A context in which track 1 was last tracked, seen and trusted at `stamp_s`."""
     ctx = context(**kwargs)
-    ctx.note_target(
-        1, frame([person(1, *target_position_m, last_seen_s=stamp_s)], stamp_s, {1: 0.9})
-    )
+    seen = frame([person(1, *target_position_m, last_seen_s=stamp_s)], stamp_s, {1: 0.9})
+    ctx.note_target(1, seen)
+    ctx.note_stature(1, seen)
     return ctx
 
 
@@ -607,6 +607,37 @@ def test_a_person_seen_beside_the_confirmed_target_is_never_taken_for_it():
     assert isinstance(run(CFG), Reidentification)
     off = dataclasses.replace(CFG, reid_excludes_seen_beside=False)
     assert isinstance(run(off), Probation)  # the evidence alone would have named it
+
+
+def test_a_frame_not_learnt_at_risk_sets_neither_the_stature_nor_who_was_seen_beside():
+    """After a crossing the tracker may carry a stranger on the target's track and the
+    target on another. A frame in which someone else scores higher is not learnt, and it
+    vouches for nothing else either: the stranger's height must not become the bar the
+    real target is then refused by, nor the real target, on its other track, count as a
+    person seen beside it. A frame in which the target leads vouches for both."""
+
+    def run(stranger_score):
+        ctx = tracked_context(stamp_s=10.0, observed={1: 20, 2: 20, 3: 20})
+        tracking = Tracking(1)
+        t = 10.1
+        crossing = [person(1, 2.0, last_seen_s=t),
+                    person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m, last_seen_s=t)]
+        tracking.update(ctx, frame(crossing, t, {1: 0.9, 2: -0.5}))  # its identity at risk
+        assert len(ctx.model.learnt) == 1  # the target leads: learnt
+        for _ in range(5):  # track 1 now a taller stranger; the target on 3, 2 m away
+            t += 0.1
+            after = [person(1, 2.0, neck_height_m=1.60, last_seen_s=t),
+                     person(3, 4.0, last_seen_s=t)]  # fmt: skip
+            assert tracking.update(ctx, frame(after, t, {1: stranger_score, 3: 0.7})) is tracking
+        return ctx
+
+    doubted = run(stranger_score=0.05)
+    assert len(doubted.model.learnt) == 1 and doubted.target_height[0] == pytest.approx(1.45)
+    assert not doubted.seen_beside_target(3)
+    assert doubted.same_height(person(3, 4.0, neck_height_m=1.45))
+    leading = run(stranger_score=0.9)
+    assert len(leading.model.learnt) == 6 and leading.target_height[0] == pytest.approx(1.60)
+    assert leading.seen_beside_target(3)
 
 
 def test_a_person_who_came_near_the_target_may_still_be_it():

@@ -172,39 +172,48 @@ class IdentityContext:
         return self._by_track(frame, self.model.similarity)
 
     # ------------------------------------------------------------------ the target
-    def note_target(self, target_id: int, frame: FrameTracks, confirmed: bool = False,
-                    stature: bool = True) -> None:  # fmt: skip
-        """Remember where the target is, when it was seen, its height (unless not
-        `stature`, or another person covers its crop as `crop_shows_another` tells:
-        its skeleton may then have been given that person's feet, and nothing is learnt
-        of its appearance either), whether the tracker could be swapping it with
-        someone this frame (another track near it, or its track unseen, or no frame
-        handed over, for `identity_risk_unseen_s`: `note_frame`; a target first named
-        this frame was chosen from it, past any gap), and, on a frame that `confirmed`
-        its identity, who was seen beside it (`seen_apart`)."""
+    def note_target(self, target_id: int, frame: FrameTracks) -> None:
+        """Remember where the target is, when it was seen, and whether the tracker could
+        be swapping it with someone this frame (another track near it, or its track
+        unseen, or no frame handed over, for `identity_risk_unseen_s`: `note_frame`; a
+        target first named this frame was chosen from it, past any gap). What a frame
+        that vouches for the identity adds is `note_stature` and `note_seen_apart`."""
         track = frame.by_id[target_id]
         named_before = math.isfinite(self.last_target_s)
         self.last_target_position_m = track.position_m.copy()
         self.last_target_s = frame.stamp_s
         if track.observation is not None:
             self.last_target_seen_s = frame.stamp_s
-            if stature and not self.crop_shows_another(target_id, frame):
-                self.target_height = (track.neck_height_m, float(track.cov[4, 4]))
-        near = self._near_target(target_id, frame)
         unseen_s = frame.stamp_s - track.last_seen_s
         if named_before:  # no frame in the gap: the target was unseen all along it
             unseen_s = max(unseen_s, self.frame_gap_s)
-        if near or unseen_s > self.config.identity_risk_unseen_s:
+        if self._near_target(target_id, frame) or unseen_s > self.config.identity_risk_unseen_s:
             self.identity_risk_s = frame.stamp_s
-        swappable = near | self._touching_target(target_id, frame)
-        self.seen_apart -= swappable
-        if confirmed and track.observation is not None:
-            # Two people seen at once are two people, where the tracker cannot be
-            # confusing them: such a track is never the target come back.
-            self.seen_apart |= {
-                i for i, t in frame.by_id.items()
-                if i != target_id and t.observation is not None and i not in swappable
-            }  # fmt: skip
+        self.seen_apart -= self._swappable(target_id, frame)
+
+    def note_stature(self, target_id: int, frame: FrameTracks) -> None:
+        """Take the target's height from this frame, unless its track is unseen or another
+        person covers its crop (`crop_shows_another`: its skeleton may then have been
+        given that person's feet, and nothing is learnt of its appearance either)."""
+        track = frame.by_id[target_id]
+        if track.observation is not None and not self.crop_shows_another(target_id, frame):
+            self.target_height = (track.neck_height_m, float(track.cov[4, 4]))
+
+    def note_seen_apart(self, target_id: int, frame: FrameTracks) -> None:
+        """On a frame that confirmed the target's identity: two people seen at once are
+        two people, where the tracker cannot be confusing them, so each other track seen
+        is never the target come back (`seen_apart`)."""
+        if frame.by_id[target_id].observation is None:
+            return
+        swappable = self._swappable(target_id, frame)
+        self.seen_apart |= {
+            i for i, t in frame.by_id.items()
+            if i != target_id and t.observation is not None and i not in swappable
+        }  # fmt: skip
+
+    def _swappable(self, target_id: int, frame: FrameTracks) -> set[int]:
+        """The tracks the tracker could be confusing with the target this frame."""
+        return self._near_target(target_id, frame) | self._touching_target(target_id, frame)
 
     def whereabouts(self) -> tuple:
         """Where and when the target was last named and seen, when its identity was last

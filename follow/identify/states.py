@@ -87,8 +87,10 @@ class InitialTraining(State):
             return Initial().update(context, frame)
         context.look(frame, only=self.target_id)
         learnt = self.target_id in frame.appearances and context.learn(self.target_id, frame)
-        context.note_target(self.target_id, frame, confirmed=learnt)
+        context.note_target(self.target_id, frame)
+        context.note_stature(self.target_id, frame)
         if learnt:
+            context.note_seen_apart(self.target_id, frame)
             self.frames_learnt += 1
             if self.frames_learnt >= context.config.initial_training_frames:
                 log.info("target track %d learnt: tracking", self.target_id)
@@ -131,17 +133,22 @@ class Tracking(State):
         context.look(frame, only=self.target_id)
         confidence = frame.confidences.get(self.target_id)
         threshold = context.config.id_switch_confidence
-        confirmed = confidence is not None and confidence >= threshold
-        # Not the height of a frame that doubts the identity: a crossing stranger the
-        # tracker swapped in must not become the bar. (A frame without a crop, at the
-        # image's edge, judges nothing either way.)
-        doubted = confidence is not None and not confirmed
-        context.note_target(self.target_id, frame, confirmed,
-                            stature=self.notes_stature and not doubted)  # fmt: skip
+        context.note_target(self.target_id, frame)
         if confidence is None:  # not observed this frame: nothing to judge or learn
+            # (a frame without a crop, at the image's edge, gives a height where nobody
+            # could have swapped the track)
+            if self.notes_stature and context.identity_trusted(frame.stamp_s):
+                context.note_stature(self.target_id, frame)
             return True
-        if confirmed:
+        if confidence >= threshold:
+            # Only a frame that is learnt vouches for who the track is: after a crossing,
+            # one in which someone else scores higher may carry a stranger the tracker
+            # swapped in, whose height must not become the bar, nor may the target
+            # (on another track) be taken for someone seen beside it.
             if context.may_learn(self.target_id, frame, confidence):
+                if self.notes_stature:
+                    context.note_stature(self.target_id, frame)
+                context.note_seen_apart(self.target_id, frame)
                 context.learn(self.target_id, frame)
             return True
         if self._excused_as_turn(context, frame.stamp_s):
