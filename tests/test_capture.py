@@ -80,7 +80,8 @@ def test_a_jpeg_cut_short_in_a_folder_is_skipped_not_used_half_decoded(tmp_path,
 
 
 class _UnpluggedCamera:
-    """A camera that delivers `frames` images, then fails every read (unplugged)."""
+    """A camera that delivers `frames` images (each its own, as a sensor's noise makes
+    them), then fails every read (unplugged)."""
 
     def __init__(self, frames: int):
         self.frames = frames
@@ -95,7 +96,7 @@ class _UnpluggedCamera:
         if self.frames == 0:
             return False, None
         self.frames -= 1
-        return True, np.zeros((24, 32, 3), np.uint8)
+        return True, np.full((24, 32, 3), self.frames, np.uint8)
 
     def release(self):
         pass
@@ -110,6 +111,39 @@ def test_a_camera_that_stops_delivering_frames_is_an_error_not_the_end_of_the_ru
     assert len([next(frames) for _ in range(3)]) == 3
     with pytest.raises(SourceError, match="source 0: the camera delivered no frame"):
         next(frames)
+
+
+class _FrozenCamera:
+    """A live camera whose driver hands back its last image again for `frozen` reads
+    after the first two images, then delivers new ones."""
+
+    def __init__(self, frozen: int):
+        self.reads, self.frozen = 0, frozen
+
+    def isOpened(self):
+        return True
+
+    def get(self, prop):
+        return 30.0
+
+    def read(self):
+        self.reads += 1
+        fresh = min(self.reads, 2) + max(0, self.reads - 2 - self.frozen)
+        return True, np.full((24, 32, 3), fresh, np.uint8)  # the same buffer's contents
+
+    def release(self):
+        pass
+
+
+def test_a_frozen_camera_repeating_its_last_image_delivers_nothing_new(monkeypatch, caplog):
+    """The same image again is a frozen driver, not a new view: stamped now it would pass
+    old news for fresh. Its repeats are dropped (so a freeze is a camera that delivers
+    nothing, which stops the base), and frames come again once it does."""
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _FrozenCamera(frozen=5))
+    frames = iter(FrameSource("0"))
+    images = [int(next(frames).image[0, 0, 0]) for _ in range(4)]
+    assert images == [1, 2, 3, 4]  # the five repeats of image 2 never came out
+    assert "the same image again" in caplog.text
 
 
 def test_an_unusable_image_in_a_folder_is_skipped_by_name(tmp_path, caplog):
