@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from follow.handoff import Mailbox
+from follow.repeated_image import RepeatedImages
 from follow.types import Frame, InvalidInput
 
 log = logging.getLogger(__name__)
@@ -103,7 +104,7 @@ class FrameSource:
         clock = None if self.live else _FileClock(self.spec, self.fps)
         failures = 0
         grey_said = False
-        previous = None  # a live camera's last image, to tell a frozen one
+        repeats = RepeatedImages()
         frozen_said = False
         while True:
             ok, image = self._cap.read()
@@ -128,19 +129,12 @@ class FrameSource:
                             "s" if failures > 1 else "",
                             first if failures == 1 else f"{first}-{position - 1}")  # fmt: skip
             failures = 0
-            if self.live:
-                # A sensor's noise makes no two images alike: the same image again is a
-                # frozen driver repeating its last buffer. Stamped now, it would pass old
-                # news for fresh; dropped, a freeze is a camera that delivers nothing
-                # (the run's `camera_stall_timeout_s`) and the base stops.
-                if previous is not None and np.array_equal(image, previous):
-                    if not frozen_said:
-                        log.warning("source %s: the camera delivered the same image again "
-                                    "(a frozen driver?): repeated images are dropped",
-                                    self.spec)  # fmt: skip
-                        frozen_said = True
-                    continue
-                previous = image
+            if self.live and repeats.is_repeat(image):  # a frozen driver: nothing new
+                if not frozen_said:  # (a freeze ends as a stall: camera_stall_timeout_s)
+                    log.warning("source %s: the camera delivered the same image again (a "
+                                "frozen driver?): repeated images are dropped", self.spec)
+                    frozen_said = True
+                continue
             if clock is None:
                 stamp = time.monotonic() - start
             else:  # the time the container gives the frame just read

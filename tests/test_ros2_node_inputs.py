@@ -6,6 +6,7 @@ camera. In process, with a stand-in detector; runs where rclpy imports."""
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 
@@ -34,6 +35,9 @@ CAMERA = CameraModel.from_fov((320, 240), 70.0, CameraPose(height_m=1.0))
 ros_context = pytest.fixture(scope="module", autouse=True)(isolated_rclpy)
 
 
+_FILLS = itertools.count()  # a new picture for each image message
+
+
 @pytest.fixture
 def node():
     config = Config().replace("identify", identifier="channels")  # no model files needed
@@ -57,8 +61,11 @@ def _odometry(stamp_s: float, x_m: float = 0.0, frame_id: str = "odom", quaterni
     return msg
 
 
-def _image(stamp_s: float, width: int, height: int) -> Image:
-    fields = image_fields(np.zeros((height, width, 3), np.uint8))
+def _image(stamp_s: float, width: int, height: int, fill: int | None = None) -> Image:
+    """An image message; each its own picture (as a sensor's noise makes them) unless
+    `fill` gives it one."""
+    fill = next(_FILLS) % 256 if fill is None else fill
+    fields = image_fields(np.full((height, width, 3), fill, np.uint8))
     return Image(header=_header(stamp_s, "camera"), **{**fields, "data": fields["data"].tobytes()})
 
 
@@ -148,6 +155,24 @@ def test_one_image_stamped_ahead_of_the_clock_does_not_block_the_images_after_it
         assert node._detect_in(_image(now + 3600.0, 320, 240)) is None
         assert node._detect_in(_image(now - 0.05, 320, 240)) is not None
         assert node._detect_in(_image(now, 320, 240)) is not None
+    finally:
+        node.shutdown()
+        node.destroy_node()
+
+
+def test_the_same_image_stamped_anew_is_dropped_as_a_frozen_driver():
+    """A frozen camera driver that republishes its last image with a new stamp would pass
+    old news for fresh: the repeat is dropped (counted stale), and a new image is taken."""
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
+                                     camera_info_topic=""),
+                      CAMERA, detect=lambda frame: [])  # fmt: skip
+    try:
+        now = node.now_s()
+        assert node._detect_in(_image(now - 0.2, 320, 240, fill=7)) is not None
+        assert node._detect_in(_image(now - 0.1, 320, 240, fill=7)) is None
+        assert node.stale_frames == 1
+        assert node._detect_in(_image(now, 320, 240, fill=8)) is not None
     finally:
         node.shutdown()
         node.destroy_node()

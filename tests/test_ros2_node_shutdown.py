@@ -5,6 +5,7 @@ a stand-in detector; runs where rclpy imports."""
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 
@@ -37,6 +38,9 @@ SEEN = Observation(np.array([160.0, 100.0]), np.array([160.0, 200.0]))
 ros_context = pytest.fixture(scope="module", autouse=True)(isolated_rclpy)
 
 
+_FILLS = itertools.count()  # a new picture for each image message
+
+
 def _header(stamp_s: float, frame_id: str) -> Header:
     return Header(stamp=Time(**stamp_fields(stamp_s)), frame_id=frame_id)
 
@@ -49,7 +53,7 @@ def _odometry(stamp_s: float) -> OdometryMsg:
 
 
 def _image(stamp_s: float) -> Image:
-    fields = image_fields(np.zeros((240, 320, 3), np.uint8))
+    fields = image_fields(np.full((240, 320, 3), next(_FILLS) % 256, np.uint8))
     return Image(header=_header(stamp_s, "camera"), **{**fields, "data": fields["data"].tobytes()})
 
 

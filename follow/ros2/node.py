@@ -42,6 +42,7 @@ from follow.freshness import is_ahead
 from follow.handoff import Handoff
 from follow.odometry_buffer import OdometryBuffer
 from follow.pipeline import ControlLoop, FrameResult, overlaps_stages
+from follow.repeated_image import RepeatedImages
 from follow.ros2 import messages
 from follow.ros2.gate import CmdVelGate, check_ros_config
 from follow.rosmsg import (
@@ -180,11 +181,12 @@ class FollowNode(Node):
         self.frames_without_odometry = 0
         self.odometry_dropped = 0  # odometry messages in another frame or unusable
         self._camera_key: tuple | None = None  # the image size and camera_info perceived with
-        self.stale_frames = 0  # images unstamped, not newer than the last processed, or ahead
+        self.stale_frames = 0  # images unstamped, not newer than the last processed, ahead, or repeated
         self.errors = 0
         self.last_error: str | None = None  # the newest frame failure, for the diagnostics
         self._errors_reported = 0
         self._last_stamp: float | None = None
+        self._repeats = RepeatedImages()
         self._recent: deque = deque(maxlen=300)  # (wall time, timing_ms) per frame
         self._images = LatestSlot()
         self.results = LatestSlot()  # newest FrameResult for the control loop
@@ -438,6 +440,13 @@ class FollowNode(Node):
             image = image_from_msg(msg)
         except InvalidInput as exc:
             self.get_logger().warning(f"image dropped: {exc}", throttle_duration_sec=5.0)
+            return None
+        if self._repeats.is_repeat(image):  # a frozen driver stamping its last image anew
+            self.stale_frames += 1
+            self.get_logger().warning(
+                "image dropped: the same image as the last one (a frozen camera driver?)",
+                throttle_duration_sec=5.0,
+            )
             return None
         if self.odometry is not None:
             self.odometry.wait_until(stamp, ros.max_odometry_age_s)
