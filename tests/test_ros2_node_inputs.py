@@ -6,6 +6,7 @@ camera. In process, with a stand-in detector; runs where rclpy imports."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import threading
 import time
@@ -127,65 +128,55 @@ def test_odometry_without_a_stamp_is_dropped_by_name(node, capfd):
     assert node.odometry_dropped == 1 and node.gate.healthy()
 
 
-def test_an_image_of_another_size_mid_run_is_refused():
+@contextlib.contextmanager
+def _images_only_node():
+    """A node on images alone (no odometry, camera_info or cmd_vel), the camera file's
+    intrinsics, a stand-in detector; shut down after."""
     config = Config().replace("identify", identifier="channels")
     node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
-                                     camera_info_topic=""),  # the camera file's intrinsics
+                                     camera_info_topic=""),
                       CAMERA, detect=lambda frame: [])  # fmt: skip
     try:
+        yield node
+    finally:
+        node.shutdown()
+        node.destroy_node()
+
+
+def test_an_image_of_another_size_mid_run_is_refused():
+    with _images_only_node() as node:
         now = node.now_s()
         assert node._detect_in(_image(now - 0.2, 320, 240)) is not None
         assert node._detect_in(_image(now - 0.1, 400, 300)) is None  # the camera switched mode
         assert node.perception.tracker.camera.image_size == (320, 240)
         assert node._detect_in(_image(now, 320, 240)) is not None
-    finally:
-        node.shutdown()
-        node.destroy_node()
 
 
 def test_one_image_stamped_ahead_of_the_clock_does_not_block_the_images_after_it():
     """Taken as the last one processed, a glitched stamp far ahead would make every
     correct image after it look out of order, and be dropped for as long as the offset."""
-    config = Config().replace("identify", identifier="channels")
-    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
-                                     camera_info_topic=""),
-                      CAMERA, detect=lambda frame: [])  # fmt: skip
-    try:
+    with _images_only_node() as node:
         now = node.now_s()
         assert node._detect_in(_image(now + 3600.0, 320, 240)) is None
         assert node._detect_in(_image(now - 0.05, 320, 240)) is not None
         assert node._detect_in(_image(now, 320, 240)) is not None
-    finally:
-        node.shutdown()
-        node.destroy_node()
 
 
 def test_the_same_image_stamped_anew_is_dropped_as_a_frozen_driver():
     """A frozen camera driver that republishes its last image with a new stamp would pass
     old news for fresh: the repeat is dropped (counted stale), and a new image is taken."""
-    config = Config().replace("identify", identifier="channels")
-    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
-                                     camera_info_topic=""),
-                      CAMERA, detect=lambda frame: [])  # fmt: skip
-    try:
+    with _images_only_node() as node:
         now = node.now_s()
         assert node._detect_in(_image(now - 0.2, 320, 240, fill=7)) is not None
         assert node._detect_in(_image(now - 0.1, 320, 240, fill=7)) is None
         assert node.stale_frames == 1
         assert node._detect_in(_image(now, 320, 240, fill=8)) is not None
-    finally:
-        node.shutdown()
-        node.destroy_node()
 
 
 def test_images_without_a_stamp_are_refused_by_name(capfd):
     """A driver that leaves header.stamp at zero: taken, the first such image would be
     the last one processed, and every later one dropped as out of order in silence."""
-    config = Config().replace("identify", identifier="channels")
-    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
-                                     camera_info_topic=""),
-                      CAMERA, detect=lambda frame: [])  # fmt: skip
-    try:
+    with _images_only_node() as node:
         capfd.readouterr()
         assert node._detect_in(_image(0.0, 320, 240)) is None
         assert node.stale_frames == 1 and node._last_stamp is None
@@ -193,9 +184,6 @@ def test_images_without_a_stamp_are_refused_by_name(capfd):
         assert len(warning) == 1 and "WARN" in warning[0]
         assert "image dropped: its header has no stamp (zero)" in warning[0]
         assert node._detect_in(_image(node.now_s(), 320, 240)) is not None
-    finally:
-        node.shutdown()
-        node.destroy_node()
 
 
 def test_a_camera_info_that_changes_mid_run_is_refused():
