@@ -181,7 +181,7 @@ class FollowNode(Node):
         self.frames_without_odometry = 0
         self.odometry_dropped = 0  # odometry messages in another frame or unusable
         self._camera_key: tuple | None = None  # the image size and camera_info perceived with
-        self.stale_frames = 0  # images unstamped, not newer than the last processed, ahead, or repeated
+        self.stale_frames = 0  # images unstamped, out of order, ahead, or repeated
         self.errors = 0
         self.last_error: str | None = None  # the newest frame failure, for the diagnostics
         self._errors_reported = 0
