@@ -95,7 +95,7 @@ def test_lost_target_is_reidentified_under_a_new_track_id(identifier):
 def test_confidence_drop_triggers_reidentification(identifier):
     rng = np.random.default_rng(1)
     target = Person(1, 2.0, 180, RED)
-    other = Person(2, 3.0, 460, BLUE)
+    other = Person(2, 3.5, 460, BLUE)
     run(identifier, [target, other], CFG.initial_training_frames + 3, rng)
     assert identifier.status == TargetStatus.TRACKING
     other.column_px, other.x_m = 240, 2.5  # the other walks past, close to the target
@@ -125,12 +125,12 @@ def test_an_appearance_change_with_nobody_near_keeps_the_target(identifier):
 def test_a_low_confidence_while_someone_covers_the_target_waits_for_a_clear_view(identifier):
     rng = np.random.default_rng(5)
     target = Person(1, 2.0, 180, RED)
-    other = Person(2, 2.4, 460, BLUE)
+    other = Person(2, 3.5, 460, BLUE)
     run(identifier, [target, other], CFG.initial_training_frames + 3, rng)
     assert identifier.target_id == 1
     # The other passes close by, 0.4 m away on the floor (identity at risk): their boxes
     # overlap and the target's crop shows the other's blue coat.
-    other.column_px = 200
+    other.column_px, other.x_m = 200, 2.4
     target.shirt = BLUE
     ests = run(identifier, [target, other], 4, rng, t0=2.0)
     assert all(e.confidences[1] < CFG.id_switch_confidence for e in ests)
@@ -148,7 +148,7 @@ def test_a_low_confidence_while_someone_covers_the_target_waits_for_a_clear_view
 def test_unobserved_tracks_have_no_appearance_and_do_not_break_tracking(identifier):
     rng = np.random.default_rng(2)
     target = Person(1, 2.0, 180, RED)
-    other = Person(2, 3.0, 460, BLUE)
+    other = Person(2, 3.5, 460, BLUE)
     run(identifier, [target, other], CFG.initial_training_frames, rng)
     target.observed = False  # occluded, but its track lives on
     est = run(identifier, [target, other], 2, rng)[-1]
@@ -209,7 +209,7 @@ def test_covered_fraction():
 
 def test_nothing_is_learnt_while_another_person_covers_the_target(identifier):
     rng = np.random.default_rng(5)
-    target, other = Person(1, 2.0, 180, RED), Person(2, 3.0, 460, BLUE)
+    target, other = Person(1, 2.0, 180, RED), Person(2, 3.5, 460, BLUE)
     run(identifier, [target, other], CFG.initial_training_frames, rng)
     calls = _count_learning(identifier)
     run(identifier, [target, other], 2, rng)
@@ -237,7 +237,7 @@ def test_nothing_is_learnt_while_another_person_covers_the_target(identifier):
 
 def test_initial_training_counts_only_frames_it_could_learn(identifier):
     rng = np.random.default_rng(6)
-    target, other = Person(1, 2.0, 180, RED), Person(2, 3.0, 220, BLUE)
+    target, other = Person(1, 2.0, 180, RED), Person(2, 3.5, 220, BLUE)
     ests = run(identifier, [target, other], CFG.initial_training_frames + 2, rng)
     assert all(e.status == TargetStatus.INITIAL_TRAINING for e in ests)
     other.column_px = 460

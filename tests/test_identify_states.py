@@ -195,7 +195,7 @@ def test_initial_takes_only_the_selected_track_once_it_is_seen():
 def test_initial_training_becomes_tracking_after_the_configured_learnt_frames():
     ctx = context()
     state = InitialTraining(1)
-    tracks = [person(1, 2.0), person(2, 3.0)]
+    tracks = [person(1, 2.0), person(2, 2.0 + CFG.identity_risk_distance_m + 1.0)]
     for k in range(CFG.initial_training_frames - 1):
         assert state.update(ctx, frame(tracks, 0.1 * k, {1: 0.0, 2: 0.0})) is state
     overlapping = {1: (0, 0, 100, 200), 2: (20, 0, 120, 200)}  # 80 % of the target covered
@@ -203,6 +203,21 @@ def test_initial_training_becomes_tracking_after_the_configured_learnt_frames():
     assert len(ctx.model.learnt) == CFG.initial_training_frames - 1  # that frame not learnt
     nxt = state.update(ctx, frame(tracks, 0.6, {1: 0.0, 2: 0.0}))
     assert isinstance(nxt, Tracking) and nxt.target_id == 1
+
+
+def test_initial_training_learns_no_frame_in_which_someone_walks_near_the_target():
+    """Two people side by side: the tracker could swap them there, and the model would
+    learn the other person as the target from its first frames. Training waits until
+    they are apart."""
+    ctx = context()
+    state = InitialTraining(1)
+    beside = [person(1, 2.0), person(2, 2.0, y_m=0.5 * CFG.identity_risk_distance_m)]
+    for k in range(CFG.initial_training_frames + 2):
+        assert state.update(ctx, frame(beside, 0.1 * k, {1: 0.0, 2: 0.0})) is state
+    assert ctx.model.learnt == [] and state.frames_learnt == 0
+    apart = [person(1, 2.0), person(2, 2.0, y_m=CFG.identity_risk_distance_m + 0.5)]
+    assert state.update(ctx, frame(apart, 2.0, {1: 0.0, 2: 0.0})) is state
+    assert state.frames_learnt == 1
 
 
 def test_initial_training_starts_over_when_the_target_is_lost():
@@ -223,7 +238,7 @@ def test_initial_training_that_loses_its_target_chooses_again_in_the_same_frame(
     ctx = context(observed={2: 2})
     state = InitialTraining(1)
     state.update(ctx, frame([person(1, 2.0), person(2, 3.0)], 0.0, {1: 0.0, 2: 0.0}))
-    nxt = state.update(ctx, frame([person(2, 3.0), person(3, 2.0)], 0.1, {2: 0.0, 3: 0.0}))
+    nxt = state.update(ctx, frame([person(2, 3.0), person(3, 1.5)], 0.1, {2: 0.0, 3: 0.0}))
     assert isinstance(nxt, InitialTraining) and nxt.target_id == 2  # 3 is new: not yet
     assert nxt.frames_learnt == 1 and ctx.last_target_s == 0.1
 

@@ -189,7 +189,7 @@ class IdentityContext:
             unseen_s = max(unseen_s, self.frame_gap_s)
         if self._near_target(target_id, frame) or unseen_s > self.config.identity_risk_unseen_s:
             self.identity_risk_s = frame.stamp_s
-        self.seen_apart -= self._swappable(target_id, frame)
+        self.seen_apart -= self.swappable(target_id, frame)
 
     def note_stature(self, target_id: int, frame: FrameTracks) -> None:
         """Take the target's height from this frame, unless its track is unseen or another
@@ -205,14 +205,15 @@ class IdentityContext:
         is never the target come back (`seen_apart`)."""
         if frame.by_id[target_id].observation is None:
             return
-        swappable = self._swappable(target_id, frame)
+        swappable = self.swappable(target_id, frame)
         self.seen_apart |= {
             i for i, t in frame.by_id.items()
             if i != target_id and t.observation is not None and i not in swappable
         }  # fmt: skip
 
-    def _swappable(self, target_id: int, frame: FrameTracks) -> set[int]:
-        """The tracks the tracker could be confusing with the target this frame."""
+    def swappable(self, target_id: int, frame: FrameTracks) -> set[int]:
+        """The tracks the tracker could be confusing with the target this frame: within
+        `identity_risk_distance_m` of it on the floor, or their boxes touching its."""
         return self._near_target(target_id, frame) | self._touching_target(target_id, frame)
 
     def whereabouts(self) -> tuple:

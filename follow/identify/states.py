@@ -67,8 +67,10 @@ class Initial(State):
 
 class InitialTraining(State):
     """The target is learnt as positive and every other observed track as negative, in
-    `initial_training_frames` frames in which it is seen and its crop shows nobody else;
-    losing its track before then starts over, from the frame it is lost in."""
+    `initial_training_frames` frames in which it is seen, its crop shows nobody else and
+    nobody walks near it (the tracker could swap them there, and the model would learn
+    the other person as the target from its first frames); losing its track before then
+    starts over, from the frame it is lost in."""
 
     status = TargetStatus.INITIAL_TRAINING
 
@@ -86,7 +88,11 @@ class InitialTraining(State):
             context.forget()
             return Initial().update(context, frame)
         context.look(frame, only=self.target_id)
-        learnt = self.target_id in frame.appearances and context.learn(self.target_id, frame)
+        learnt = (
+            self.target_id in frame.appearances
+            and not context.swappable(self.target_id, frame)
+            and context.learn(self.target_id, frame)
+        )
         context.note_target(self.target_id, frame)
         context.note_stature(self.target_id, frame)
         if learnt:
