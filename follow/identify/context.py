@@ -187,9 +187,10 @@ class IdentityContext:
         unseen_s = frame.stamp_s - track.last_seen_s
         if named_before:  # no frame in the gap: the target was unseen all along it
             unseen_s = max(unseen_s, self.frame_gap_s)
-        if self._near_target(target_id, frame) or unseen_s > self.config.identity_risk_unseen_s:
+        near = self._near_target(target_id, frame)
+        if near or unseen_s > self.config.identity_risk_unseen_s:
             self.identity_risk_s = frame.stamp_s
-        self.seen_apart -= self.swappable(target_id, frame)
+        self.seen_apart -= near | self._touching_target(target_id, frame)
 
     def note_stature(self, target_id: int, frame: FrameTracks) -> None:
         """Take the target's height from this frame, unless its track is unseen or another
