@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import numpy as np
 import pytest
@@ -235,11 +236,14 @@ def test_nothing_is_learnt_while_another_person_covers_the_target(identifier):
     assert calls[2:] == [1]
 
 
-def test_initial_training_counts_only_frames_it_could_learn(identifier):
+def test_initial_training_counts_only_frames_it_could_learn(identifier, caplog):
     rng = np.random.default_rng(6)
     target, other = Person(1, 2.0, 180, RED), Person(2, 3.5, 220, BLUE)
-    ests = run(identifier, [target, other], CFG.initial_training_frames + 2, rng)
+    with caplog.at_level(logging.INFO, logger="follow"):
+        ests = run(identifier, [target, other], CFG.initial_training_frames + 2, rng)
     assert all(e.status == TargetStatus.INITIAL_TRAINING for e in ests)
+    waits = [r for r in caplog.records if "learning it waits" in r.getMessage()]
+    assert len(waits) == 1  # said once, when the wait begins, not every frame
     other.column_px = 460
     ests = run(identifier, [target, other], CFG.initial_training_frames, rng, t0=5.0)
     assert ests[-2].status == TargetStatus.INITIAL_TRAINING

@@ -77,6 +77,7 @@ class InitialTraining(State):
     def __init__(self, target_id: int):
         self.target_id = target_id
         self.frames_learnt = 0
+        self.crowded = False  # someone walks near the target: learning waits
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self.target_id not in frame.by_id:
@@ -88,9 +89,15 @@ class InitialTraining(State):
             context.forget()
             return Initial().update(context, frame)
         context.look(frame, only=self.target_id)
+        crowded = bool(context.swappable(self.target_id, frame))
+        if crowded and not self.crowded:
+            log.info("target track %d has someone beside it: learning it waits until they "
+                     "are %.1f m apart", self.target_id,
+                     context.config.identity_risk_distance_m)  # fmt: skip
+        self.crowded = crowded
         learnt = (
             self.target_id in frame.appearances
-            and not context.swappable(self.target_id, frame)
+            and not crowded
             and context.learn(self.target_id, frame)
         )
         context.note_target(self.target_id, frame)
