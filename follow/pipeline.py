@@ -237,19 +237,21 @@ class ControlLoop:
 
     def stop(self) -> None:
         """Zero from now on: a tick still under way can only send zero after this. A
-        base that fails to take the last zero is logged and kept in `error` (if nothing
-        failed before), not raised: the caller's cleanup must go on."""
+        base that fails to take the last zero, or whose `send` is still hanging after
+        `STOP_JOIN_TIMEOUT_S` more, is logged and kept in `error` (if nothing failed
+        before), not raised and not waited on for ever: the caller's cleanup must go on."""
         self._stop.set()
         self._wake.set()
         self._thread.join(timeout=STOP_JOIN_TIMEOUT_S)
-        if self._thread.is_alive():
+        busy = self._thread.is_alive()
+        if busy:
             log.error("control thread still busy %.0f s after stop: it can only send zero "
                       "commands from now on", STOP_JOIN_TIMEOUT_S)  # fmt: skip
-        self._send_last_stop()
+        self._send_last_stop(lock_timeout_s=STOP_JOIN_TIMEOUT_S if busy else -1.0)
 
-    def _send_last_stop(self) -> None:
+    def _send_last_stop(self, lock_timeout_s: float = -1.0) -> None:
         try:
-            self._send(VelocityCommand.stop(self.clock()))
+            self._send(VelocityCommand.stop(self.clock()), lock_timeout_s=lock_timeout_s)
         except Exception as exc:  # the link is gone: nothing more can be sent
             log.error("the base did not take the stop command: %s", exc)
             if self.error is None:
@@ -324,19 +326,29 @@ class ControlLoop:
         return self.last_command
 
     def _send(
-        self, command: VelocityCommand, overridden: bool = False, clears: int | None = None
+        self,
+        command: VelocityCommand,
+        overridden: bool = False,
+        clears: int | None = None,
+        lock_timeout_s: float = -1.0,
     ) -> None:
         """Send `command` (zero once stopping, or when the result it was computed from, taken
         with `clears` results dropped, has been dropped since); the controller is told of
         every zero it did not choose, `overridden` here (a watchdog, no odometry, a dropped
-        result) or by the base refusing to move, so that it speeds up from rest afterwards."""
-        with self._send_lock:
+        result) or by the base refusing to move, so that it speeds up from rest afterwards.
+        A `send` still under way for `lock_timeout_s` (negative: no limit) raises
+        TimeoutError: the base is hanging, and this command could only queue behind it."""
+        if not self._send_lock.acquire(timeout=lock_timeout_s):
+            raise TimeoutError(f"the base's send has not returned for {lock_timeout_s:g} s")
+        try:
             if clears is not None and clears != self._clears and not command.is_stop:
                 command, overridden = VelocityCommand.stop(command.stamp_s), True
             if self._stop.is_set() and not command.is_stop:
                 command = VelocityCommand.stop(command.stamp_s)
             self.last_command = command
             sent = self.base.send(command)
+        finally:
+            self._send_lock.release()
         if overridden or (sent is not None and sent.is_stop and not command.is_stop):
             self.controller.stopped_elsewhere(command.stamp_s)
         if self.on_command is not None:

@@ -123,6 +123,39 @@ def test_nothing_but_zero_leaves_the_loop_after_stop(monkeypatch):
     assert not loop._thread.is_alive() and base.commands[-1].is_stop
 
 
+def test_stop_returns_when_the_base_send_hangs(monkeypatch):
+    """A third-party base whose send never returns holds the command lock: stop() gives
+    up on the last zero after its wait, keeps a TimeoutError in `error`, and returns,
+    so that shutdown goes on (the base's own failsafe must then stop it)."""
+    monkeypatch.setattr(pipeline, "STOP_JOIN_TIMEOUT_S", 0.2)
+    hang, hanging, release = threading.Event(), threading.Event(), threading.Event()
+
+    class HangingBase(NullBase):
+        def send(self, cmd):
+            if hang.is_set():
+                hanging.set()
+                release.wait()  # for ever, as far as stop() knows
+            return super().send(cmd)
+
+    slot = LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), HangingBase(), slot,
+                       rate_hz=20.0, perception_timeout_s=0.5).start()  # fmt: skip
+    try:
+        slot.put(_result(time.monotonic()))
+        loop.notify()
+        hang.set()
+        assert hanging.wait(1.0)
+        stopper = threading.Thread(target=loop.stop, daemon=True)
+        started = time.monotonic()
+        stopper.start()
+        stopper.join(timeout=5.0)
+        assert not stopper.is_alive(), "stop() waited on the hanging send"
+        assert time.monotonic() - started >= 0.4  # it waited for the tick, then the lock
+        assert isinstance(loop.error, TimeoutError)
+    finally:
+        release.set()
+
+
 def _result_at(stamp_s: float, position_m: tuple[float, float]) -> FrameResult:
     track = TrackState(7, np.array([*position_m, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True,
                        stamp_s, observation=SEEN)  # fmt: skip
