@@ -283,6 +283,23 @@ def _sigma_spread_error(section) -> str | None:
     )
 
 
+def _braking_error(section) -> str | None:
+    """A robot at `max_forward_speed_mps` behind a target that stops dead must stop within
+    `following_distance_m` at `max_forward_decel_mps2` (the controller brakes no harder
+    while the target is seen), or it drives into the person it follows."""
+    speed, decel = section.max_forward_speed_mps, section.max_forward_decel_mps2
+    braking_m = speed**2 / (2.0 * decel)
+    if braking_m <= section.following_distance_m:
+        return None
+    needed = speed**2 / (2.0 * section.following_distance_m)
+    return (
+        f"[control] max_forward_decel_mps2 ({decel:g}) cannot stop the robot from "
+        f"max_forward_speed_mps ({speed:g}) within following_distance_m "
+        f"({section.following_distance_m:g}): braking takes {braking_m:.2f} m, so a target "
+        f"that stops would be run into; brake at least {needed:.2f} m/s^2 or drive slower"
+    )
+
+
 def _allowed(name: str, section, key: str) -> str:
     """What a text key takes: its choices, and true / false or a number where its type
     allows them too (`overlap_stages`, `min_person_input_px`)."""
@@ -334,6 +351,10 @@ def section_errors(name: str, section) -> list[str]:
     if name == "tracker" and not {"sigma_alpha", "sigma_kappa"} & out_of_range:
         if spread := _sigma_spread_error(section):
             errors.append(spread)
+    braking_keys = {"max_forward_speed_mps", "max_forward_decel_mps2", "following_distance_m"}
+    if name == "control" and not braking_keys & out_of_range:
+        if braking := _braking_error(section):
+            errors.append(braking)
     return errors
 
 

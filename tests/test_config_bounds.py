@@ -84,8 +84,20 @@ def test_a_replaced_config_is_validated_too():
 
 
 def test_values_at_the_bounds_are_accepted():
-    cfg = Config.from_dict({"control": {"max_forward_speed_mps": 3.0, "control_rate_hz": 100}})
+    cfg = Config.from_dict({"control": {"max_forward_speed_mps": 3.0, "control_rate_hz": 100,
+                                        "max_forward_decel_mps2": 3.0}})  # fmt: skip
     assert cfg.control.max_forward_speed_mps == 3.0
+
+
+def test_braking_too_weak_to_stop_within_the_following_distance_is_refused():
+    """At 1.5 m/s a robot braking at 0.1 m/s^2 needs 11 m: a target that stops 1.8 m
+    ahead would be run into. Each key is in range; together they are not."""
+    with pytest.raises(ConfigError, match=r"max_forward_decel_mps2 \(0.1\).*11.25 m.*0.62"):
+        Config().replace("control", max_forward_decel_mps2=0.1)
+    with pytest.raises(ConfigError, match="braking takes"):
+        Config().replace("control", max_forward_speed_mps=3.0)  # 2.25 m at 2 m/s^2
+    slow = Config().replace("control", max_forward_speed_mps=0.5, max_forward_decel_mps2=0.1)
+    assert slow.control.max_forward_decel_mps2 == 0.1  # 1.25 m: stops within 1.8 m
 
 
 def test_integral_bounds_are_written_in_full():
