@@ -15,6 +15,8 @@ import logging
 import math
 import sys
 
+from follow.cli_args import error_text, is_library_error
+
 # command -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "intrinsics": ("calib.intrinsics_cmd", "camera matrix and distortion from chessboard views"),
@@ -65,10 +67,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         result = args._module.main(args)
-    except (ValueError, OSError) as exc:
-        print(f"follow-calib {args.command}: error: {exc}", file=sys.stderr)
+    except Exception as exc:
+        if not isinstance(exc, ValueError | OSError) and not is_library_error(exc):
+            raise  # a bug of ours: its traceback is what a report needs
+        print(f"follow-calib {args.command}: error: {error_text(exc)}", file=sys.stderr)
         if getattr(args, "json", False):
-            print(json.dumps({"error": str(exc)}))
+            print(json.dumps({"error": error_text(exc)}))
         return 2
     if getattr(args, "json", False) and result is not None:
         print(json.dumps(_jsonable(result)))

@@ -13,6 +13,8 @@ import json
 import logging
 import sys
 
+from follow.cli_args import error_text, is_library_error
+
 # (command, subcommand or None) -> (module, one-line help); one row per command.
 # fmt: off
 COMMANDS: dict[tuple[str, str | None], tuple[str, str]] = {
@@ -110,8 +112,12 @@ def main(argv: list[str] | None = None) -> int:
         result = module.main(args)
     except KeyboardInterrupt:
         return 130
-    except (ValueError, OSError, RuntimeError) as exc:
-        print(f"follow {args.command}: error: {exc}", file=sys.stderr)
+    except Exception as exc:
+        if not isinstance(exc, ValueError | OSError | RuntimeError) and not is_library_error(exc):
+            raise  # a bug of ours: its traceback is what a report needs
+        print(f"follow {args.command}: error: {error_text(exc)}", file=sys.stderr)
+        if getattr(args, "json", False):  # a script reading the last line gets a line
+            print(json.dumps({"error": error_text(exc)}))
         return 1
     if isinstance(result, int):
         return result

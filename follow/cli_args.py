@@ -82,3 +82,27 @@ def picture_path(suffixes: tuple[str, ...], kind: type = str):
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")  # what matplotlib writes here
 plot_path = picture_path(PLOT_SUFFIXES)
+
+
+# The libraries whose own exception classes (not ValueError or RuntimeError) report bad
+# input: an image OpenCV cannot resize, a file onnxruntime cannot parse as a model.
+_LIBRARIES_WITH_OWN_ERRORS = ("cv2", "onnxruntime")
+
+
+def is_library_error(exc: BaseException) -> bool:
+    """Whether `exc` is OpenCV's or onnxruntime's own error class: bad input met inside
+    the library, to be reported in one line like any other (not a crash of ours)."""
+    return type(exc).__module__.split(".")[0] in _LIBRARIES_WITH_OWN_ERRORS
+
+
+def error_text(exc: BaseException) -> str:
+    """One line for the user. A library's error is named by its kind, with its last
+    non-empty line less OpenCV's prefix (its version and the C++ file that raised it)."""
+    if not is_library_error(exc):
+        return str(exc)
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    text = lines[-1] if lines else "no message"
+    _, prefix_end, rest = text.partition(" error: ")
+    return f"{type(exc).__module__.split('.')[0]} {type(exc).__name__}: " + (
+        rest if prefix_end else text
+    )

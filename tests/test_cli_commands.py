@@ -54,3 +54,43 @@ def test_a_command_named_after_its_groups_options_is_not_taken_for_the_group(
         code = exit_.code
     assert ran == [] and code == 2
     assert "follow bench pose" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("library", ["cv2", "onnxruntime"])
+def test_a_library_error_on_bad_input_is_one_line_and_a_json_error(monkeypatch, capsys, library):
+    """OpenCV's and onnxruntime's own error classes (bad input met inside the library)
+    are reported like any other bad input: one line naming the library, no traceback;
+    with --json, a last line `{"error": ...}` for the script that reads it."""
+    import json
+
+    import follow.eval.walking_accel as command
+
+    if library == "cv2":
+        import cv2
+        import numpy as np
+
+        def fail(args):
+            return cv2.resize(np.zeros((4, 4, 3), np.uint8), (0, 0), fx=0, fy=0)
+    else:
+        from onnxruntime import InferenceSession
+
+        def fail(args):
+            return InferenceSession(b"not a model")
+
+    monkeypatch.setattr(command, "main", fail)
+    assert main(["eval", "walking-accel", "--json"]) == 1
+    out = capsys.readouterr()
+    assert "Traceback" not in out.err
+    message = out.err.strip().splitlines()[-1]
+    assert message.startswith(f"follow eval: error: {library} ")
+    assert json.loads(out.out.strip().splitlines()[-1])["error"] in message
+
+
+def test_a_bug_of_ours_still_shows_its_traceback(monkeypatch):
+    """Only bad input is turned into one line: an error of the project's own code (here a
+    KeyError) propagates, so that its report carries the traceback."""
+    import follow.eval.walking_accel as command
+
+    monkeypatch.setattr(command, "main", lambda args: {}["missing"])
+    with pytest.raises(KeyError):
+        main(["eval", "walking-accel"])
