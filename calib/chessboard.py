@@ -96,6 +96,8 @@ def iter_video_frames(
             raise ImageInputError(f"video {source}: no such file")
         capture = cv2.VideoCapture(str(source))
     else:
+        if int(source) > 2**31 - 1:  # OpenCV takes a C int
+            raise ImageInputError(f"camera {source}: no camera index is that large")
         capture = cv2.VideoCapture(int(source))
     if not capture.isOpened():
         raise ImageInputError(f"video {source}: cannot be opened")

@@ -29,6 +29,7 @@ DEFAULT_FOLDER_FPS = 15.0
 # A file's presentation time this close to index / fps is a frame on its frame rate's
 # grid (containers store times to the millisecond): it keeps index / fps exactly.
 FRAME_RATE_GRID_TOLERANCE_S = 1e-3
+MAX_CAMERA_INDEX = 2**31 - 1  # OpenCV takes a C int (which may add a back-end, 200 + n: V4L2)
 
 
 class SourceError(RuntimeError):
@@ -63,6 +64,9 @@ class FrameSource:
             self.fps = folder_fps
             return
         if spec.isdigit():
+            if int(spec) > MAX_CAMERA_INDEX:
+                raise SourceError(f"source {spec}: no camera index is that large (at most "
+                                  f"{MAX_CAMERA_INDEX}; a file named so: ./{spec})")  # fmt: skip
             self._cap = cv2.VideoCapture(int(spec))
             self.live = True
         elif "!" in spec:  # a GStreamer pipeline, e.g. a Jetson CSI camera
@@ -74,6 +78,9 @@ class FrameSource:
             self._cap = cv2.VideoCapture(str(path))
             self.live = path.is_char_device()  # a camera's node: /dev/video0, /dev/v4l/by-id/...
         if not self._cap.isOpened():
+            if self.live and spec.isdigit():
+                raise SourceError(f"source {spec}: no camera at index {spec} can be opened "
+                                  "(ls /dev/video*: the index is the number after video)")  # fmt: skip
             raise SourceError(f"source {spec}: cannot be opened by OpenCV")
         fps = self._cap.get(cv2.CAP_PROP_FPS)
         self.fps = fps if fps and np.isfinite(fps) and fps > 0 else 15.0

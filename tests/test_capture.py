@@ -63,6 +63,24 @@ def test_bad_sources_are_named(tmp_path):
         FrameSource(str(bad))
 
 
+def test_a_camera_index_that_cannot_be_opened_is_named_as_one(monkeypatch):
+    """Too large for OpenCV's C int, or no such device: the message says it is a camera
+    index (not a file OpenCV cannot read) and never a traceback from inside OpenCV."""
+    with pytest.raises(SourceError, match="no camera index is that large"):
+        FrameSource("99999999999")
+
+    class NoDevice:
+        def __init__(self, index):
+            self.index = index
+
+        def isOpened(self):
+            return False
+
+    monkeypatch.setattr(cv2, "VideoCapture", NoDevice)
+    with pytest.raises(SourceError, match="no camera at index 7 can be opened"):
+        FrameSource("7")
+
+
 def test_an_empty_source_is_refused_not_read_as_the_current_folder():
     with pytest.raises(SourceError, match="source is empty"):
         FrameSource("")
