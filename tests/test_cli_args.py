@@ -35,6 +35,8 @@ from follow.cli_args import (
         (["eval", "pose", "--sizes", "368", "100"], "--sizes"),  # not a multiple of 8
         (["eval", "pose", "--sizes", "0"], "--sizes"),
         (["eval", "pose-near", "--sizes", "256", "260"], "--sizes"),
+        (["bench", "pose", "--frames", "1", "--height", "0"], "--height"),
+        (["bench", "pose", "--frames", "1", "--height", "100000"], "--height"),
     ],
 )
 def test_out_of_range_options_are_refused_by_name(argv, option, capsys):

@@ -25,7 +25,7 @@ from follow import models
 from follow.cli_args import non_negative_int, positive_int
 from follow.config import PoseConfig
 from follow.eval.pets import PetsSequence, evenly_spaced_frames
-from follow.eval.pose import data_dir
+from follow.eval.pose import data_dir, input_height
 from follow.pose.decode import decode
 from follow.pose.detector import decode_params
 from follow.pose.preprocess import FrameFilter, prepare_frame, prepare_input
@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=positive_int, default=DEFAULT_FRAMES, help="PETS frames to time")
     parser.add_argument(
         "--height",
-        type=int,
+        type=input_height,
         default=PoseConfig().input_height_px,
         help="network input height in px (default: the pose config's)",
     )
