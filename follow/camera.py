@@ -186,6 +186,32 @@ def _check_principal_point(K: np.ndarray, width: int, height: int) -> None:
         )
 
 
+# Focal lengths no camera a robot follows people with can have: pixels taller or wider
+# than twice their other side (real sensors' are square within a few per cent), or a
+# field of view under MIN_FIELD_OF_VIEW_DEG (a person 8 m away would fill 0.7 m of it).
+MAX_PIXEL_ASPECT = 2.0
+MIN_FIELD_OF_VIEW_DEG = 5.0
+
+
+def _check_focal_lengths(K: np.ndarray, width: int, height: int) -> None:
+    """Refuse focal lengths that are a typing error (500 and 5, or 1e6), not a lens: the
+    file loads, and every distance measured through it is wrong."""
+    fx, fy = K[0, 0], K[1, 1]
+    if not 1.0 / MAX_PIXEL_ASPECT <= fx / fy <= MAX_PIXEL_ASPECT:
+        raise ValueError(
+            f"camera focal lengths f_x {fx:g} and f_y {fy:g} differ by more than "
+            f"{MAX_PIXEL_ASPECT:g}x: no camera's pixels are that far from square (a typing "
+            "error in camera_matrix?)"
+        )
+    fov_deg = math.degrees(2.0 * math.atan(max(width / fx, height / fy) / 2.0))
+    if fov_deg < MIN_FIELD_OF_VIEW_DEG:
+        raise ValueError(
+            f"camera focal lengths ({fx:g}, {fy:g}) give a {width}x{height} image a "
+            f"{fov_deg:.2g} deg field of view, under the {MIN_FIELD_OF_VIEW_DEG:g} deg of "
+            "any camera that can follow a person (a typing error in camera_matrix?)"
+        )
+
+
 @dataclass(frozen=True)
 class CameraModel:
     """Intrinsics, distortion, image size and mounting pose of one camera."""
@@ -217,6 +243,7 @@ class CameraModel:
         if w <= 0 or h <= 0:
             raise ValueError(f"camera image_size must be positive, got {self.image_size}")
         _check_principal_point(K, w, h)
+        _check_focal_lengths(K, w, h)
         if not (self.pose.height_m > 0 and math.isfinite(self.pose.height_m)):
             raise ValueError(f"camera height_m must be positive, got {self.pose.height_m}")
         object.__setattr__(self, "K", K)

@@ -171,3 +171,29 @@ def test_a_file_saved_with_a_utf8_byte_order_mark_loads(tmp_path, name):
     text = yaml.safe_dump(_data()) if name.endswith(".yaml") else json.dumps(_data())
     path.write_text(text, encoding="utf-8-sig")
     assert CameraModel.load(path).to_dict() == CameraModel.from_dict(_data()).to_dict()
+
+
+@pytest.mark.parametrize(
+    "fx, fy, match",
+    [
+        (500.0, 5.0, "differ by more than 2x"),  # a digit lost
+        (500.0, 1500.0, "differ by more than 2x"),
+        (1e6, 1e6, "field of view"),  # 0.04 deg across 640 px
+        (1e308, 1e308, "field of view"),
+    ],
+)
+def test_focal_lengths_no_camera_has_are_refused(tmp_path, fx, fy, match):
+    """A typing error in camera_matrix used to load, and then placed every person at a
+    wrong distance (or at infinity) without a word."""
+    data = _data()
+    data["camera_matrix"][0][0], data["camera_matrix"][1][1] = fx, fy
+    path = _write(tmp_path, data)
+    with pytest.raises(CameraFileError, match=match) as err:
+        CameraModel.load(path)
+    assert str(path) in str(err.value)
+
+
+def test_real_lenses_from_telephoto_to_wide_load(tmp_path):
+    for fov_deg in (6.0, 40.0, 70.0, 120.0):
+        model = CameraModel.from_fov((640, 480), fov_deg, CameraPose(height_m=0.9))
+        assert CameraModel.from_dict(model.to_dict()).image_size == (640, 480)
