@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -117,7 +118,15 @@ def _parse_yaml(text: str):
                 seen.add(key)
             return super().construct_mapping(node, deep)
 
+    # YAML 1.1 reads an exponent without a dot (1e6) as text; YAML 1.2 and every other
+    # reader as a number: so does this one (a quoted "1e6" stays text, and is refused).
+    UniqueKeyLoader.add_implicit_resolver(
+        "tag:yaml.org,2002:float", _EXPONENT_FLOAT, list("-+0123456789")
+    )
     return yaml.load(text, Loader=UniqueKeyLoader)
+
+
+_EXPONENT_FLOAT = re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$")
 
 
 @dataclass(frozen=True)
@@ -173,6 +182,13 @@ def _radial_fold_r2(dist: np.ndarray) -> float:
     distorted = r * _radial_factor(d, r * r)
     turns = np.nonzero(np.diff(distorted) <= 0)[0]
     return math.inf if not len(turns) else float(r[turns[0]] ** 2)
+
+
+def _only_numbers(value) -> bool:
+    """Whether `value` is a number (not a bool, not text) or nested lists of them."""
+    if isinstance(value, list | tuple):
+        return all(_only_numbers(v) for v in value)
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def _check_principal_point(K: np.ndarray, width: int, height: int) -> None:
@@ -454,7 +470,7 @@ class CameraModel:
 
         def number(mapping: dict, key: str, where: str = "", default=None) -> float:
             value = mapping.get(key, default) if default is not None else need(mapping, key, where)
-            if isinstance(value, bool):
+            if isinstance(value, bool | str):  # "1.0": quoted, so written as something else
                 raise CameraFileError(
                     f"{source}: field '{where}{key}' must be a number, got {value!r}"
                 )
@@ -480,17 +496,25 @@ class CameraModel:
         only_known(data, FILE_KEYS, "")
         width = pixels("image_width")
         height = pixels("image_height")
-        matrix = need(data, "camera_matrix", "")
-        try:
-            K = np.asarray(matrix, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError):
-            raise CameraFileError(f"{source}: field 'camera_matrix' is not numeric") from None
+        def numbers(key: str, value) -> np.ndarray:
+            """Nested lists of numbers, never of quoted ones ("500" is no focal length)."""
+            try:
+                if not _only_numbers(value):
+                    raise ValueError
+                return np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError, OverflowError):
+                raise CameraFileError(f"{source}: field '{key}' is not numeric") from None
+
+        K = numbers("camera_matrix", need(data, "camera_matrix", ""))
         if K.shape != (3, 3):
             raise CameraFileError(f"{source}: field 'camera_matrix' must be 3x3, got {K.shape}")
-        try:
-            dist = np.asarray(data.get("distortion", []), dtype=np.float64).ravel()
-        except (TypeError, ValueError, OverflowError):
-            raise CameraFileError(f"{source}: field 'distortion' is not numeric") from None
+        dist = numbers("distortion", data.get("distortion", []))
+        if sum(n > 1 for n in dist.shape) > 1:  # a row, a column or flat: never a grid
+            raise CameraFileError(
+                f"{source}: field 'distortion' must be one list of coefficients, got shape "
+                f"{dist.shape}"
+            )
+        dist = dist.ravel()
         pose_data = need(data, "pose", "")
         if not isinstance(pose_data, dict):
             raise CameraFileError(f"{source}: field 'pose' must be a mapping")

@@ -197,3 +197,24 @@ def test_real_lenses_from_telephoto_to_wide_load(tmp_path):
     for fov_deg in (6.0, 40.0, 70.0, 120.0):
         model = CameraModel.from_fov((640, 480), fov_deg, CameraPose(height_m=0.9))
         assert CameraModel.from_dict(model.to_dict()).image_size == (640, 480)
+
+
+def test_quoted_numbers_and_a_grid_of_coefficients_are_refused(tmp_path):
+    data = _data()
+    data["camera_matrix"][0][0] = "500"
+    with pytest.raises(CameraFileError, match="'camera_matrix' is not numeric"):
+        CameraModel.load(_write(tmp_path, data))
+    data = _data()
+    data["distortion"] = [[0.1, 0.0], [0.0, 0.0]]
+    with pytest.raises(CameraFileError, match=r"one list of coefficients, got shape \(2, 2\)"):
+        CameraModel.load(_write(tmp_path, data))
+
+
+def test_numbers_written_with_an_exponent_are_numbers(tmp_path):
+    """YAML 1.1 reads `5.6e2` as a number and `56e1` as text; both are numbers here."""
+    model = CameraModel.from_dict(_data())
+    text = yaml.safe_dump(model.to_dict()).replace("height_m: 0.9", "height_m: 9e-1")
+    assert "9e-1" in text
+    path = tmp_path / "cam.yaml"
+    path.write_text(text)
+    assert CameraModel.load(path).pose.height_m == pytest.approx(0.9)

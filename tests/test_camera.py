@@ -173,6 +173,7 @@ def test_camera_for_another_image_size():
     [
         ("pitch_rad", 3.0, "pitch_rad = 3.0 is not a possible mounting"),
         ("height_m", True, "'pose.height_m' must be a number, got True"),
+        ("height_m", "1.0", "'pose.height_m' must be a number, got '1.0'"),
         ("height_m", -0.5, "height_m = -0.5 is not a possible mounting"),
         ("height_m", 1000.0, "height_m = 1000.0"),
         ("roll_rad", -4.0, "roll_rad"),
