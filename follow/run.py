@@ -222,9 +222,23 @@ class Outputs:
         try:
             if self._writer is not None:
                 self._writer.release()
+                self._check_video_readable()
         finally:
             if self.log is not None:
                 self.log.close()
+
+    def _check_video_readable(self) -> None:
+        """Raise OSError when the closed video cannot be read back: OpenCV's writer
+        reports no failed write, and a short run ends before `_check_video_grows` looks
+        (an mp4 cut short by a full disk lacks the index it is opened by)."""
+        capture = cv2.VideoCapture(self.video_path)
+        try:
+            readable = capture.isOpened() and capture.read()[0]
+        finally:
+            capture.release()
+        if not readable:
+            raise OSError(f"video {self.video_path} was written but cannot be read back: is "
+                          "the disk full?")  # fmt: skip
 
 
 class RunSummary:

@@ -74,13 +74,19 @@ class RunLogWriter:
 
     def __init__(self, path: str | Path, header: dict):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "w")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(self.path, "w")
+        except OSError as exc:
+            raise OSError(f"cannot write the log {self.path}: {exc.strerror or exc}") from exc
         self._write({"log_version": LOG_VERSION, **header})
 
     def _write(self, obj: dict) -> None:
-        self._fh.write(json.dumps(obj, separators=(",", ":")) + "\n")
-        self._fh.flush()
+        try:
+            self._fh.write(json.dumps(obj, separators=(",", ":")) + "\n")
+            self._fh.flush()
+        except OSError as exc:  # a full disk: say which file, not only the errno
+            raise OSError(f"cannot write the log {self.path}: {exc.strerror or exc}") from exc
 
     def write_frame(
         self,

@@ -165,3 +165,49 @@ def test_a_video_that_stops_growing_is_an_error(tmp_path, monkeypatch, full):
         write_frames()
         outputs.close()
         assert path.stat().st_size > 1_000_000
+
+
+def test_a_short_video_that_could_not_be_written_is_an_error_at_close(tmp_path):
+    """Too short for the growth check: the closed video is read back, and one that cannot
+    be (written to a full disk: /dev/full) is an error, not a run reported as recorded."""
+    import os
+
+    import numpy as np
+
+    from follow.pipeline import FrameResult
+    from follow.run import Outputs
+    from follow.types import Frame, Odometry, TargetEstimate, TargetStatus
+
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full on this system")
+    estimate = TargetEstimate(TargetStatus.INITIAL, None, {}, 0.0)
+    for name, full in (("good.avi", False), ("full.avi", True)):
+        path = tmp_path / name
+        if full:
+            path.symlink_to("/dev/full")
+        outputs = Outputs({}, 10.0, video_path=path)
+        for index in range(3):
+            result = FrameResult(index, index / 10, Odometry.origin(index / 10), [], [], estimate)
+            outputs.write(Frame(np.full((48, 64, 3), 50 * index, np.uint8), index / 10),
+                          result, None)  # fmt: skip
+        if full:
+            with pytest.raises(OSError, match="full.avi was written but cannot be read back"):
+                outputs.close()
+        else:
+            outputs.close()
+
+
+def test_a_log_that_cannot_be_written_is_named(tmp_path):
+    import os
+
+    from follow.runlog import RunLogWriter
+
+    (tmp_path / "a_file").write_text("x")  # a file where the log's folder should be
+    with pytest.raises(OSError, match=r"cannot write the log .*missing\.jsonl"):
+        RunLogWriter(tmp_path / "a_file" / "missing.jsonl", {})
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full on this system")
+    path = tmp_path / "full.jsonl"
+    path.symlink_to("/dev/full")
+    with pytest.raises(OSError, match=r"cannot write the log .*full\.jsonl: No space"):
+        RunLogWriter(path, {"run": "test"})
