@@ -231,15 +231,19 @@ def verify(name: str) -> list[FileStatus]:
     spec = get_spec(name)
     root = model_root(spec)
     out = []
+
+    def first_copy(relpath: str) -> Path | None:
+        return next((d / relpath for d in search_dirs() if (d / relpath).exists()), None)
+
+    # Files missing everywhere are the model's problem; only where every file exists
+    # somewhere but no one folder holds them all is the layout to blame.
+    scattered = root is None and all(first_copy(f.relpath) for f in spec.files)
     for f in spec.files:
-        if root is not None:
-            found = root / f.relpath
-        else:
-            found = next((d / f.relpath for d in search_dirs() if (d / f.relpath).exists()), None)
+        found = root / f.relpath if root is not None else first_copy(f.relpath)
         if found is None:
             out.append(FileStatus(name, f.relpath, None, False, "missing"))
             continue
-        if root is None and len(spec.files) > 1:
+        if scattered and len(spec.files) > 1:
             out.append(FileStatus(name, f.relpath, found, False,
                                   "not with the model's other files: they must all sit "
                                   "under one folder"))  # fmt: skip

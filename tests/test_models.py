@@ -233,3 +233,13 @@ def test_verify_checks_the_copy_that_resolve_loads(mirror, cache, monkeypatch):
     statuses = models.verify("ccf10")
     assert all(s.ok for s in statuses)
     assert {s.path.parent for s in statuses} == {cache / "ccf/ccf10"}
+
+
+def test_verify_blames_the_missing_file_not_the_ones_present(mirror, cache, monkeypatch):
+    """One file of a model missing everywhere (a fetch cut short): that file is reported
+    missing, and the files present are checked as they are, not blamed for the layout."""
+    monkeypatch.setenv("FOLLOW_MODEL_DIR", str(mirror))
+    (mirror / "ccf/ccf10/conv_t2").unlink()
+    by_name = {s.relpath.rsplit("/", 1)[-1]: s for s in models.verify("ccf10")}
+    assert by_name["conv_t2"].detail == "missing" and not by_name["conv_t2"].ok
+    assert by_name["conv_t1"].ok and by_name["conv_t1"].detail == "ok"
