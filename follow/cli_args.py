@@ -37,6 +37,11 @@ def finite_float(text: str) -> float:
     return _number(text, float)
 
 
+def int_at_least(lowest: int):
+    """An argparse type: an integer >= `lowest`."""
+    return _at_least(int, lowest, False, f"an integer >= {lowest}")
+
+
 positive_int = _at_least(int, 1, False, "an integer >= 1")
 non_negative_int = _at_least(int, 0, False, "an integer >= 0")
 positive_float = _at_least(float, 0.0, True, "a positive number")

@@ -35,6 +35,7 @@ from follow.cli_args import (
         (["eval", "pose", "--sizes", "368", "100"], "--sizes"),  # not a multiple of 8
         (["eval", "pose", "--sizes", "0"], "--sizes"),
         (["eval", "pose-near", "--sizes", "256", "260"], "--sizes"),
+        (["bench", "identify", "--repeats", "1"], "--repeats"),
         (["bench", "pose", "--frames", "1", "--height", "0"], "--height"),
         (["bench", "pose", "--frames", "1", "--height", "100000"], "--height"),
     ],
@@ -125,3 +126,10 @@ def test_bench_matrix_runs_the_runtimes_providers_names(monkeypatch, capsys):
         main(["bench", "--matrix", "--providers", "cpu,gpu"])
     assert exit_.value.code == 2
     assert "argument --providers: 'cpu,gpu': give runtimes from" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("options", [["--people", "3"], ["--far-m", "10"]])
+def test_robot_scene_options_without_the_robot_scene_are_refused(options, capsys):
+    """`follow bench --people 3` timed the PETS frames and ignored the option."""
+    assert main(["bench", *options, "--frames", "1"]) == 1
+    assert f"{options[0]}: for the robot scene only" in capsys.readouterr().err

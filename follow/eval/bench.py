@@ -53,6 +53,10 @@ def provider_list(text: str) -> tuple[str, ...]:
     return names
 
 
+ROBOT_SCENE_PEOPLE = 5  # --scene robot's defaults: people in view, the farthest's distance
+ROBOT_SCENE_FAR_M = 5.0
+
+
 def add_arguments(p) -> None:
     p.add_argument("--frames", type=positive_int, default=60, help="frames to time (default 60)")
     p.add_argument("--warmup", type=non_negative_int, default=5, help="frames run before timing")
@@ -67,9 +71,9 @@ def add_arguments(p) -> None:
     p.add_argument("--scene", choices=SCENE_CHOICES, default="pets",
                    help="frames: PETS 2009 (5-8 people 35-95 px tall), or a robot's 640x480 "
                         "view of real people, the target 2.5 m ahead (default pets)")  # fmt: skip
-    p.add_argument("--people", type=positive_int, default=5,
+    p.add_argument("--people", type=positive_int, default=None,
                    help="with --scene robot: people in view, 1-5 (default 5)")  # fmt: skip
-    p.add_argument("--far-m", type=positive_float, default=5.0,
+    p.add_argument("--far-m", type=positive_float, default=None,
                    help="with --scene robot: the farthest person's distance, 3-15 m; the "
                         "others stand between 3 m and it (default 5)")  # fmt: skip
     p.add_argument("--config", help="TOML configuration over the chosen settings")
@@ -113,6 +117,12 @@ def bench_config(args) -> Config:
 def main(args) -> dict:
     if args.frames < 1 or args.warmup < 0:
         raise ValueError("--frames must be >= 1 and --warmup >= 0")
+    robot_only = [o for o, v in (("--people", args.people), ("--far-m", args.far_m)) if v]
+    if robot_only and args.scene != "robot":  # else they would be ignored in silence
+        raise ValueError(f"{' and '.join(robot_only)}: for the robot scene only; add "
+                         "--scene robot")  # fmt: skip
+    args.people = args.people or ROBOT_SCENE_PEOPLE
+    args.far_m = args.far_m or ROBOT_SCENE_FAR_M
     if args.matrix:
         return run_matrix(args)
     from follow.pose.detector import CHOSEN_HERE, PoseDetector, auto_fp32_reason
@@ -405,7 +415,9 @@ def run_matrix(args) -> dict:
         command = [sys.executable, "-m", "follow.cli", "bench", "--json", "--settings", settings,
                    "--provider", provider, "--frames", str(args.frames), "--warmup",
                    str(args.warmup), "--camera-fps", str(args.camera_fps), "--scene",
-                   args.scene, "--people", str(args.people), "--far-m", str(args.far_m)]  # fmt: skip
+                   args.scene]  # fmt: skip
+        if args.scene == "robot":
+            command += ["--people", str(args.people), "--far-m", str(args.far_m)]
         if args.config:
             command += ["--config", args.config]
         out = subprocess.run(command, capture_output=True, text=True)

@@ -26,7 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from follow.cli_args import positive_int
+from follow.cli_args import int_at_least, positive_int
 from follow.config import Config, IdentifyConfig
 
 GOAL_CCF10_MS_PER_PERSON = 1.0
@@ -35,8 +35,9 @@ CROP_HEIGHT_PX = 128
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--people", type=int, default=4, help="people per frame (default 4)")
-    p.add_argument("--repeats", type=positive_int, default=200, help="timed repetitions (default 200)")
+    p.add_argument("--people", type=positive_int, default=4, help="people per frame (default 4)")
+    p.add_argument("--repeats", type=int_at_least(5), default=200,
+                   help="timed repetitions, at least 5 (default 200)")  # fmt: skip
     p.add_argument("--reid", action="store_true", help="also time the re-id embedding")
     p.add_argument("--compiled-boosting", action="store_true",
                    help="time numba's compiled boosting update, as with [identify] "
