@@ -91,6 +91,9 @@ class FrameSource:
         if self._folder is not None:
             for index, path in enumerate(self._folder):
                 data = path.read_bytes()
+                if not data:
+                    log.warning("skipping %s: an empty file", path)
+                    continue
                 if _truncated_jpeg(path, data):  # OpenCV would decode half and only warn
                     log.warning("skipping %s: a JPEG cut short (no end-of-image marker)", path)
                     continue

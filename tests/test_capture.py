@@ -41,6 +41,14 @@ def test_folder_source_skips_unreadable_images(tmp_path, caplog):
     assert "001b.png" in caplog.text
 
 
+def test_an_empty_image_file_in_a_folder_is_skipped_as_empty(tmp_path, caplog):
+    cv2.imwrite(str(tmp_path / "000.jpg"), np.full((20, 30, 3), 90, np.uint8))
+    (tmp_path / "001.jpg").write_bytes(b"")
+    frames = list(FrameSource(str(tmp_path), folder_fps=10.0))
+    assert len(frames) == 1
+    assert "001.jpg: an empty file" in caplog.text and "cut short" not in caplog.text
+
+
 def test_video_source_reads_frames_with_file_timestamps(tmp_path):
     path = tmp_path / "v.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 5.0, (32, 24))
