@@ -228,7 +228,7 @@ def _record(d: dict) -> FrameRecord:
         frame_index=int(d["frame"]),
         stamp_s=stamp_s,
         robot=None if robot is None else Odometry(*robot, stamp_s),
-        skeletons=[skeleton_from_json(s) for s in d.get("skeletons", [])],
+        skeletons=[skeleton_from_json(s) for s in d["skeletons"]],  # replayed: never assumed
         tracks=d.get("tracks", []),
         target_status=target.get("status", ""),
         target_id=target.get("id"),

@@ -88,15 +88,23 @@ def test_annotation_highlights_the_target():
 
 @pytest.mark.parametrize(
     "record",
-    ['{"frame": 0, "stamp_s": 0.0, "target": "tracking"}',
-     '{"frame": 0, "stamp_s": 0.0, "target": {"id": 1, "confidences": [0.5]}}',
-     '{"frame": 1e400, "stamp_s": 0.0}'],
+    ['{"frame": 0, "stamp_s": 0.0, "skeletons": [], "target": "tracking"}',
+     '{"frame": 0, "stamp_s": 0.0, "skeletons": [], "target": {"id": 1, "confidences": [0.5]}}',
+     '{"frame": 1e400, "stamp_s": 0.0, "skeletons": []}'],
 )  # fmt: skip
 def test_a_frame_record_of_the_wrong_shape_is_named_not_a_crash(tmp_path, record):
     path = tmp_path / "run.jsonl"
     path.write_text('{"log_version": 1}\n' + record + '\n{"frame": 1, "stamp_s": 0.1}\n')
     _, records = read_run_log(path)
     with pytest.raises(ValueError, match=rf"run log {path}: line 2: malformed frame record"):
+        list(records)
+
+
+def test_a_frame_record_without_its_skeletons_is_refused_not_replayed_as_nobody(tmp_path):
+    path = tmp_path / "run.jsonl"
+    path.write_text('{"log_version": 1}\n{"frame": 0, "stamp_s": 0.0}\n')
+    _, records = read_run_log(path)
+    with pytest.raises(ValueError, match="line 2: frame record without the key 'skeletons'"):
         list(records)
 
 
