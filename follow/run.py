@@ -510,6 +510,19 @@ def check_replay_source(header: dict, log_path: str, source: str) -> None:
         raise ValueError(f"--replay {log_path}: the log is of source {logged}, not {source}")
 
 
+def warn_if_other_camera(header: dict, camera: str | Path) -> None:
+    """A replay through another camera file than the run's is allowed (a new calibration
+    tried on old data), but its tracks will differ from the run's for that reason alone."""
+    logged = header.get("camera")
+    if logged is None or str(logged) == str(camera):
+        return
+    if Path(str(logged)).exists() and Path(camera).exists():
+        if Path(str(logged)).resolve() == Path(camera).resolve():
+            return
+    log.warning("replaying through camera file %s; the run used %s: tracks and targets may "
+                "differ for that alone", camera, logged)  # fmt: skip
+
+
 def replay_target_id(header: dict, log_path: str, asked: int | None) -> int | None:
     """The track the replay selects: the run's own `--target-id` (in the log's header),
     which a replay without one used to leave out, so its targets disagreed with the
@@ -541,6 +554,7 @@ def replay(args, config: Config) -> dict:
     """Tracking and identification again on a log's skeletons and the same frames."""
     header, records = read_run_log(args.replay)
     check_replay_source(header, args.replay, args.source)
+    warn_if_other_camera(header, args.camera)
     target_id = replay_target_id(header, args.replay, args.target_id)
     if not args.config:
         config = replay_config(header, args.replay)

@@ -103,3 +103,17 @@ def test_a_replay_whose_runs_config_is_gone_says_so(tmp_path, capsys, monkeypatc
     err = capsys.readouterr().err
     assert "moved.toml" in err and "--config" in err and "Traceback" not in err
     assert configs == []
+
+
+def test_a_replay_through_another_camera_file_is_warned_of(tmp_path, caplog):
+    from follow.run import warn_if_other_camera
+
+    run_camera, other = tmp_path / "cam.yaml", tmp_path / "new_cam.yaml"
+    run_camera.write_text("x")
+    other.write_text("x")
+    with caplog.at_level("WARNING"):
+        warn_if_other_camera({"camera": str(run_camera)}, run_camera)
+        warn_if_other_camera({"camera": str(run_camera)}, tmp_path / "." / "cam.yaml")
+        assert not caplog.records  # the same file, however named
+        warn_if_other_camera({"camera": str(run_camera)}, other)
+    assert "new_cam.yaml; the run used" in caplog.text
