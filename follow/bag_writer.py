@@ -18,6 +18,8 @@ from follow.camera import CameraModel
 from follow.rosmsg import camera_info_fields, image_fields, quaternion_of_yaw, stamp_fields
 from follow.types import Odometry
 
+BAG_SUFFIXES = ("", ".bag", ".mcap")  # a ROS 2 bag folder, ROS 1, one ROS 2 MCAP file
+
 
 class BagWriter:
     """One bag being written; topics are added on their first message."""
@@ -30,15 +32,21 @@ class BagWriter:
         self.path = Path(path)
         if self.path.exists():
             raise FileExistsError(f"bag {self.path} exists already; not overwriting it")
+        if self.path.suffix not in BAG_SUFFIXES:
+            raise ValueError(f"bag {self.path}: name a .mcap or .bag file, or a folder without "
+                             f"a suffix (a ROS 2 bag), not a {self.path.suffix} file")  # fmt: skip
         self.ros1 = self.path.suffix == ".bag"
         self._single_mcap = self.path.suffix == ".mcap"
         # Written in a hidden folder beside the bag, not in a temp folder that may be on
         # another file system: the last step is then a rename, and a run killed on the way
         # never leaves part of a bag under its name (it would read back as a valid,
         # shorter recording).
-        self._tmp: Path | None = Path(
-            tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
-        )
+        try:
+            self._tmp: Path | None = Path(tempfile.mkdtemp(
+                prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent
+            ))  # fmt: skip
+        except OSError as exc:
+            raise OSError(f"cannot write the bag {self.path}: {exc.strerror or exc}") from exc
         target = self._tmp / self.path.name
         if self.ros1:
             from rosbags.rosbag1 import Writer

@@ -402,11 +402,12 @@ def test_a_bag_run_replays_each_record_on_its_own_image(
 
 
 def test_a_replay_reads_the_image_topic_the_run_read(
-    tmp_path, small_frames, small_camera, capsys, monkeypatch
+    tmp_path, small_frames, small_camera, capsys, monkeypatch, model_path
 ):
     """A bag with two cameras, run on the second: the replay, not told the topic again,
     must replay the second camera's images (the log names the topic), not refuse the
     bag or take the first."""
+    model_path("ccf/ccf10")  # the run's identifier
     path = tmp_path / "two_cameras.mcap"
     with BagWriter(path) as bag:
         for frame in small_frames:
@@ -422,3 +423,13 @@ def test_a_replay_reads_the_image_topic_the_run_read(
     assert replayed["frames"] == ran["frames"] == len(seen) > 0
     rear = {round(f.stamp_s, 6): f.image for f in small_frames}
     assert all(np.array_equal(image, rear[round(stamp, 6)]) for stamp, image in seen)
+
+
+def test_a_bag_named_with_another_suffix_or_in_no_folder_is_refused_by_name(tmp_path):
+    """`--bag run.txt` wrote a ROS 2 bag folder named run.txt; a bag in a folder that
+    does not exist was reported with the name of a hidden temporary folder."""
+    with pytest.raises(ValueError, match=r"run\.txt: name a \.mcap or \.bag file"):
+        BagWriter(tmp_path / "run.txt")
+    assert not list(tmp_path.iterdir())
+    with pytest.raises(OSError, match=r"cannot write the bag .*missing/run\.mcap"):
+        BagWriter(tmp_path / "missing" / "run.mcap")
