@@ -141,7 +141,9 @@ class BagSource:
                 skeletons.append([skeleton_from_json(d) for d in json.loads(text)])
             except (ValueError, KeyError, TypeError) as exc:
                 raise SourceError(
-                    f"bag {self.spec}: skeletons at {log_time_ns} ns: {exc}"
+                    f"bag {self.spec}: {c.topic} at {log_time_ns} ns is not a JSON list of "
+                    "skeletons (objects with keypoints_px and confidences, as the run log "
+                    f"writes them: is it the skeletons topic?): {type(exc).__name__}: {exc}"
                 ) from None
             stamps.append(log_time_ns * 1e-9)
         order = sorted(range(len(stamps)), key=stamps.__getitem__)

@@ -433,3 +433,13 @@ def test_a_bag_named_with_another_suffix_or_in_no_folder_is_refused_by_name(tmp_
     assert not list(tmp_path.iterdir())
     with pytest.raises(OSError, match=r"cannot write the bag .*missing/run\.mcap"):
         BagWriter(tmp_path / "missing" / "run.mcap")
+
+
+def test_a_skeletons_topic_holding_other_json_is_named_as_such(tmp_path, small_frames):
+    path = tmp_path / "other.mcap"
+    with BagWriter(path) as bag:
+        for frame in small_frames[:2]:
+            bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+            bag.write_string("/people", frame.stamp_s, json.dumps({"7": [1.0, 2.0]}))
+    with pytest.raises(SourceError, match="/people at .* is not a JSON list of skeletons"):
+        BagSource(str(path), "/camera/image_raw", skeletons_topic="/people")
