@@ -102,6 +102,13 @@ def view_warnings(views: dict[str, InView], config) -> list[str]:
     neck, ankles = views["neck"], views["ankles"]
     follow_m = config.control.following_distance_m
     far_m = config.pose.far_person_distance_m
+    if neck.from_m is None and ankles.from_m is None:  # no tilt would fix what follows
+        return [
+            f"a standing person straight ahead is never in view ({NEAREST_M:g}-"
+            f"{neck.checked_until_m:g} m): the camera does not look along the robot's "
+            "forward direction (its pose's yaw_rad turned away, or pitch_rad far too "
+            "steep up or down)"
+        ]
     out = []
     if not neck.covers(follow_m):
         out.append(

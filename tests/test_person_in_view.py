@@ -55,6 +55,15 @@ def test_a_camera_pitched_steeply_down_loses_far_necks_and_says_so():
     assert len(warnings) == 2 and "8 m away" in warnings[1] and "pitch the camera up" in warnings[1]
 
 
+def test_a_camera_facing_backwards_is_told_so_not_to_pitch_up():
+    config = Config()
+    backwards = CameraModel.from_fov((640, 480), 70.0, CameraPose(0.9, 0.2, yaw_rad=3.14))
+    views = person_in_view(backwards, config)
+    assert views["neck"].from_m is None and views["ankles"].from_m is None
+    [warning] = view_warnings(views, config)
+    assert "never in view" in warning and "yaw_rad" in warning and "pitch the camera up" not in warning
+
+
 def test_no_margin_without_edge_dropping():
     config = Config()
     import dataclasses
