@@ -45,7 +45,7 @@ def add_arguments(p) -> None:
     p.add_argument("--camera-info-topic", help="bag: CameraInfo, intrinsics over the camera file")
     p.add_argument("--skeletons-topic", help="bag: recorded skeletons (follow demo --bag) "
                    "used instead of the pose network")  # fmt: skip
-    p.add_argument("--folder-fps", type=positive_float, default=DEFAULT_FOLDER_FPS, metavar="HZ",
+    p.add_argument("--folder-fps", type=positive_float, default=None, metavar="HZ",
                    help="an image folder's frame rate, which its frames are stamped at "
                    f"(default {DEFAULT_FOLDER_FPS:g})")  # fmt: skip
     p.add_argument("--camera", required=True, help="camera file (YAML/JSON, from follow-calib)")
@@ -348,6 +348,10 @@ def main(args) -> dict:
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     check_output_paths(args)
+    if args.folder_fps is not None and not Path(args.source).is_dir():
+        log.warning("--folder-fps is an image folder's frame rate: %s plays at its own",
+                    args.source)  # fmt: skip
+    args.folder_fps = args.folder_fps or DEFAULT_FOLDER_FPS
     config = Config.load(args.config) if args.config else Config()
     if args.mavlink:
         config = config.replace("mavlink", connection=args.mavlink)

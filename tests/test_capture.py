@@ -451,3 +451,25 @@ def test_a_late_frame_is_not_held_back_and_the_next_keeps_its_time():
             fake.now_s += 0.25  # a slow consumer: frame 5.2 is already late
     assert played == [0.0, 0.1, 0.35, 0.35]
     assert all(s > 0 for s in fake.sleeps)
+
+
+def test_a_folder_rate_given_for_a_video_is_warned_of_not_ignored_in_silence(
+    tmp_path, monkeypatch, caplog
+):
+    from follow import run as run_module
+    from follow.camera import CameraModel, CameraPose
+    from follow.cli import main
+
+    video = tmp_path / "v.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
+    writer.write(np.zeros((48, 64, 3), np.uint8))
+    writer.release()
+    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0)).save(tmp_path / "cam.yaml")
+
+    def opened(*args, **kwargs):
+        raise SourceError("read")
+
+    monkeypatch.setattr(run_module, "open_source", opened)
+    argv = ["run", str(video), "--camera", str(tmp_path / "cam.yaml"), "--folder-fps", "5"]
+    assert main(argv) == 1
+    assert "--folder-fps is an image folder's frame rate" in caplog.text
