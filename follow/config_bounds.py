@@ -18,15 +18,18 @@ from dataclasses import dataclass
 # Text keys that take one of a fixed set of values.
 POSE_PROVIDERS = ("auto", "cpu", "cuda", "tensorrt", "openvino")
 POSE_PRECISIONS = ("auto", "fp32", "int8", "int8_if_made")
+# The pose networks of the model registry (follow/models.py): another model's name (the
+# re-id network, the CCF weights) loads, then fails on the first frame's shapes.
+POSE_MODELS = ("human-pose-estimation-0001", "human-pose-estimation-0001-ir")
 # A rule of the identifier that may apply only beside a re-id cue
 # (follow.identify.appearance.reid_rule_applies).
 REID_RULE_CHOICES = ("with_reid", "always", "never")
 REID_PROVIDERS = ("auto", "cpu", "cuda", "openvino", "onnxruntime")
 IDENTIFIERS = ("ccf10", "ccf25", "channels", "reid", "ccf10+reid", "ccf25+reid", "channels+reid")
 AUTOPILOTS = ("ardupilot", "px4")
-# Text keys with free values (a model name is checked by the model registry, a file
-# path when it is opened, a connection string by pymavlink).
-FREE_TEXT = {("pose", "model"), ("pose", "model_file"), ("mavlink", "connection")} | {
+# Text keys with free values (a file path is checked when it is opened, a connection
+# string by pymavlink).
+FREE_TEXT = {("pose", "model_file"), ("mavlink", "connection")} | {
     ("ros", name)
     for name in ("image_topic", "camera_info_topic", "odom_topic", "cmd_vel_topic", "odom_frame")
 }
@@ -236,7 +239,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
 
 CHOICES: dict[str, dict[str, tuple[str, ...]]] = {
     # min_person_input_px: "auto" or a number in its range (BOUNDS)
-    "pose": {"provider": POSE_PROVIDERS, "precision": POSE_PRECISIONS,
+    "pose": {"model": POSE_MODELS, "provider": POSE_PROVIDERS, "precision": POSE_PRECISIONS,
              "min_person_input_px": ("auto",)},  # fmt: skip
     "identify": {
         "identifier": IDENTIFIERS,

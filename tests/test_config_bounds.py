@@ -189,3 +189,15 @@ def test_an_integer_too_large_for_a_float_is_refused_by_name(tmp_path, section, 
         ConfigError, match=rf"^config {re.escape(str(path))}: \[{section}\] {key} = .* out of range"
     ):
         Config.load(path)
+
+
+def test_pose_model_choices_are_the_registry_pose_networks():
+    """Each choice of [pose] model is a registered model, and another registered model
+    (the re-id network, CCF weights) is refused at load, naming the pose networks."""
+    from follow import models
+    from follow.config_bounds import POSE_MODELS
+
+    assert all(models.get_spec(name) for name in POSE_MODELS)
+    with pytest.raises(ConfigError, match="model = 'person-reidentification-retail-0248'"
+                       ".*human-pose-estimation-0001"):  # fmt: skip
+        Config().replace("pose", model="person-reidentification-retail-0248")
