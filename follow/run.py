@@ -147,7 +147,11 @@ class Outputs:
         self.video_path = str(video_path) if video_path else None
         self.frames_dir = Path(frames_dir) if frames_dir else None
         if self.frames_dir:
-            self.frames_dir.mkdir(parents=True, exist_ok=True)
+            try:
+                self.frames_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise OSError(f"cannot make the frames folder {self.frames_dir}: "
+                              f"{exc.strerror or exc}") from exc  # fmt: skip
         self.fps = fps
         self._writer = None
         self._video_first_stamp_s: float | None = None

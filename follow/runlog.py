@@ -150,7 +150,11 @@ def read_run_log(path: str | Path) -> tuple[dict, Iterator[FrameRecord]]:
 def _read(path: Path) -> Iterator:
     """The header, then the frame records, from one open file; the file is closed when
     the records end or the iterator is dropped."""
-    with open(path, "rb") as fh:
+    try:
+        fh = open(path, "rb")
+    except OSError as exc:
+        raise OSError(f"run log {path}: {exc.strerror or exc}") from exc
+    with fh:
         lines = _lines(fh, path)
         first = next(lines, None)
         if first is None:

@@ -211,3 +211,20 @@ def test_a_log_that_cannot_be_written_is_named(tmp_path):
     path.symlink_to("/dev/full")
     with pytest.raises(OSError, match=r"cannot write the log .*full\.jsonl: No space"):
         RunLogWriter(path, {"run": "test"})
+
+
+def test_output_folders_and_logs_that_cannot_be_used_are_named(tmp_path):
+    """A bare `[Errno 2] No such file or directory` or `[Errno 17] File exists` said
+    neither which option nor what the file was for."""
+    from follow.run import Outputs
+    from follow.runlog import read_run_log
+    from follow.sim.demo import run_demo
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    with pytest.raises(OSError, match=r"cannot make the frames folder .*a_file/frames"):
+        Outputs({}, 10.0, frames_dir=blocker / "frames")
+    with pytest.raises(OSError, match=r"run log .*missing\.jsonl: No such file"):
+        read_run_log(tmp_path / "missing.jsonl")
+    with pytest.raises(OSError, match=r"--output .*a_file: cannot make the demo's folder"):
+        run_demo(seconds=0.2, seed=0, identifier="channels", output=blocker, write_video=False)

@@ -273,7 +273,11 @@ def run_demo(
     output = Path(output) if output else None
     outputs = None
     if output:
-        output.mkdir(parents=True, exist_ok=True)
+        try:
+            output.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:  # FileExistsError: a file of that name
+            raise OSError(f"--output {output}: cannot make the demo's folder there: "
+                          f"{exc.strerror or exc}") from exc  # fmt: skip
         outputs = Outputs(
             {"source": "simulation", "seed": seed, "identifier": ident_name},
             DEMO_CAMERA.fps,
