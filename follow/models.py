@@ -309,9 +309,14 @@ def _download(url: str, target: Path, sha256: str) -> None:
     """Stream `url` to `target` via a temporary file, checking the hash on the way."""
     from tqdm import tqdm
 
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
+                                        suffix=".part")  # fmt: skip
+    except OSError as exc:
+        raise ModelError(f"cannot write model files under {target.parent} (the model cache, "
+                         f"$FOLLOW_CACHE_DIR: {cache_dir()}): {exc.strerror or exc}") from exc  # fmt: skip
     digest = hashlib.sha256()
-    fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".part")
     tmp = Path(tmp_name)
     out = os.fdopen(fd, "wb")  # closed on every path, a download that never starts included
     try:

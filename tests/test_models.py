@@ -243,3 +243,12 @@ def test_verify_blames_the_missing_file_not_the_ones_present(mirror, cache, monk
     by_name = {s.relpath.rsplit("/", 1)[-1]: s for s in models.verify("ccf10")}
     assert by_name["conv_t2"].detail == "missing" and not by_name["conv_t2"].ok
     assert by_name["conv_t1"].ok and by_name["conv_t1"].detail == "ok"
+
+
+def test_a_model_cache_that_cannot_be_written_is_named_as_the_cache(tmp_path, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(blocker / "cache"))
+    target = models.cache_dir() / "ccf/ccf10/conv_t1"
+    with pytest.raises(models.ModelError, match=r"the model cache, \$FOLLOW_CACHE_DIR"):
+        models._download("file:///nowhere", target, "0" * 64)
