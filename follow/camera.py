@@ -118,15 +118,16 @@ def _parse_yaml(text: str):
                 seen.add(key)
             return super().construct_mapping(node, deep)
 
-    # YAML 1.1 reads an exponent without a dot (1e6) as text; YAML 1.2 and every other
-    # reader as a number: so does this one (a quoted "1e6" stays text, and is refused).
+    # YAML 1.1 reads an exponent without a dot (1e6) and a number without a leading digit
+    # (-.5) as text; YAML 1.2 and every other reader as numbers: so does this one (a
+    # quoted "1e6" stays text, and is refused).
     UniqueKeyLoader.add_implicit_resolver(
-        "tag:yaml.org,2002:float", _EXPONENT_FLOAT, list("-+0123456789")
+        "tag:yaml.org,2002:float", _YAML12_FLOAT, list("-+0123456789.")
     )
     return yaml.load(text, Loader=UniqueKeyLoader)
 
 
-_EXPONENT_FLOAT = re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$")
+_YAML12_FLOAT = re.compile(r"^[-+]?(?:\.[0-9_]+|[0-9][0-9_]*(?:\.[0-9_]*)?)(?:[eE][-+]?[0-9]+)?$")
 
 
 @dataclass(frozen=True)

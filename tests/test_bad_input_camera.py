@@ -210,11 +210,17 @@ def test_quoted_numbers_and_a_grid_of_coefficients_are_refused(tmp_path):
         CameraModel.load(_write(tmp_path, data))
 
 
-def test_numbers_written_with_an_exponent_are_numbers(tmp_path):
-    """YAML 1.1 reads `5.6e2` as a number and `56e1` as text; both are numbers here."""
+def test_numbers_written_as_yaml_1_2_writes_them_are_numbers(tmp_path):
+    """YAML 1.1 reads `5.6e2` as a number but `56e1`, `-.5` and `.5e3` as text; all are
+    numbers here, as in YAML 1.2 (a hand-edited `distortion: [-.28, .07]` is common)."""
     model = CameraModel.from_dict(_data())
     text = yaml.safe_dump(model.to_dict()).replace("height_m: 0.9", "height_m: 9e-1")
-    assert "9e-1" in text
+    text = text.replace("pitch_rad: 0.2", "pitch_rad: .2e0").replace(
+        "distortion: []", "distortion: [-.28, .07, 0, 0, -.5e-3]"
+    )
+    assert "9e-1" in text and ".2e0" in text and "-.28" in text
     path = tmp_path / "cam.yaml"
     path.write_text(text)
-    assert CameraModel.load(path).pose.height_m == pytest.approx(0.9)
+    loaded = CameraModel.load(path)
+    assert loaded.pose.height_m == pytest.approx(0.9) and loaded.pose.pitch_rad == pytest.approx(0.2)
+    assert loaded.dist.tolist() == pytest.approx([-0.28, 0.07, 0.0, 0.0, -0.0005])
