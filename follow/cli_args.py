@@ -101,13 +101,16 @@ def is_library_error(exc: BaseException) -> bool:
 
 
 def error_text(exc: BaseException) -> str:
-    """One line for the user. A library's error is named by its kind, with its last
-    non-empty line less OpenCV's prefix (its version and the C++ file that raised it)."""
+    """One line for the user: the message's lines joined (the runtimes put what is wrong
+    and where over several: onnxruntime the input, then the sizes), less OpenCV's prefix
+    (its version and the C++ file that raised it); a library's error named by its kind."""
+    lines = [line.strip().lstrip("> -").rstrip(":") for line in str(exc).splitlines()]
+    lines = [line for line in lines if line]  # OpenCV's `> Overload ...:`, `>  - src ...`
+    if lines:
+        _, prefix_end, rest = lines[0].partition(" error: ")
+        if prefix_end and lines[0].startswith("OpenCV("):
+            lines[0] = rest
+    text = "; ".join(lines) if lines else "no message"
     if not is_library_error(exc):
-        return str(exc)
-    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-    text = lines[-1] if lines else "no message"
-    _, prefix_end, rest = text.partition(" error: ")
-    return f"{type(exc).__module__.split('.')[0]} {type(exc).__name__}: " + (
-        rest if prefix_end else text
-    )
+        return text
+    return f"{type(exc).__module__.split('.')[0]} {type(exc).__name__}: {text}"

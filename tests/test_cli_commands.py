@@ -67,10 +67,9 @@ def test_a_library_error_on_bad_input_is_one_line_and_a_json_error(monkeypatch, 
 
     if library == "cv2":
         import cv2
-        import numpy as np
 
         def fail(args):
-            return cv2.resize(np.zeros((4, 4, 3), np.uint8), (0, 0), fx=0, fy=0)
+            return cv2.resize("not an image", (1, 1))  # a message over four lines
     else:
         from onnxruntime import InferenceSession
 
@@ -81,9 +80,19 @@ def test_a_library_error_on_bad_input_is_one_line_and_a_json_error(monkeypatch, 
     assert main(["eval", "walking-accel", "--json"]) == 1
     out = capsys.readouterr()
     assert "Traceback" not in out.err
-    message = out.err.strip().splitlines()[-1]
+    [message] = out.err.strip().splitlines()
     assert message.startswith(f"follow eval: error: {library} ")
+    if library == "cv2":  # every line kept, OpenCV's prefix and bullets dropped
+        assert "in function 'resize'; Overload resolution failed; src is not" in message
+        assert "OpenCV(" not in message
     assert json.loads(out.out.strip().splitlines()[-1])["error"] in message
+
+
+def test_a_multi_line_error_of_ours_is_one_line_too():
+    from follow.cli_args import error_text
+
+    text = error_text(RuntimeError("Exception from src/core:\nCheck failed:\nNot divisible\n"))
+    assert text == "Exception from src/core; Check failed; Not divisible"
 
 
 def test_a_bug_of_ours_still_shows_its_traceback(monkeypatch):
