@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from pathlib import Path
 
 
@@ -100,12 +101,17 @@ def is_library_error(exc: BaseException) -> bool:
     return type(exc).__module__.split(".")[0] in _LIBRARIES_WITH_OWN_ERRORS
 
 
+# OpenCV's list marks, `> Overload resolution failed:`, `>  - src is not ...` (never the
+# dashes of an option: `--seconds`)
+_BULLET = re.compile(r"^(?:>\s*)?(?:-\s+)?")
+
+
 def error_text(exc: BaseException) -> str:
     """One line for the user: the message's lines joined (the runtimes put what is wrong
     and where over several: onnxruntime the input, then the sizes), less OpenCV's prefix
     (its version and the C++ file that raised it); a library's error named by its kind."""
-    lines = [line.strip().lstrip("> -").rstrip(":") for line in str(exc).splitlines()]
-    lines = [line for line in lines if line]  # OpenCV's `> Overload ...:`, `>  - src ...`
+    lines = [_BULLET.sub("", line.strip()).rstrip(":") for line in str(exc).splitlines()]
+    lines = [line for line in lines if line]
     if lines:
         _, prefix_end, rest = lines[0].partition(" error: ")
         if prefix_end and lines[0].startswith("OpenCV("):
