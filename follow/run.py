@@ -14,6 +14,7 @@ warned.
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from pathlib import Path
 
@@ -223,26 +224,31 @@ class Outputs:
     def close(self) -> None:
         """Close the video and the log; a video that fails to close still lets the log
         close (flushed: the run's record is what tells what happened)."""
+        failing = sys.exc_info()[1] is not None  # closed on the way out of an error
         try:
             if self._writer is not None:
                 self._writer.release()
-                self._check_video_readable()
+                self._check_video_readable(raise_error=not failing)
         finally:
             if self.log is not None:
                 self.log.close()
 
-    def _check_video_readable(self) -> None:
-        """Raise OSError when the closed video cannot be read back: OpenCV's writer
-        reports no failed write, and a short run ends before `_check_video_grows` looks
-        (an mp4 cut short by a full disk lacks the index it is opened by)."""
+    def _check_video_readable(self, raise_error: bool) -> None:
+        """OSError when the closed video cannot be read back: OpenCV's writer reports no
+        failed write, and a short run ends before `_check_video_grows` looks (an mp4 cut
+        short by a full disk lacks the index it is opened by). Only logged while another
+        error is on its way out: that one says what went wrong first."""
         capture = cv2.VideoCapture(self.video_path)
         try:
             readable = capture.isOpened() and capture.read()[0]
         finally:
             capture.release()
-        if not readable:
-            raise OSError(f"video {self.video_path} was written but cannot be read back: is "
-                          "the disk full?")  # fmt: skip
+        if readable:
+            return
+        message = f"video {self.video_path} was written but cannot be read back: is the disk full?"
+        if raise_error:
+            raise OSError(message)
+        log.error("%s", message)
 
 
 class RunSummary:

@@ -197,6 +197,33 @@ def test_a_short_video_that_could_not_be_written_is_an_error_at_close(tmp_path):
             outputs.close()
 
 
+def test_an_unreadable_video_does_not_hide_the_error_the_run_ends_with(tmp_path, caplog):
+    """Closed on the way out of another error (a full disk that stopped the video's
+    growth, a camera lost), the read-back failure is logged, not raised in its place."""
+    import os
+
+    import numpy as np
+
+    from follow.pipeline import FrameResult
+    from follow.run import Outputs
+    from follow.types import Frame, Odometry, TargetEstimate, TargetStatus
+
+    if not os.path.exists("/dev/full"):
+        pytest.skip("no /dev/full on this system")
+    path = tmp_path / "full.avi"
+    path.symlink_to("/dev/full")
+    outputs = Outputs({}, 10.0, video_path=path)
+    result = FrameResult(0, 0.0, Odometry.origin(0.0), [], [],
+                         TargetEstimate(TargetStatus.INITIAL, None, {}, 0.0))  # fmt: skip
+    outputs.write(Frame(np.zeros((48, 64, 3), np.uint8), 0.0), result, None)
+    with pytest.raises(ValueError, match="the camera is gone"):
+        try:
+            raise ValueError("the camera is gone")
+        finally:
+            outputs.close()
+    assert "full.avi was written but cannot be read back" in caplog.text
+
+
 def test_a_log_that_cannot_be_written_is_named(tmp_path):
     import os
 

@@ -317,12 +317,14 @@ def run_demo(
                 runner.run(frames, pace_hz=DEMO_CAMERA.fps, on_result=on_result)
                 failed = False
             finally:
-                if outputs is not None:
-                    outputs.close()
-                if bag is not None and failed:
-                    bag.abort()
-                elif bag is not None:
-                    bag.close()
+                try:
+                    if outputs is not None:
+                        outputs.close()
+                finally:  # the bag is finished or removed whatever the outputs did
+                    if bag is not None and failed:
+                        bag.abort()
+                    elif bag is not None:
+                        bag.close()
     summary = {
         **score.summary(),
         "identifier": ident_name,
