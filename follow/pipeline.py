@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -369,6 +370,12 @@ class ControlLoop:
             self._send_last_stop()
 
 
+def control_failure(error: BaseException) -> RuntimeError:
+    """The run's error for a control loop that failed, naming why (a base whose send
+    hung, a link that refused the last zero, a bug)."""
+    return RuntimeError(f"control loop failed ({type(error).__name__}: {error})")
+
+
 # Commands remembered by the frame they answer: more than the outputs' queue can lag.
 COMMANDS_KEPT = 64
 
@@ -540,7 +547,7 @@ class ThreadedRunner:
                 if outputs is not None:
                     outputs.submit(frame, result)
                 if self.control.error is not None:
-                    raise RuntimeError("control loop failed") from self.control.error
+                    raise control_failure(self.control.error) from self.control.error
                 if max_frames is not None and self.processed >= max_frames:
                     break
         finally:
@@ -552,11 +559,16 @@ class ThreadedRunner:
             capture.join(timeout=2.0)
             if outputs is not None:
                 outputs.close()
+            interrupted = isinstance(sys.exc_info()[1], KeyboardInterrupt)
+            if interrupted and self.control.error is not None:
+                # a base that hung or refused the last zero may still be moving: that
+                # outranks a clean stop by signal
+                raise control_failure(self.control.error) from self.control.error
         for error in (self.capture_error, self.pose_error):
             if error is not None:
                 raise error
         if self.control.error is not None:  # failed after the last frame was looked at
-            raise RuntimeError("control loop failed") from self.control.error
+            raise control_failure(self.control.error) from self.control.error
 
     @property
     def dropped_frames(self) -> int:

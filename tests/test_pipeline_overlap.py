@@ -396,6 +396,39 @@ def test_a_base_that_fails_to_send_still_lets_the_run_deliver_every_result(overl
     assert not [t for t in left if t.name in ("capture", "outputs")]
 
 
+def test_an_interrupted_run_whose_base_hangs_ends_with_that_error_not_a_clean_stop(
+    monkeypatch,
+):
+    """Ctrl-C while the base's send hangs: the stop gives up on it after its waits, and
+    the run ends with that failure (the base may still be moving), not with the
+    interrupt a run reports as a clean stop."""
+    from follow import pipeline
+
+    monkeypatch.setattr(pipeline, "STOP_JOIN_TIMEOUT_S", 0.2)
+    hanging, release = threading.Event(), threading.Event()
+
+    class _Hangs(NullBase):
+        def send(self, cmd):
+            if len(self.commands) >= 3:
+                hanging.set()
+                release.wait()
+            return super().send(cmd)
+
+    class _InterruptedOnceHanging(_TimedPerception):
+        def conclude(self, frame, robot, index, detections):  # the main thread: Ctrl-C
+            if hanging.is_set():
+                raise KeyboardInterrupt
+            return super().conclude(frame, robot, index, detections)
+
+    runner = _runner(_InterruptedOnceHanging(0.005), overlap=False, base=_Hangs())
+    try:
+        with pytest.raises(RuntimeError, match="control loop failed .TimeoutError") as failure:
+            runner.run(_frames(400), pace_hz=50.0)
+        assert isinstance(failure.value.__context__, KeyboardInterrupt)
+    finally:
+        release.set()
+
+
 def test_a_shutdown_signal_stops_driving_while_the_pose_network_runs():
     """SIGTERM arrives while the main thread is inside a long native call (the pose
     network, in turn): the base gets zero at once, not when the call returns."""
