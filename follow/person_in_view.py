@@ -34,6 +34,9 @@ class InView:
     from_m: float | None
     until_m: float | None
     checked_until_m: float
+    # Where the point is at `checked_until_m` when out of view there: "above" or "below"
+    # the image (or beside it: ""), which way a tilt would bring it in.
+    farthest_off: str = ""
 
     def covers(self, distance_m: float) -> bool:
         return self.from_m is not None and self.from_m <= distance_m <= self.until_m
@@ -74,12 +77,17 @@ def in_view(camera, point_height_m: float, farthest_m: float, margins_px: tuple[
         & (uv[:, 1] >= -0.5 + margins_px[0])
         & (uv[:, 1] <= height - 0.5 - margins_px[1])
     )
+    off = ""
+    if not seen[-1] and np.isfinite(uv[-1]).all():
+        off = "above" if uv[-1, 1] < -0.5 + margins_px[0] else (
+            "below" if uv[-1, 1] > height - 0.5 - margins_px[1] else "")  # fmt: skip
     if not seen.any():
-        return InView(None, None, farthest_m)
+        return InView(None, None, farthest_m, off)
     first = int(np.argmax(seen))
     unseen_after = np.flatnonzero(~seen[first:])
     last = first + (int(unseen_after[0]) - 1 if unseen_after.size else len(seen) - 1 - first)
-    return InView(round(float(distances[first]), 2), round(float(distances[last]), 2), farthest_m)
+    return InView(round(float(distances[first]), 2), round(float(distances[last]), 2),
+                  farthest_m, off)  # fmt: skip
 
 
 def person_in_view(camera, config) -> dict[str, InView]:
@@ -105,9 +113,9 @@ def view_warnings(views: dict[str, InView], config) -> list[str]:
     if neck.from_m is None and ankles.from_m is None:  # no tilt would fix what follows
         return [
             f"a standing person straight ahead is never in view ({NEAREST_M:g}-"
-            f"{neck.checked_until_m:g} m): the camera does not look along the robot's "
-            "forward direction (its pose's yaw_rad turned away, or pitch_rad far too "
-            "steep up or down)"
+            f"{neck.checked_until_m:g} m): check the camera file's pose (yaw_rad turned "
+            "away from the robot's forward direction, pitch_rad far too steep, or height_m "
+            "or x_m far off)"
         ]
     out = []
     if not neck.covers(follow_m):
@@ -124,9 +132,11 @@ def view_warnings(views: dict[str, InView], config) -> list[str]:
             "the camera down"
         )
     if not neck.covers(far_m):
+        tilt = {"below": ": pitch the camera down", "above": ": pitch the camera up"}
         out.append(
             f"a standing person {far_m:g} m away ([pose] far_person_distance_m) has their "
-            f"neck out of view (in view {neck.describe()}): pitch the camera up"
+            f"neck out of view (in view {neck.describe()})"
+            + tilt.get(neck.farthest_off, "")
         )
     return out
 

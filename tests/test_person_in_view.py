@@ -55,6 +55,14 @@ def test_a_camera_pitched_steeply_down_loses_far_necks_and_says_so():
     assert len(warnings) == 2 and "8 m away" in warnings[1] and "pitch the camera up" in warnings[1]
 
 
+def test_a_camera_pitched_steeply_up_is_told_to_pitch_down():
+    config = Config()
+    views = person_in_view(_camera(0.8, -32.0), config)  # far necks sink below the image
+    assert views["neck"].farthest_off == "below"
+    warning = view_warnings(views, config)[-1]
+    assert "8 m away" in warning and warning.endswith("pitch the camera down")
+
+
 def test_a_camera_facing_backwards_is_told_so_not_to_pitch_up():
     config = Config()
     backwards = CameraModel.from_fov((640, 480), 70.0, CameraPose(0.9, 0.2, yaw_rad=3.14))
