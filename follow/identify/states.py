@@ -78,6 +78,7 @@ class InitialTraining(State):
         self.target_id = target_id
         self.frames_learnt = 0
         self.crowded = False  # someone walks near the target: learning waits
+        self.waited = False  # the wait was logged
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self.target_id not in frame.by_id:
@@ -90,10 +91,12 @@ class InitialTraining(State):
             return Initial().update(context, frame)
         context.look(frame, only=self.target_id)
         crowded = bool(context.swappable(self.target_id, frame))
-        if crowded and not self.crowded:
-            log.info("target track %d has someone beside it: learning it waits until they "
-                     "are %.1f m apart", self.target_id,
-                     context.config.identity_risk_distance_m)  # fmt: skip
+        if crowded and not self.crowded:  # said once; again (someone at the limit) quietly
+            log.log(logging.DEBUG if self.waited else logging.INFO,
+                    "target track %d has someone beside it: learning it waits until nobody "
+                    "is within %.1f m of it or overlaps it in the image", self.target_id,
+                    context.config.identity_risk_distance_m)  # fmt: skip
+            self.waited = True
         self.crowded = crowded
         learnt = (
             self.target_id in frame.appearances
