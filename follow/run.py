@@ -21,6 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from follow.bag import is_bag
 from follow.camera import CameraModel, check_pose_measured
 from follow.capture import DEFAULT_FOLDER_FPS, open_source, played_at_own_stamps
 from follow.cli_args import non_negative_int, positive_float
@@ -358,7 +359,7 @@ def main(args) -> dict:
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     check_output_paths(args)
-    if args.folder_fps is not None and not Path(args.source).is_dir():
+    if args.folder_fps is not None and (not Path(args.source).is_dir() or is_bag(args.source)):
         log.warning("--folder-fps is an image folder's frame rate: %s plays at its own",
                     args.source)  # fmt: skip
     args.folder_fps = args.folder_fps or DEFAULT_FOLDER_FPS
