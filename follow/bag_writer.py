@@ -18,7 +18,7 @@ from follow.camera import CameraModel
 from follow.rosmsg import camera_info_fields, image_fields, quaternion_of_yaw, stamp_fields
 from follow.types import Odometry
 
-BAG_SUFFIXES = ("", ".bag", ".mcap")  # a ROS 2 bag folder, ROS 1, one ROS 2 MCAP file
+WRITTEN_BAG_SUFFIXES = (".bag", ".mcap")  # ROS 1, one ROS 2 MCAP file; else a ROS 2 folder
 
 
 class BagWriter:
@@ -32,11 +32,13 @@ class BagWriter:
         self.path = Path(path)
         if self.path.exists():
             raise FileExistsError(f"bag {self.path} exists already; not overwriting it")
-        if self.path.suffix not in BAG_SUFFIXES:
-            raise ValueError(f"bag {self.path}: name a .mcap or .bag file, or a folder without "
-                             f"a suffix (a ROS 2 bag), not a {self.path.suffix} file")  # fmt: skip
-        self.ros1 = self.path.suffix == ".bag"
-        self._single_mcap = self.path.suffix == ".mcap"
+        suffix = self.path.suffix
+        if suffix not in WRITTEN_BAG_SUFFIXES and suffix[1:].isalpha():  # run.txt, run.db3;
+            # a folder named with a date (runs/2024.05.01) is a ROS 2 bag folder
+            raise ValueError(f"bag {self.path}: name a .mcap or .bag file, or a folder (a ROS 2 "
+                             f"bag), not a {suffix} file")  # fmt: skip
+        self.ros1 = suffix == ".bag"
+        self._single_mcap = suffix == ".mcap"
         # Written in a hidden folder beside the bag, not in a temp folder that may be on
         # another file system: the last step is then a rename, and a run killed on the way
         # never leaves part of a bag under its name (it would read back as a valid,

@@ -433,6 +433,9 @@ def test_a_bag_named_with_another_suffix_or_in_no_folder_is_refused_by_name(tmp_
     assert not list(tmp_path.iterdir())
     with pytest.raises(OSError, match=r"cannot write the bag .*missing/run\.mcap"):
         BagWriter(tmp_path / "missing" / "run.mcap")
+    with BagWriter(tmp_path / "2024.05.01") as bag:  # a folder named with a date
+        bag.write_string("/note", 0.0, "[]")
+    assert (tmp_path / "2024.05.01" / "metadata.yaml").is_file()
 
 
 def test_a_skeletons_topic_holding_other_json_is_named_as_such(tmp_path, small_frames):
