@@ -10,6 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from follow.cli_args import MAX_CAMERA_INDEX
+
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
@@ -91,15 +93,20 @@ def iter_video_frames(
     """(name, BGR frame) for every `every`-th frame of a video file or camera index."""
     if every < 1:
         raise ValueError(f"frame step must be >= 1, got {every}")
-    if isinstance(source, (str, Path)) and not str(source).isdigit():
+    camera_index = not isinstance(source, (str, Path)) or str(source).isdigit()
+    if not camera_index:
         if not Path(source).is_file():
             raise ImageInputError(f"video {source}: no such file")
         capture = cv2.VideoCapture(str(source))
     else:
-        if int(source) > 2**31 - 1:  # OpenCV takes a C int
-            raise ImageInputError(f"camera {source}: no camera index is that large")
+        if int(source) > MAX_CAMERA_INDEX:
+            raise ImageInputError(f"camera {source}: no camera index is that large (at most "
+                                  f"{MAX_CAMERA_INDEX})")  # fmt: skip
         capture = cv2.VideoCapture(int(source))
     if not capture.isOpened():
+        if camera_index:
+            raise ImageInputError(f"camera {source}: no camera at index {source} can be opened "
+                                  "(ls /dev/video*: the index is the number after video)")  # fmt: skip
         raise ImageInputError(f"video {source}: cannot be opened")
     try:
         index = taken = 0

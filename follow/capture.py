@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from follow.cli_args import MAX_CAMERA_INDEX
 from follow.handoff import Mailbox
 from follow.repeated_image import RepeatedImages
 from follow.types import Frame, InvalidInput
@@ -29,7 +30,6 @@ DEFAULT_FOLDER_FPS = 15.0
 # A file's presentation time this close to index / fps is a frame on its frame rate's
 # grid (containers store times to the millisecond): it keeps index / fps exactly.
 FRAME_RATE_GRID_TOLERANCE_S = 1e-3
-MAX_CAMERA_INDEX = 2**31 - 1  # OpenCV takes a C int (which may add a back-end, 200 + n: V4L2)
 
 
 class SourceError(RuntimeError):

@@ -9,6 +9,10 @@ import math
 import re
 from pathlib import Path
 
+# The largest camera index a source may name: OpenCV takes a C int (which may add a
+# back-end, 200 + n: V4L2).
+MAX_CAMERA_INDEX = 2**31 - 1
+
 
 def _number(text: str, kind: type):
     try:

@@ -54,3 +54,24 @@ def test_a_grid_too_fine_to_draw_is_refused_by_name(tmp_path, capsys):
     assert "Traceback" not in err and "grid step of 1e-09 m draws" in err, err
     assert not (tmp_path / "c.png").exists()
     assert cli.main([*argv, "--grid-step-m", "0.05"]) == 0
+
+
+def test_a_camera_index_that_cannot_be_opened_is_named_as_one(tmp_path, capsys, monkeypatch):
+    """As `follow run` says it: too large for OpenCV, or no device behind it."""
+    import cv2
+
+    argv = ["check", "--camera", str(_camera(tmp_path)), "-o", str(tmp_path / "c.png")]
+    assert cli.main(["check", "99999999999", *argv[1:]]) == 2
+    assert "no camera index is that large" in capsys.readouterr().err
+
+    class NoDevice:
+        def __init__(self, index):
+            pass
+
+        def isOpened(self):
+            return False
+
+    monkeypatch.setattr(cv2, "VideoCapture", NoDevice)
+    assert cli.main(["check", "7", *argv[1:]]) == 2
+    err = capsys.readouterr().err
+    assert "no camera at index 7 can be opened" in err and "Traceback" not in err
