@@ -198,6 +198,8 @@ def test_pose_model_choices_are_the_registry_pose_networks():
     from follow.config_bounds import POSE_MODELS
 
     assert all(models.get_spec(name) for name in POSE_MODELS)
+    registered = {n for n in models.REGISTRY if n.startswith("human-pose-estimation")}
+    assert registered == set(POSE_MODELS)  # a pose network added there is a choice here
     with pytest.raises(ConfigError, match="model = 'person-reidentification-retail-0248'"
                        ".*human-pose-estimation-0001"):  # fmt: skip
         Config().replace("pose", model="person-reidentification-retail-0248")
