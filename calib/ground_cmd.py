@@ -21,6 +21,9 @@ log = logging.getLogger(__name__)
 # Corners reprojecting worse than this (px RMS) suggest a wrong pattern, intrinsics or a
 # board that is not flat: the result is still written, with a warning.
 RMS_WARNING_PX = 0.5
+# A camera height outside this band is no robot's (0.5-1.5 m is usual): a board size in
+# millimetres or centimetres given as metres scales the height with it.
+PLAUSIBLE_HEIGHT_M = (0.1, 5.0)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -102,6 +105,12 @@ def main(args: argparse.Namespace) -> dict:
         warnings.append(
             f"board corners reproject with {result.reprojection_rms_px:.2f} px RMS (> "
             f"{RMS_WARNING_PX}): check the intrinsics, the pattern size and that the board is flat"
+        )
+    low, high = PLAUSIBLE_HEIGHT_M
+    if not low <= pose.height_m <= high:
+        warnings.append(
+            f"camera height {pose.height_m:.3f} m is outside {low:g}-{high:g} m: is "
+            f"--square-size-m ({args.square_size_m:g}) the side of one square in metres?"
         )
     for warning in warnings:
         log.warning(warning)

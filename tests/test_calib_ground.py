@@ -370,3 +370,19 @@ def test_ground_command_to_a_new_folder_writes_the_file_and_its_overlay(board_sc
     assert CameraModel.load(output).pose.height_m == pytest.approx(0.8, abs=0.01)
     assert cv2.imread(str(folder / "robot" / "cam_ground.png")).shape == (480, 640, 3)
 
+
+
+def test_a_board_size_in_the_wrong_unit_is_warned_of(board_scene, capsys):
+    """A board size in the wrong unit scales every length: the 0.1 m board given as
+    0.01 puts the camera 8 cm up, within the pose's bounds, and the warning names the
+    option."""
+    _, folder = board_scene
+    argv = ["ground", str(folder / "board0.png"), "--camera", str(folder / "cam.yaml"),
+            "--pattern", "7x5", "--json", "-o", str(folder / "out.yaml")]  # fmt: skip
+    assert cli.main([*argv, "--square-size-m", "0.1"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["warnings"] == []
+    assert cli.main([*argv, "--square-size-m", "0.01"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["height_m"] == pytest.approx(0.08, abs=0.002)
+    [warning] = out["warnings"]
+    assert "outside 0.1-5 m" in warning and "--square-size-m (0.01)" in warning
