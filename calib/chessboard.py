@@ -105,8 +105,10 @@ def iter_video_frames(
         capture = cv2.VideoCapture(int(source))
     if not capture.isOpened():
         if camera_index:
-            raise ImageInputError(f"camera {source}: no camera at index {source} can be opened "
-                                  "(ls /dev/video*: the index is the number after video)")  # fmt: skip
+            raise ImageInputError(
+                f"camera {source}: no camera at index {source} can be opened "
+                "(ls /dev/video*: the index is the number after video)"
+            )
         raise ImageInputError(f"video {source}: cannot be opened")
     try:
         index = taken = 0

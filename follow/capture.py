@@ -79,8 +79,10 @@ class FrameSource:
             self.live = path.is_char_device()  # a camera's node: /dev/video0, /dev/v4l/by-id/...
         if not self._cap.isOpened():
             if self.live and spec.isdigit():
-                raise SourceError(f"source {spec}: no camera at index {spec} can be opened "
-                                  "(ls /dev/video*: the index is the number after video)")  # fmt: skip
+                raise SourceError(
+                    f"source {spec}: no camera at index {spec} can be opened "
+                    "(ls /dev/video*: the index is the number after video)"
+                )
             raise SourceError(f"source {spec}: cannot be opened by OpenCV")
         fps = self._cap.get(cv2.CAP_PROP_FPS)
         self.fps = fps if fps and np.isfinite(fps) and fps > 0 else 15.0

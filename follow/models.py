@@ -314,8 +314,10 @@ def _download(url: str, target: Path, sha256: str) -> None:
         fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
                                         suffix=".part")  # fmt: skip
     except OSError as exc:
-        raise ModelError(f"cannot write model files under {target.parent} (the model cache, "
-                         f"$FOLLOW_CACHE_DIR: {cache_dir()}): {exc.strerror or exc}") from exc  # fmt: skip
+        raise ModelError(
+            f"cannot write model files under {target.parent} (the model cache, "
+            f"$FOLLOW_CACHE_DIR: {cache_dir()}): {exc.strerror or exc}"
+        ) from exc
     digest = hashlib.sha256()
     tmp = Path(tmp_name)
     out = os.fdopen(fd, "wb")  # closed on every path, a download that never starts included

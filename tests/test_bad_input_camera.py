@@ -222,5 +222,6 @@ def test_numbers_written_as_yaml_1_2_writes_them_are_numbers(tmp_path):
     path = tmp_path / "cam.yaml"
     path.write_text(text)
     loaded = CameraModel.load(path)
-    assert loaded.pose.height_m == pytest.approx(0.9) and loaded.pose.pitch_rad == pytest.approx(0.2)
+    assert loaded.pose.height_m == pytest.approx(0.9)
+    assert loaded.pose.pitch_rad == pytest.approx(0.2)
     assert loaded.dist.tolist() == pytest.approx([-0.28, 0.07, 0.0, 0.0, -0.0005])
