@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import tempfile
 from pathlib import Path
 
 # The largest camera index a source may name: OpenCV takes a C int (which may add a
@@ -40,6 +41,19 @@ def _at_least(kind: type, lowest, strict: bool, expected: str):
 def finite_float(text: str) -> float:
     """An argparse type: any number but NaN and the infinities."""
     return _number(text, float)
+
+
+def float_within(lowest: float, highest: float, highest_open: bool = False):
+    """An argparse type: a finite number from `lowest` to `highest` (below it, open)."""
+    expected = f"a number from {lowest:g} to {'below ' if highest_open else ''}{highest:g}"
+
+    def parse(text: str) -> float:
+        value = _number(text, float)
+        if not (lowest <= value < highest if highest_open else lowest <= value <= highest):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return value
+
+    return parse
 
 
 def int_at_least(lowest: int):
@@ -83,8 +97,17 @@ def picture_path(suffixes: tuple[str, ...], kind: type = str):
             )
         if path.is_dir():
             raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name")
-        if not path.resolve().parent.is_dir():
+        folder = path.resolve().parent
+        if folder.exists() and not folder.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r}: {path.parent} is a file, not a folder")
+        if not folder.is_dir():
             raise argparse.ArgumentTypeError(f"{text!r}: the folder {path.parent} does not exist")
+        try:  # a read-only or virtual folder: found now, not after the work
+            tempfile.TemporaryFile(dir=folder).close()
+        except OSError as exc:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: the folder {path.parent} cannot be written ({exc.strerror or exc})"
+            ) from None
         return kind(text)
 
     return parse

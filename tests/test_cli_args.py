@@ -36,6 +36,10 @@ from follow.cli_args import (
         (["eval", "pose", "--sizes", "0"], "--sizes"),
         (["eval", "pose-near", "--sizes", "256", "260"], "--sizes"),
         (["bench", "identify", "--repeats", "1"], "--repeats"),
+        (["eval", "following", "--link-latency-s", "-1"], "--link-latency-s"),
+        (["eval", "following", "--link-latency-s", "nan"], "--link-latency-s"),
+        (["eval", "following", "--packet-loss", "1"], "--packet-loss"),
+        (["eval", "pose-near", "--person-heights", "1"], "--person-heights"),
         (["bench", "pose", "--frames", "1", "--height", "0"], "--height"),
         (["bench", "pose", "--frames", "1", "--height", "100000"], "--height"),
     ],
@@ -60,13 +64,15 @@ def test_the_types_take_what_is_in_range_and_refuse_the_rest():
 @pytest.mark.parametrize(
     "name, message",
     [("plot.xyz", "a picture file is needed"), ("missing/plot.png", "does not exist"),
-     ("folder.png", "is a folder")],  # fmt: skip
+     ("folder.png", "is a folder"), ("notes.txt/plot.png", "notes.txt is a file, not a folder"),
+     ("/proc/plot.png", "the folder /proc cannot be written")],  # fmt: skip
 )
 def test_a_plot_path_that_cannot_be_written_is_refused_before_the_evaluation(
     tmp_path, monkeypatch, capsys, name, message
 ):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "folder.png").mkdir()
+    (tmp_path / "notes.txt").write_text("x")
     with pytest.raises(SystemExit) as exit_:
         main(["eval", "localization", "--duration-s", "5", "--plot", name])
     assert exit_.value.code == 2

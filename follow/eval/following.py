@@ -21,7 +21,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from follow.cli_args import non_negative_float, non_negative_int, plot_path, positive_float
+from follow.cli_args import (
+    float_within,
+    non_negative_float,
+    non_negative_int,
+    plot_path,
+    positive_float,
+)
 from follow.config import Config, ControlConfig, MavlinkConfig
 from follow.control.mavlink_base import MavlinkBase
 from follow.pipeline import Detections, FrameResult, build_runner
@@ -69,6 +75,9 @@ class RunTrace:
 
 
 FRAME_RATE_HZ = 15.0
+# A slower link is no MAVLink link a robot follows over (and the simulated vehicle's first
+# heartbeat would not arrive within the connection's wait).
+MAX_LINK_LATENCY_S = 1.0
 _BLANK = np.zeros((8, 8, 3), np.uint8)
 
 
@@ -194,8 +203,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", help="TOML file ([control] and [mavlink] are used)")
     parser.add_argument("--latency-s", type=non_negative_float, default=RunSettings.perception_latency_s)
     parser.add_argument("--noise-m", type=non_negative_float, default=RunSettings.position_noise_m)
-    parser.add_argument("--packet-loss", type=float, default=0.0, help="fraction, both ways")
-    parser.add_argument("--link-latency-s", type=float, default=0.0, help="one way")
+    parser.add_argument("--packet-loss", type=float_within(0.0, 1.0, highest_open=True),
+                        default=0.0, help="fraction, both ways, below 1")  # fmt: skip
+    parser.add_argument("--link-latency-s", type=float_within(0.0, MAX_LINK_LATENCY_S),
+                        default=0.0, help=f"one way, at most {MAX_LINK_LATENCY_S:g} s")  # fmt: skip
     parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument("--plot", type=plot_path, help="write a PNG of distance error and paths here")
 

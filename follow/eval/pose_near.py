@@ -20,17 +20,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from follow.cli_args import non_negative_int, positive_int
+from follow.cli_args import int_at_least, non_negative_int
 from follow.eval.pose import input_height
 from follow.pose.preprocess import NETWORK_STRIDE_PX
 
 FRAME_SIZE = (640, 480)
 NECK_ZONE = 0.4  # upper share of the person where the neck must lie
 ANKLE_ZONE = 0.75  # the ankle must lie below this share of the person's height
+MIN_PERSON_HEIGHT_PX = 16  # two cells of the network's stride: smaller is no person to it
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--person-heights", type=positive_int, nargs="+", default=[192, 320, 432],
+    p.add_argument("--person-heights", type=int_at_least(MIN_PERSON_HEIGHT_PX), nargs="+",
+                   default=[192, 320, 432],
                    help="heights in px the crops are scaled to (frame 640x480)")  # fmt: skip
     p.add_argument("--sizes", type=input_height, nargs="+", default=[256, 368, 576],
                    help="network input heights in px (multiples of 8)")  # fmt: skip
