@@ -321,3 +321,25 @@ def test_the_cache_key_follows_the_runtime_auto_picks(tmp_path, monkeypatch):
     monkeypatch.setattr(runtime, "openvino_installed", lambda: True)
     assert runtime.auto_provider(model) == "openvino"
     assert _cache_path(auto, [0, 1], pixels) != on_ort
+
+
+def test_a_skeleton_cache_cut_short_or_of_another_shape_is_made_again(tmp_path, caplog):
+    """A cache file truncated (a full disk, a killed copy) or missing an array used to
+    end the evaluation with a zipfile or key error naming neither the file nor a fix."""
+    import numpy as np
+
+    from follow.eval.pets_setup import _read_cached_skeletons
+
+    good = tmp_path / "good.npz"
+    np.savez_compressed(good, frame=np.array([3]), kp=np.zeros((1, 18, 2)),
+                        conf=np.ones((1, 18)), score=np.array([0.7]))  # fmt: skip
+    cached = _read_cached_skeletons(good, [3, 4])
+    assert [len(cached[3]), len(cached[4])] == [1, 0] and cached[3][0].score == 0.7
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(good.read_bytes()[:40])
+    no_score = tmp_path / "no_score.npz"
+    np.savez_compressed(no_score, frame=np.array([3]), kp=np.zeros((1, 18, 2)),
+                        conf=np.ones((1, 18)))  # fmt: skip
+    for path in (cut, no_score):
+        assert _read_cached_skeletons(path, [3, 4]) is None
+        assert f"cache {path} is unreadable" in caplog.text

@@ -172,6 +172,24 @@ def _cache_path(pose_config: PoseConfig, frames: list[int], pixels_digest: str) 
     return cache_dir().parent / "eval" / f"pets_skeletons_{digest}.npz"
 
 
+def _read_cached_skeletons(path: Path, frames: list[int]) -> dict[int, list[Skeleton]] | None:
+    """The skeletons kept in `path`, or None (with a warning: they are made again) for a
+    file cut short or written by something else."""
+    import zipfile
+
+    try:
+        with np.load(path) as data:
+            out: dict[int, list[Skeleton]] = {i: [] for i in frames}
+            for f, kp, conf, score in zip(data["frame"], data["kp"], data["conf"],
+                                          data["score"], strict=True):  # fmt: skip
+                out[int(f)].append(Skeleton(kp, conf, float(score)))
+        return out
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        log.warning("PETS skeletons cache %s is unreadable (%s: %s): running the pose "
+                    "network again", path, type(exc).__name__, exc)  # fmt: skip
+        return None
+
+
 def pets_skeletons(
     setup: PetsSetup, frames: list[int], pose_config: PoseConfig, use_cache: bool = True
 ) -> dict[int, list[Skeleton]]:
@@ -180,13 +198,10 @@ def pets_skeletons(
     an evaluation, and every later run on the same frames, sees the same detections."""
     path = _cache_path(pose_config, frames, frames_digest(setup.sequence, frames))
     if use_cache and path.exists():
-        data = np.load(path)
-        out: dict[int, list[Skeleton]] = {i: [] for i in frames}
-        for f, kp, conf, score in zip(data["frame"], data["kp"], data["conf"], data["score"],
-                                      strict=True):  # fmt: skip
-            out[int(f)].append(Skeleton(kp, conf, float(score)))
-        log.info("PETS skeletons from cache %s", path)
-        return out
+        cached = _read_cached_skeletons(path, frames)
+        if cached is not None:
+            log.info("PETS skeletons from cache %s", path)
+            return cached
     from tqdm import tqdm
 
     from follow.pose.detector import PoseDetector
@@ -197,7 +212,11 @@ def pets_skeletons(
                              desc="pose network on PETS", unit="frame", leave=False):  # fmt: skip
         out[index] = detector.detect(image)
     rows = [(i, s) for i in frames for s in out[i]]
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(f"cannot keep the PETS skeletons in {path.parent} (the cache, beside "
+                      f"$FOLLOW_CACHE_DIR's models): {exc.strerror or exc}") from exc  # fmt: skip
     # Written aside, then renamed: a reader (or a second run) never sees half a file.
     partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.npz")
     np.savez_compressed(
