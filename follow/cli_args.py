@@ -118,12 +118,13 @@ plot_path = picture_path(PLOT_SUFFIXES)
 
 
 # The libraries whose own exception classes (not ValueError or RuntimeError) report bad
-# input: an image OpenCV cannot resize, a file onnxruntime cannot parse as a model.
-_LIBRARIES_WITH_OWN_ERRORS = ("cv2", "onnxruntime")
+# input: an image OpenCV cannot resize, a file onnxruntime cannot parse as a model, a
+# topic name ROS 2 refuses.
+_LIBRARIES_WITH_OWN_ERRORS = ("cv2", "onnxruntime", "rclpy")
 
 
 def is_library_error(exc: BaseException) -> bool:
-    """Whether `exc` is OpenCV's or onnxruntime's own error class: bad input met inside
+    """Whether `exc` is one of those libraries' own error classes: bad input met inside
     the library, to be reported in one line like any other (not a crash of ours)."""
     return type(exc).__module__.split(".")[0] in _LIBRARIES_WITH_OWN_ERRORS
 

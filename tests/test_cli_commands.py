@@ -103,3 +103,16 @@ def test_a_bug_of_ours_still_shows_its_traceback(monkeypatch):
     monkeypatch.setattr(command, "main", lambda args: {}["missing"])
     with pytest.raises(KeyError):
         main(["eval", "walking-accel"])
+
+
+def test_a_topic_name_ros_refuses_is_one_line(monkeypatch, capsys):
+    """`-p "ros.image_topic:=bad topic!"`: rclpy's own exception, one line, no traceback."""
+    validate = pytest.importorskip("rclpy.validate_topic_name")
+
+    import follow.eval.walking_accel as command
+
+    monkeypatch.setattr(command, "main", lambda args: validate.validate_topic_name("bad topic!"))
+    assert main(["eval", "walking-accel"]) == 1
+    [message] = capsys.readouterr().err.strip().splitlines()
+    assert message.startswith("follow eval: error: rclpy InvalidTopicNameException: ")
+    assert "'bad topic!'" in message
