@@ -186,6 +186,22 @@ def test_images_without_a_stamp_are_refused_by_name(capfd):
         assert node._detect_in(_image(node.now_s(), 320, 240)) is not None
 
 
+def test_a_topic_that_delivers_nothing_is_named_on_the_console(capfd):
+    """A typo in ros.image_topic left the node silent: its diagnostics said it, the
+    console did not."""
+    with _images_only_node() as node:
+        node.pub_diagnostics.publish = lambda msg: None
+        capfd.readouterr()
+        node._publish_diagnostics()
+        warning = [line for line in capfd.readouterr().err.splitlines() if "received" in line]
+        assert len(warning) == 1 and "WARN" in warning[0]
+        assert f"no image received on {node.config.ros.image_topic} yet" in warning[0]
+        assert "odometry" not in warning[0]  # no odometry topic on this node
+        assert node._warn_of_silent_topics() == [node.config.ros.image_topic]
+        node._on_image_msg(_image(node.now_s(), 320, 240))
+        assert node.images_received == 1 and node._warn_of_silent_topics() == []
+
+
 def test_a_camera_info_that_changes_mid_run_is_refused():
     config = Config().replace("identify", identifier="channels")
     node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,

@@ -60,6 +60,7 @@ log = logging.getLogger(__name__)
 
 NODE_NAME = "follow"
 ODOMETRY_QUEUE = 50  # odometry messages held while the executor is busy
+SILENT_TOPIC_WARNING_S = 5.0  # how often a topic that delivered nothing yet is named
 CLOCK_STEP_S = 1.0  # an image this much older than the last one: a clock went back
 
 
@@ -178,6 +179,8 @@ class FollowNode(Node):
         self.camera_info = None
         self.odometry = OdometryBuffer(ros.max_odometry_age_s) if ros.odom_topic else None
         self.frames = 0
+        self.images_received = 0  # messages on ros.image_topic, whatever became of them
+        self.odometry_received = 0  # messages on ros.odom_topic
         self.frames_without_odometry = 0
         self.odometry_dropped = 0  # odometry messages in another frame or unusable
         self._camera_key: tuple | None = None  # the image size and camera_info perceived with
@@ -242,7 +245,7 @@ class FollowNode(Node):
         ros = self.config.ros
         image_type = CompressedImage if ros.image_topic.endswith("/compressed") else Image
         # Best effort takes images from reliable and best-effort publishers alike.
-        self.create_subscription(image_type, ros.image_topic, self._images.put,
+        self.create_subscription(image_type, ros.image_topic, self._on_image_msg,
                                  qos_profile_sensor_data)  # fmt: skip
         if ros.camera_info_topic:
             self.create_subscription(CameraInfo, ros.camera_info_topic, self._on_camera_info,
@@ -259,6 +262,10 @@ class FollowNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     # ------------------------------------------------------------------ inputs
+    def _on_image_msg(self, msg) -> None:
+        self.images_received += 1
+        self._images.put(msg)
+
     def _on_camera_info(self, msg) -> None:
         self.camera_info = msg
 
@@ -267,6 +274,7 @@ class FollowNode(Node):
         another frame, unusable (NaN, no orientation), unstamped or stamped ahead of the node's
         clock (never fresh, `follow.freshness`) is dropped with a warning: the odometry
         then goes stale and the base stops, but the node lives on."""
+        self.odometry_received += 1
         odom_frame = self.config.ros.odom_frame
         frame_id = str(msg.header.frame_id)
         if frame_id and frame_id.lstrip("/") != odom_frame.lstrip("/"):
@@ -507,6 +515,7 @@ class FollowNode(Node):
         self.pub_cmd_vel.publish(messages.twist(command))
 
     def _publish_diagnostics(self) -> None:
+        self._warn_of_silent_topics()
         period = self.config.ros.diagnostics_period_s
         now = time.monotonic()
         # a copy first: the perception thread appends while this timer reads
@@ -534,6 +543,23 @@ class FollowNode(Node):
             messages.diagnostics(self.now_s(), "follow: perception", values, ok, message,
                                  failed=failed)  # fmt: skip
         )
+
+    def _warn_of_silent_topics(self) -> list[str]:
+        """A topic that has delivered nothing since the start (a typo in its name, a
+        driver not running) is said on the console, not only in /diagnostics; the
+        topics said."""
+        ros = self.config.ros
+        silent = [(what, topic) for what, topic, count in (
+            ("image", ros.image_topic, self.images_received),
+            ("odometry", ros.odom_topic, self.odometry_received),
+        ) if topic and count == 0]  # fmt: skip
+        for what, topic in silent:
+            self.get_logger().warning(
+                f"no {what} received on {topic} yet: is the topic right (ros2 topic list) "
+                "and its driver running? Nothing is followed until it arrives",
+                throttle_duration_sec=SILENT_TOPIC_WARNING_S,
+            )
+        return [topic for _, topic in silent]
 
     # ------------------------------------------------------------------ shutdown
     def shutdown(self) -> dict:
