@@ -86,3 +86,26 @@ def test_the_text_table_shows_a_fault_that_never_happened():
     row = case_row("sigint", {"stop_s": 0.52, "driven_m": 0.29, "speed_at_fault_mps": 1.09,
                               "goal_met": True})  # fmt: skip
     assert row.split() == ["sigint", "0.52", "0.29", "1.09", "met"]
+
+
+def test_a_ctrl_c_that_is_not_the_case_s_own_signal_ends_the_evaluation():
+    """Ctrl-C during a case was taken for the `sigint` case's own signal: the case ran
+    on, was scored from the base's closing, and the next case started; before the fault
+    it ended in a TypeError."""
+    import os
+    import signal
+    import threading
+    import time
+
+    import pytest
+
+    timer = threading.Timer(3.0, os.kill, (os.getpid(), signal.SIGINT))
+    started = time.monotonic()
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):  # the user's Ctrl-C 3 s in, the robot following
+            safety.run_case(safety.CASES[0], fault_at_s=5.0)
+    finally:
+        timer.cancel()
+    case_s = 5.0 + safety.CASES[0].after_s
+    assert time.monotonic() - started < case_s - 1.0  # not run on to its end

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from follow.cli_args import non_negative_int
+from follow.cli_args import float_within, non_negative_int
 from follow.config import Config, MavlinkConfig
 from follow.control import mavlink_frames as mf
 from follow.sim.people import Walker
@@ -114,6 +114,7 @@ CASES = (
 )
 CASE_NAMES = tuple(c.name for c in CASES)
 SIGNAL_CASES = ("sigint", "sigterm")
+MAX_FAULT_AT_S = 60.0  # each case runs in real time: a minute of following is enough
 
 
 def target_walker(fault_at_s: float, side_exit: bool) -> Walker:
@@ -230,6 +231,8 @@ def run_case(case: Case, fault_at_s: float = 5.0, seed: int = 0,
                                           pace_hz=DEMO_CAMERA.fps),
                                pace_hz=DEMO_CAMERA.fps)  # fmt: skip
                 except KeyboardInterrupt:
+                    if case.name not in SIGNAL_CASES or ctx.fault_s is None:
+                        raise  # the user's Ctrl-C, not the case's own signal: stop here
                     interrupted = signals.reason
             if interrupted:  # as `follow run` does: close the base, then wait and watch
                 base.close()
@@ -304,8 +307,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cases", nargs="+", choices=CASE_NAMES, default=list(CASE_NAMES),
                         help="which faults (default: all)")  # fmt: skip
     parser.add_argument("--config", help="TOML configuration ([control], [mavlink] are used)")
-    parser.add_argument("--fault-at-s", type=float, default=5.0,
-                        help="when the fault happens, after the start")  # fmt: skip
+    parser.add_argument("--fault-at-s", type=float_within(1.0, MAX_FAULT_AT_S), default=5.0,
+                        help="when the fault happens, after the start (1-"
+                             f"{MAX_FAULT_AT_S:g} s; the run is paced in real time)")  # fmt: skip
     parser.add_argument("--seed", type=non_negative_int, default=0)
 
 
