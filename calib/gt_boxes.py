@@ -39,6 +39,11 @@ class Box:
     h_px: float
 
 
+# A frame number past this is a typing error, not a video: 11 hours at 25 fps (and every
+# frame up to it would be read).
+MAX_FRAME_NUMBER = 1_000_000
+
+
 def read_boxes(path: str | Path) -> list[Box]:
     """All boxes of an annotation file, in file order."""
     path = Path(path)
@@ -56,6 +61,9 @@ def read_boxes(path: str | Path) -> list[Box]:
             raise BoxFileError(
                 f"box file {path}: <frame> has no integer 'number' ({frame.get('number')!r})"
             ) from None
+        if not 0 <= number <= MAX_FRAME_NUMBER:
+            raise BoxFileError(f"box file {path}: frame number {number} is outside "
+                               f"0..{MAX_FRAME_NUMBER}")  # fmt: skip
         for obj in frame.iter("object"):
             box = obj.find("box")
             try:
@@ -68,6 +76,11 @@ def read_boxes(path: str | Path) -> list[Box]:
                     f"box file {path}: frame {number}, object {obj.get('id')!r}: "
                     f"needs an integer id and a <box> with numeric xc, yc, w, h ({exc})"
                 ) from None
+            if not all(math.isfinite(v) for v in values) or values[2] <= 0 or values[3] <= 0:
+                raise BoxFileError(
+                    f"box file {path}: frame {number}, object {person_id}: the box needs "
+                    f"finite xc, yc and a positive w, h, got {values}"
+                )
             boxes.append(Box(number, person_id, *values))
     if not boxes:
         raise BoxFileError(f"box file {path}: no <frame>/<object>/<box> entries")

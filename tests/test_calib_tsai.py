@@ -149,6 +149,22 @@ def test_box_file_errors_name_the_place(tmp_path):
         read_boxes(bad)
 
 
+@pytest.mark.parametrize(
+    "frame, box, match",
+    [("100000000", 'xc="1" yc="1" w="1" h="1"', "frame number 100000000 is outside"),
+     ("-5", 'xc="1" yc="1" w="1" h="1"', "frame number -5 is outside"),
+     ("3", 'xc="1" yc="1" w="1" h="nan"', "frame 3, object 1: the box needs finite"),
+     ("3", 'xc="1" yc="1" w="0" h="5"', "positive w, h")],
+)  # fmt: skip
+def test_a_box_file_with_impossible_frames_or_boxes_is_refused(tmp_path, frame, box, match):
+    """A frame number of 10^8 made every evaluation read 10^8 frames (it hung); a
+    negative one or a NaN box was taken in silence."""
+    bad = write(tmp_path, f'<dataset><frame number="{frame}"><objectlist><object id="1">'
+                          f"<box {box}/></object></objectlist></frame></dataset>")  # fmt: skip
+    with pytest.raises(BoxFileError, match=match):
+        read_boxes(bad)
+
+
 @pytest.mark.parametrize("step", ["0", "-8", "nan"])
 def test_a_grid_step_that_is_not_positive_is_refused_before_anything_is_written(
     tmp_path, capsys, step
