@@ -161,6 +161,18 @@ def cache_dir() -> Path:
     return Path(env) if env else Path.home() / ".cache" / "follow" / "models"
 
 
+def make_cache_folder(folder: Path) -> Path:
+    """`folder` (in the cache) made if missing; an OSError that names the cache and its
+    setting, not only the errno, where it cannot be (a read-only disk, a file in the
+    way)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(f"cannot write {folder}, in the cache ($FOLLOW_CACHE_DIR, now "
+                      f"{cache_dir()}): {exc.strerror or exc}") from exc  # fmt: skip
+    return folder
+
+
 def search_dirs() -> list[Path]:
     dirs = []
     if os.environ.get("FOLLOW_MODEL_DIR"):

@@ -252,3 +252,14 @@ def test_a_model_cache_that_cannot_be_written_is_named_as_the_cache(tmp_path, mo
     target = models.cache_dir() / "ccf/ccf10/conv_t1"
     with pytest.raises(models.ModelError, match=r"the model cache, \$FOLLOW_CACHE_DIR"):
         models._download("file:///nowhere", target, "0" * 64)
+
+
+def test_a_cache_folder_that_cannot_be_made_names_the_cache(tmp_path, monkeypatch):
+    """The INT8 model, the cut network, TensorRT engines and PETS skeletons are kept in
+    the cache: a bare `[Errno 20] Not a directory` said none of that."""
+    blocker = tmp_path / "notes.txt"
+    blocker.write_text("x")
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(blocker / "c"))
+    with pytest.raises(OSError, match=r"in the cache \(\$FOLLOW_CACHE_DIR, now .*notes.txt/c\)"):
+        models.make_cache_folder(models.cache_dir() / "pose")
+    assert models.make_cache_folder(tmp_path / "ok" / "pose").is_dir()

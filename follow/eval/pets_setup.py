@@ -212,11 +212,9 @@ def pets_skeletons(
                              desc="pose network on PETS", unit="frame", leave=False):  # fmt: skip
         out[index] = detector.detect(image)
     rows = [(i, s) for i in frames for s in out[i]]
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OSError(f"cannot keep the PETS skeletons in {path.parent} (the cache, beside "
-                      f"$FOLLOW_CACHE_DIR's models): {exc.strerror or exc}") from exc  # fmt: skip
+    from follow.models import make_cache_folder
+
+    make_cache_folder(path.parent)
     # Written aside, then renamed: a reader (or a second run) never sees half a file.
     partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.npz")
     np.savez_compressed(

@@ -70,7 +70,7 @@ def quantize_pose_model(
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
     output_path = Path(output_path) if output_path else default_int8_path()
-    output_path.parent.mkdir(parents=True, exist_ok=True)
+    models.make_cache_folder(output_path.parent)
     tensors = [prepare_input(f, input_height_px)[0] for f in calibration_frames]
     if not tensors:
         raise ValueError("INT8 calibration needs at least one frame")

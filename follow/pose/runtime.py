@@ -89,10 +89,9 @@ def tensorrt_options() -> dict[str, object]:
     keyed by onnxruntime from the model and the device, so only the first start on a
     board pays the engine build (minutes on a Jetson). FP16 is on: the board's tensor
     cores run it, and the network's outputs are smooth maps that lose nothing to it."""
-    from follow.models import cache_dir
+    from follow.models import cache_dir, make_cache_folder
 
-    engines = cache_dir() / "tensorrt"
-    engines.mkdir(parents=True, exist_ok=True)
+    engines = make_cache_folder(cache_dir() / "tensorrt")
     return {
         "trt_engine_cache_enable": True,
         "trt_engine_cache_path": str(engines),

@@ -113,7 +113,7 @@ def initial_stage_file(model_path: Path) -> Path:
         raise StageCutError(f"pose model {model_path}: {exc}") from None
     weights = {t.name for t in model.graph.initializer}
     inputs = [i.name for i in model.graph.input if i.name not in weights]
-    target.parent.mkdir(parents=True, exist_ok=True)
+    models.make_cache_folder(target.parent)
     model_manifest.install(
         target, model_path, {"cut": "initial stage"},
         lambda partial: onnx.utils.extract_model(str(model_path), str(partial), inputs,
