@@ -25,6 +25,11 @@ def test_no_data_dir_at_all_says_so(capsys, monkeypatch):
     monkeypatch.delenv("FOLLOW_DATA_DIR", raising=False)
     err = _error(capsys, ["eval", "verification"])
     assert "no --data-dir given and $FOLLOW_DATA_DIR is not set" in err
+    from follow.eval.verification import data_root
+
+    with pytest.raises(ValueError) as err:  # bench --scene robot, pose-scene: no --data-dir
+        data_root(None, has_option=False)
+    assert str(err.value) == "$FOLLOW_DATA_DIR is not set"
 
 
 @pytest.mark.parametrize("count", ["-1", "0", "3"])

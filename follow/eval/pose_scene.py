@@ -84,7 +84,7 @@ def main(args) -> dict:
     detectors = {name: PoseDetector(pose) for name, pose in settings.items()}
     rows = []
     for people, far_m in args.scenes:
-        scene = RobotScene(data_root(None), people, far_m, args.frames)
+        scene = RobotScene(data_root(None, has_option=False), people, far_m, args.frames)
         row = {"people": people, "far_m": far_m, "distances_m": scene.distances_m}
         for name, detector in detectors.items():
             detector.reset_input_sizing()

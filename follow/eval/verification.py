@@ -288,15 +288,16 @@ def verify_robot_crops(model, folder: Path, config: IdentifyConfig, variant: Var
     return operating_figures(scores[: len(probes)], scores[len(probes) :])
 
 
-def data_root(data_dir: str | None) -> Path:
+def data_root(data_dir: str | None, has_option: bool = True) -> Path:
     """The data folder: `--data-dir`, else $FOLLOW_DATA_DIR; an error names which one
-    is missing or is no folder."""
+    is missing or is no folder (`has_option` False: a command without --data-dir)."""
     if data_dir:
         source, root = "--data-dir", data_dir
     else:
         source, root = "$FOLLOW_DATA_DIR", os.environ.get("FOLLOW_DATA_DIR") or ""
     if not root:
-        raise ValueError("no --data-dir given and $FOLLOW_DATA_DIR is not set")
+        given = "no --data-dir given and " if has_option else ""
+        raise ValueError(f"{given}$FOLLOW_DATA_DIR is not set")
     if not Path(root).is_dir():
         raise ValueError(f"{source} {root}: no such folder")
     return Path(root)
