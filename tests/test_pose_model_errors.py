@@ -33,3 +33,15 @@ def test_a_file_that_is_no_model_is_refused_by_name_when_cut_to_one_stage(tmp_pa
     broken.write_bytes(content)
     with pytest.raises(ModelError, match=r"pose model .*pose\.onnx.*network_stages"):
         initial_stage_file(broken)
+
+
+def test_a_folder_or_a_missing_file_to_cut_is_named_as_such(tmp_path):
+    """`eval pose --model-file notes/` was told that network_stages = 1 cuts an ONNX
+    graph, not that it gave a folder."""
+    from follow.pose.stages import initial_stage_file
+
+    (tmp_path / "notes").mkdir()
+    with pytest.raises(ModelError, match=r"notes: a folder, not an ONNX model file"):
+        initial_stage_file(tmp_path / "notes")
+    with pytest.raises(ModelError, match=r"gone\.onnx: no such file, not an ONNX model file"):
+        initial_stage_file(tmp_path / "gone.onnx")

@@ -88,6 +88,9 @@ def initial_stage_file(model_path: Path) -> Path:
     import onnx.utils
 
     model_path = Path(model_path)
+    if not model_path.is_file():
+        what = "a folder" if model_path.is_dir() else "no such file"
+        raise StageCutError(f"pose model {model_path}: {what}, not an ONNX model file")
     if model_path.suffix != ".onnx":
         raise StageCutError(
             f"pose model {model_path}: network_stages = 1 cuts an ONNX graph; "
