@@ -317,6 +317,15 @@ def _source_url(f: ModelFile, source: str | None) -> str | None:
     return (Path(source).resolve() / f.relpath).as_uri()
 
 
+_FILE_MODE = 0o666  # what open() gives a new file, before the umask
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def _download(url: str, target: Path, sha256: str) -> None:
     """Stream `url` to `target` via a temporary file, checking the hash on the way."""
     from tqdm import tqdm
@@ -360,7 +369,8 @@ def _download(url: str, target: Path, sha256: str) -> None:
                 f"download {url}: sha256 {actual} does not match the pinned {sha256}; "
                 "the file was not kept"
             )
-        os.replace(tmp, target)
+        os.chmod(tmp, _FILE_MODE & ~_umask())  # mkstemp's 0600: a shared model folder
+        os.replace(tmp, target)  # would be readable by its owner alone
         log.info("fetched %s", target)
     finally:
         out.close()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import http.server
 import json
+import os
 import shutil
 import threading
 
@@ -156,6 +157,10 @@ def test_cli_fetch_and_verify(http_server, cache, capsys):
     listing = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     present = {m["name"]: m["present"] for m in listing["models"]}
     assert present["ccf10"] and not present["ccf25"]
+    mask = os.umask(0)
+    os.umask(mask)
+    for f in (cache / "ccf/ccf10").iterdir():  # as any new file, not mkstemp's 0600
+        assert f.stat().st_mode & 0o777 == 0o666 & ~mask, f
 
 
 def test_unknown_model_name(cache):
