@@ -202,7 +202,8 @@ def bench_scene(args):
     from follow.eval.robot_scene import RobotScene
     from follow.eval.verification import data_root
 
-    scene = RobotScene(data_root(None, has_option=False), args.people, args.far_m, args.warmup + args.frames)
+    root = data_root(None, has_option=False)
+    scene = RobotScene(root, args.people, args.far_m, args.warmup + args.frames)
     far = f", the others 3-{args.far_m:g} m" if args.people > 1 else ""
     return scene, f"robot view, {args.people} people (target 2.5 m{far})"
 
