@@ -118,3 +118,15 @@ def test_a_node_clock_that_stops_advancing_stops_the_base():
     now[0] += 0.05  # the simulator runs again
     gate.update_odometry(Odometry.origin(now[0]))
     assert gate.send(VelocityCommand(0.5, 0.0, now[0])).forward_mps == 0.5
+
+
+def test_options_given_after_ros_args_are_named(capsys):
+    """`follow ros2 --ros-args -p x:=1 --camera cam.yaml`: --ros-args takes everything
+    after it, and argparse said only that --camera was required."""
+    from follow import cli
+
+    assert cli.main(["ros2", "--ros-args", "-p", "x:=1", "--camera", "cam.yaml"]) == 1
+    err = capsys.readouterr().err
+    assert "--camera came after --ros-args" in err and "give --ros-args last" in err
+    assert cli.main(["ros2"]) == 1
+    assert "--camera is required" in capsys.readouterr().err
