@@ -512,16 +512,22 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
             break
 
 
+def _same_path(logged, given) -> bool:
+    """Whether a path named in a log's header and one given now are the same: the same
+    text, or two existing paths to one file."""
+    if str(logged) == str(given):
+        return True
+    return (Path(str(logged)).exists() and Path(given).exists()
+            and Path(str(logged)).resolve() == Path(given).resolve())  # fmt: skip
+
+
 def check_replay_source(header: dict, log_path: str, source: str) -> None:
     """Refuse to replay a log against another source than the one it was made from (the
     skeletons would be compared with other frames, and agree by chance)."""
     logged = header.get("source")
     if logged is None:
         raise ValueError(f"--replay {log_path}: the log's header names no source")
-    same = str(logged) == str(source)
-    if not same and Path(str(logged)).exists() and Path(source).exists():
-        same = Path(str(logged)).resolve() == Path(source).resolve()
-    if not same:
+    if not _same_path(logged, source):
         raise ValueError(f"--replay {log_path}: the log is of source {logged}, not {source}")
 
 
@@ -529,11 +535,8 @@ def warn_if_other_camera(header: dict, camera: str | Path) -> None:
     """A replay through another camera file than the run's is allowed (a new calibration
     tried on old data), but its tracks will differ from the run's for that reason alone."""
     logged = header.get("camera")
-    if logged is None or str(logged) == str(camera):
+    if logged is None or _same_path(logged, camera):
         return
-    if Path(str(logged)).exists() and Path(camera).exists():
-        if Path(str(logged)).resolve() == Path(camera).resolve():
-            return
     log.warning("replaying through camera file %s; the run used %s: tracks and targets may "
                 "differ for that alone", camera, logged)  # fmt: skip
 
