@@ -10,7 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from follow.cli_args import MAX_CAMERA_INDEX
+from follow.cli_args import camera_index_too_large, no_camera_at
 
 log = logging.getLogger(__name__)
 
@@ -99,16 +99,12 @@ def iter_video_frames(
             raise ImageInputError(f"video {source}: no such file")
         capture = cv2.VideoCapture(str(source))
     else:
-        if int(source) > MAX_CAMERA_INDEX:
-            raise ImageInputError(f"camera {source}: no camera index is that large (at most "
-                                  f"{MAX_CAMERA_INDEX})")  # fmt: skip
+        if too_large := camera_index_too_large(str(source)):
+            raise ImageInputError(f"camera {source}: {too_large}")
         capture = cv2.VideoCapture(int(source))
     if not capture.isOpened():
         if camera_index:
-            raise ImageInputError(
-                f"camera {source}: no camera at index {source} can be opened "
-                "(ls /dev/video*: the index is the number after video)"
-            )
+            raise ImageInputError(f"camera {source}: {no_camera_at(source)}")
         raise ImageInputError(f"video {source}: cannot be opened")
     try:
         index = taken = 0

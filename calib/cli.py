@@ -15,7 +15,7 @@ import logging
 import math
 import sys
 
-from follow.cli_args import error_text, is_library_error
+from follow.cli_args import is_library_error, print_error
 
 # command -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -70,9 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         if not isinstance(exc, ValueError | OSError) and not is_library_error(exc):
             raise  # a bug of ours: its traceback is what a report needs
-        print(f"follow-calib {args.command}: error: {error_text(exc)}", file=sys.stderr)
-        if getattr(args, "json", False):
-            print(json.dumps({"error": error_text(exc)}))
+        print_error(f"follow-calib {args.command}", exc, getattr(args, "json", False))
         return 2
     if getattr(args, "json", False) and result is not None:
         print(json.dumps(_jsonable(result)))

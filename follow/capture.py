@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from follow.cli_args import MAX_CAMERA_INDEX
+from follow.cli_args import camera_index_too_large, no_camera_at
 from follow.handoff import Mailbox
 from follow.repeated_image import RepeatedImages
 from follow.types import Frame, InvalidInput
@@ -64,9 +64,8 @@ class FrameSource:
             self.fps = folder_fps
             return
         if spec.isdigit():
-            if int(spec) > MAX_CAMERA_INDEX:
-                raise SourceError(f"source {spec}: no camera index is that large (at most "
-                                  f"{MAX_CAMERA_INDEX}; a file named so: ./{spec})")  # fmt: skip
+            if too_large := camera_index_too_large(spec):
+                raise SourceError(f"source {spec}: {too_large}; a file named so: ./{spec}")
             self._cap = cv2.VideoCapture(int(spec))
             self.live = True
         elif "!" in spec:  # a GStreamer pipeline, e.g. a Jetson CSI camera
@@ -79,10 +78,7 @@ class FrameSource:
             self.live = path.is_char_device()  # a camera's node: /dev/video0, /dev/v4l/by-id/...
         if not self._cap.isOpened():
             if self.live and spec.isdigit():
-                raise SourceError(
-                    f"source {spec}: no camera at index {spec} can be opened "
-                    "(ls /dev/video*: the index is the number after video)"
-                )
+                raise SourceError(f"source {spec}: {no_camera_at(spec)}")
             raise SourceError(f"source {spec}: cannot be opened by OpenCV")
         fps = self._cap.get(cv2.CAP_PROP_FPS)
         self.fps = fps if fps and np.isfinite(fps) and fps > 0 else 15.0

@@ -13,7 +13,7 @@ import json
 import logging
 import sys
 
-from follow.cli_args import error_text, is_library_error
+from follow.cli_args import is_library_error, print_error
 
 # (command, subcommand or None) -> (module, one-line help); one row per command.
 # fmt: off
@@ -115,9 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         if not isinstance(exc, ValueError | OSError | RuntimeError) and not is_library_error(exc):
             raise  # a bug of ours: its traceback is what a report needs
-        print(f"follow {args.command}: error: {error_text(exc)}", file=sys.stderr)
-        if getattr(args, "json", False):  # a script reading the last line gets a line
-            print(json.dumps({"error": error_text(exc)}))
+        print_error(f"follow {args.command}", exc, getattr(args, "json", False))
         return 1
     if isinstance(result, int):
         return result

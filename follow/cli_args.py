@@ -5,14 +5,30 @@ before any work is done, instead of failing deep inside an evaluation."""
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import re
+import sys
 import tempfile
 from pathlib import Path
 
 # The largest camera index a source may name: OpenCV takes a C int (which may add a
 # back-end, 200 + n: V4L2).
 MAX_CAMERA_INDEX = 2**31 - 1
+
+
+def camera_index_too_large(index_text: str) -> str | None:
+    """Why a source of digits can name no camera, or None: `follow run` and
+    `follow-calib` read camera indices alike and say the same of them."""
+    if int(index_text) > MAX_CAMERA_INDEX:
+        return f"no camera index is that large (at most {MAX_CAMERA_INDEX})"
+    return None
+
+
+def no_camera_at(index) -> str:
+    """What to say of a camera index that OpenCV cannot open."""
+    return (f"no camera at index {index} can be opened (ls /dev/video*: the index is the "
+            "number after video)")  # fmt: skip
 
 
 def _number(text: str, kind: type):
@@ -127,6 +143,15 @@ def is_library_error(exc: BaseException) -> bool:
     """Whether `exc` is one of those libraries' own error classes: bad input met inside
     the library, to be reported in one line like any other (not a crash of ours)."""
     return type(exc).__module__.split(".")[0] in _LIBRARIES_WITH_OWN_ERRORS
+
+
+def print_error(command: str, exc: BaseException, as_json: bool) -> None:
+    """`exc` as one line on stderr, after the command's name; with `--json` also as
+    stdout's last line, `{"error": ...}`, so that a script reading that line gets one."""
+    text = error_text(exc)
+    print(f"{command}: error: {text}", file=sys.stderr)
+    if as_json:
+        print(json.dumps({"error": text}))
 
 
 # OpenCV's list marks, `> Overload resolution failed:`, `>  - src is not ...` (never the

@@ -168,9 +168,13 @@ def make_cache_folder(folder: Path) -> Path:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OSError(f"cannot write {folder}, in the cache ($FOLLOW_CACHE_DIR, now "
-                      f"{cache_dir()}): {exc.strerror or exc}") from exc  # fmt: skip
+        raise OSError(_cache_write_error(folder, exc)) from exc
     return folder
+
+
+def _cache_write_error(folder: Path, exc: OSError) -> str:
+    return (f"cannot write {folder}, in the cache ($FOLLOW_CACHE_DIR, now {cache_dir()}): "
+            f"{exc.strerror or exc}")  # fmt: skip
 
 
 def search_dirs() -> list[Path]:
@@ -334,11 +338,8 @@ def _download(url: str, target: Path, sha256: str) -> None:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
                                         suffix=".part")  # fmt: skip
-    except OSError as exc:
-        raise ModelError(
-            f"cannot write model files under {target.parent} (the model cache, "
-            f"$FOLLOW_CACHE_DIR: {cache_dir()}): {exc.strerror or exc}"
-        ) from exc
+    except OSError as exc:  # a ModelError: fetching everything goes on to the next model
+        raise ModelError(_cache_write_error(target.parent, exc)) from exc
     digest = hashlib.sha256()
     tmp = Path(tmp_name)
     out = os.fdopen(fd, "wb")  # closed on every path, a download that never starts included

@@ -255,7 +255,7 @@ def test_a_model_cache_that_cannot_be_written_is_named_as_the_cache(tmp_path, mo
     blocker.write_text("x")
     monkeypatch.setenv("FOLLOW_CACHE_DIR", str(blocker / "cache"))
     target = models.cache_dir() / "ccf/ccf10/conv_t1"
-    with pytest.raises(models.ModelError, match=r"the model cache, \$FOLLOW_CACHE_DIR"):
+    with pytest.raises(models.ModelError, match=r"in the cache \(\$FOLLOW_CACHE_DIR, now "):
         models._download("file:///nowhere", target, "0" * 64)
 
 
