@@ -43,6 +43,8 @@ def test_too_few_identities_are_refused(tmp_path, capsys, count):
     (["--max-targets", "-1"], "--max-targets"),
     (["--match-distance-m", "0"], "--match-distance-m"),
     (["--min-visible-s", "-5"], "--min-visible-s"),
+    (["--min-visible-s", "0"], "--min-visible-s"),  # every person a target, seen or not
+    (["--max-hidden-fraction", "5"], "--max-hidden-fraction"),  # a share: at most 1
     (["--plot", "timeline.txt"], "--plot"),
 ])  # fmt: skip
 def test_identification_options_are_refused_before_any_data_is_read(capsys, monkeypatch,

@@ -28,8 +28,8 @@ from typing import NamedTuple
 import numpy as np
 
 from follow.cli_args import (
+    float_within,
     identifier_list,
-    non_negative_float,
     non_negative_int,
     plot_path,
     positive_float,
@@ -69,13 +69,13 @@ def add_arguments(p) -> None:
     add_evaluation_arguments(p)
     p.add_argument("--identifiers", default=",".join(IDENTIFIERS), type=identifier_list,
                    help=f"comma-separated identifier configurations (default {','.join(IDENTIFIERS)})")  # fmt: skip
-    p.add_argument("--min-visible-s", type=non_negative_float, default=20.0,
+    p.add_argument("--min-visible-s", type=positive_float, default=20.0,
                    help="people visible at least this long become targets")  # fmt: skip
     p.add_argument("--max-targets", type=non_negative_int, default=0,
                    help="evaluate at most this many targets (0 = all)")  # fmt: skip
     p.add_argument("--match-distance-m", type=positive_float, default=1.0,
                    help="a named track within this of the target on the floor is the target")  # fmt: skip
-    p.add_argument("--max-hidden-fraction", type=non_negative_float, default=0.5,
+    p.add_argument("--max-hidden-fraction", type=float_within(0.0, 1.0), default=0.5,
                    help="the target counts as visible while at most this much of its box "
                         "is hidden")  # fmt: skip
     p.add_argument("--whole-sequence", action="store_true",
