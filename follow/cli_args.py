@@ -1,6 +1,7 @@
 """argparse types for counts and quantities: a value out of range is refused by
 argparse with the option named (`argument --frames: expected an integer >= 1, got '0'`)
-before any work is done, instead of failing deep inside an evaluation."""
+before any work is done, instead of failing deep inside an evaluation. Also what
+`follow` and `follow-calib` alike say of bad input: camera indices, one-line errors."""
 
 from __future__ import annotations
 
