@@ -38,3 +38,14 @@ def test_random_appearances_are_deterministic():
     a = Appearance.random(np.random.default_rng(3))
     b = Appearance.random(np.random.default_rng(3))
     assert a == b
+
+
+def test_a_frame_drawn_on_does_not_change_the_next_frames_background():
+    """The background is drawn once per size, horizon and seed and copied for each frame:
+    people drawn on one frame must not show in the next."""
+    empty = render_scene((320, 480), 200, [])
+    with_person = render_scene((320, 480), 200, [_view(160, 4.0, RED)])
+    assert not np.array_equal(empty, with_person)
+    assert np.array_equal(render_scene((320, 480), 200, []), empty)
+    assert not np.array_equal(render_scene((320, 480), 200, [], seed=1), empty)
+    assert not np.array_equal(render_scene((320, 480), 150, []), empty)
