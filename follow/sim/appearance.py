@@ -76,8 +76,10 @@ def _background(image_size: tuple[int, int], horizon_v: float, seed: int) -> np.
     return out
 
 
-def _ok(p: np.ndarray) -> bool:
-    return bool(np.isfinite(p).all()) and bool(np.abs(p).max() < 1e5)
+def _drawable(keypoints_px: np.ndarray) -> list[bool]:
+    """Per joint: finite and near enough to the image for OpenCV's integer drawing."""
+    with np.errstate(invalid="ignore"):
+        return (np.abs(keypoints_px) < 1e5).all(axis=1).tolist()  # NaN compares False
 
 
 TORSO_MIN_WIDTH_M = 0.3  # a body seen from the side is still about this wide
@@ -102,15 +104,16 @@ def torso_quad(k: np.ndarray, px_per_m: float) -> np.ndarray:
 def draw_person(image: np.ndarray, view: PersonView) -> None:
     k, a, s = view.keypoints_px, view.appearance, view.px_per_m
     limb = max(1, int(0.11 * s))
+    ok = _drawable(k)
 
     def seg(i: int, j: int, colour) -> None:
-        if _ok(k[i]) and _ok(k[j]):
+        if ok[i] and ok[j]:
             cv2.line(image, tuple(np.int32(k[i])), tuple(np.int32(k[j])), colour, limb, cv2.LINE_AA)
 
     for i, j in LEGS:
         seg(i, j, a.trousers_bgr)
     torso_ids = (R_SHOULDER, L_SHOULDER, L_HIP, R_HIP)
-    if all(_ok(k[i]) for i in torso_ids):
+    if all(ok[i] for i in torso_ids):
         quad = torso_quad(k, s)
         cv2.fillConvexPoly(image, quad, a.shirt_bgr, cv2.LINE_AA)
         if a.stripes_bgr is not None:
@@ -126,7 +129,7 @@ def draw_person(image: np.ndarray, view: PersonView) -> None:
                 image[r, sel] = a.stripes_bgr
     for i, j in ARMS:
         seg(i, j, a.shirt_bgr)
-    if _ok(k[NECK]) and _ok(k[0]):
+    if ok[NECK] and ok[0]:
         head_r = max(1, int(0.11 * s))
         centre = tuple(np.int32(k[0]))
         cv2.circle(image, centre, head_r, a.skin_bgr, -1, cv2.LINE_AA)
