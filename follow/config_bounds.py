@@ -209,14 +209,17 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "turn_in_place_bearing_rad": positive(math.pi),
         # Stale targets must stop the robot within a couple of seconds at most.
         "target_timeout_s": positive(2.0),
-        # Driving toward an unseen target, and a stalled perception, are bounded hard.
+        # Driving toward an unseen target, and a stalled perception, are bounded hard:
+        # a frozen result (the target seen in it) is driven on at the speed of that
+        # moment until the watchdog trips, so that wait is held to the blind drive's.
         "max_blind_drive_s": positive(1.0),
-        "watchdog_timeout_s": positive(2.0),
+        "watchdog_timeout_s": positive(1.0),
         "camera_stall_timeout_s": closed(0.0, 600.0),
         "missing_target_warn_s": positive(600.0),
         "search_duration_s": closed(0.0, 10.0),
         "search_yaw_rate_radps": closed(0.0, 3.0),
-        "control_rate_hz": closed(1.0, 100.0),
+        # The zero after a stall leaves on the next tick: a period adds to the watchdog.
+        "control_rate_hz": closed(5.0, 100.0),
     },
     "mavlink": {
         "heartbeat_timeout_s": positive(10.0),

@@ -19,7 +19,7 @@ def test_the_defaults_pass_validation():
             "[control]\ntarget_timeout_s = 1e9\n",
             r"\[control\] target_timeout_s = 1000000000.0 is out of range: 0 < value <= 2",
         ),
-        ("[control]\ncontrol_rate_hz = 1e9\n", r"\[control\] control_rate_hz .* 1 <= value <= 100"),
+        ("[control]\ncontrol_rate_hz = 1e9\n", r"\[control\] control_rate_hz .* 5 <= value <= 100"),
         ("[control]\nmax_forward_speed_mps = 1e9\n", r"\[control\] max_forward_speed_mps"),
         (
             "[tracker]\ngate_chi2_quantile = 1.5\n",

@@ -104,7 +104,9 @@ def test_view_cone_of_a_camera_and_no_forward_outside_it():
 @pytest.mark.parametrize(
     "key, value",
     [("max_blind_drive_s", 5.0), ("max_blind_drive_s", 0.0), ("watchdog_timeout_s", 1e9),
-     ("watchdog_timeout_s", -1.0), ("missing_target_warn_s", float("nan"))],
+     # a frozen result is driven on unslowed until the watchdog: no longer than blind
+     ("watchdog_timeout_s", 1.5), ("watchdog_timeout_s", -1.0),
+     ("control_rate_hz", 1.0), ("missing_target_warn_s", float("nan"))],
 )  # fmt: skip
 def test_safety_timeouts_are_bounded(key, value):
     with pytest.raises(ConfigError, match=key):

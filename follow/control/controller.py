@@ -20,15 +20,18 @@ import math
 import numpy as np
 
 from follow.config import ConfigError, ControlConfig
+from follow.config_bounds import BOUNDS
 from follow.control.target import TargetMotion, ViewCone
 from follow.freshness import is_fresh
 from follow.types import InvalidInput, VelocityCommand
 
 log = logging.getLogger(__name__)
 
-# Upper bounds of the safety timeouts: beyond them a robot drives too far on stale data.
-MAX_BLIND_DRIVE_S = 1.0
-MAX_WATCHDOG_TIMEOUT_S = 2.0
+# Upper bounds of the safety timeouts (the configuration's, follow.config_bounds): beyond
+# them a robot drives too far on stale data.
+MAX_BLIND_DRIVE_S = BOUNDS["control"]["max_blind_drive_s"].hi
+MAX_WATCHDOG_TIMEOUT_S = BOUNDS["control"]["watchdog_timeout_s"].hi
+MIN_CONTROL_RATE_HZ = BOUNDS["control"]["control_rate_hz"].lo
 
 
 def check_control_config(config: ControlConfig) -> None:
@@ -58,6 +61,11 @@ def check_control_config(config: ControlConfig) -> None:
                 f"[control] {name} must be <= {most} (a robot must not drive that long on "
                 f"stale data), got {getattr(config, name)}"
             )
+    if config.control_rate_hz < MIN_CONTROL_RATE_HZ:
+        raise ConfigError(
+            f"[control] control_rate_hz must be >= {MIN_CONTROL_RATE_HZ:g} (the stop after a "
+            f"stall waits for the next tick), got {config.control_rate_hz}"
+        )
     if config.search_yaw_rate_radps > config.max_yaw_rate_radps:
         raise ConfigError(
             f"[control] search_yaw_rate_radps ({config.search_yaw_rate_radps}) exceeds "
