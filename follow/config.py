@@ -456,7 +456,7 @@ class Config:
         """A TOML file over `base` (or the defaults)."""
         path = Path(path)
         try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
+            data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a byte order mark is dropped
         except OSError as exc:
             raise ConfigError(f"config {path}: cannot read ({exc.strerror})") from None
         except UnicodeDecodeError as exc:

@@ -22,6 +22,13 @@ def test_a_binary_config_is_named(tmp_path):
         Config.load(path)
 
 
+def test_a_config_saved_with_a_byte_order_mark_is_read(tmp_path):
+    """Windows editors start UTF-8 files with a byte order mark; camera files take it too."""
+    path = tmp_path / "robot.toml"
+    path.write_bytes(b"\xef\xbb\xbf[control]\nfollowing_distance_m = 2.5\n")
+    assert Config.load(path).control.following_distance_m == 2.5
+
+
 def test_a_binary_camera_file_is_named(tmp_path):
     path = tmp_path / "cam.yaml"
     path.write_bytes(BINARY)
