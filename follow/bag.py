@@ -82,8 +82,11 @@ class BagSource:
         self.camera_info = None
         if camera_info_topic:
             info = self._connections(camera_info_topic, (CAMERA_INFO_TYPE,))
-            for connection, _, raw in self._reader.messages(info):
-                self.camera_info = self._reader.deserialize(raw, connection.msgtype)
+            for connection, log_time_ns, raw in self._reader.messages(info):
+                try:
+                    self.camera_info = self._decode(raw, connection, log_time_ns)
+                except InvalidInput as exc:
+                    raise SourceError(f"bag {spec}: camera info {exc}") from None
                 break
             if self.camera_info is None:
                 raise SourceError(f"bag {spec}: topic {camera_info_topic} holds no message")
@@ -95,6 +98,18 @@ class BagSource:
         self.fps = self._frame_rate()
         self.frames_without_odometry = 0
         self.repeated_frames = 0  # images not stamped after the one before: skipped
+        self.damaged_images = 0  # image messages whose bytes do not decode: skipped
+
+    def _decode(self, raw: bytes, connection, log_time_ns: int):
+        """The message in `raw`, or InvalidInput naming the topic and time where its bytes
+        do not decode as the connection's type (a damaged bag: one message, not the run)."""
+        try:
+            return self._reader.deserialize(raw, connection.msgtype)
+        except Exception as exc:  # rosbags raises its own errors, struct's and others
+            raise InvalidInput(
+                f"{connection.topic} at {log_time_ns * 1e-9:.3f} s does not decode as "
+                f"{connection.msgtype} ({type(exc).__name__}: {exc})"
+            ) from None
 
     def _connections(self, topic: str, types: tuple[str, ...]) -> list:
         found = [c for c in self._reader.connections if c.topic == topic]
@@ -110,7 +125,7 @@ class BagSource:
         poses, bad = [], []
         for c, log_time_ns, raw in self._reader.messages(connections):
             try:
-                pose = odometry_from_msg(self._reader.deserialize(raw, c.msgtype))
+                pose = odometry_from_msg(self._decode(raw, c, log_time_ns))
             except InvalidInput as exc:  # one bad sample: a gap, not an unreadable bag
                 bad.append(f"{log_time_ns * 1e-9:.3f} s: {exc}")
                 continue
@@ -134,9 +149,13 @@ class BagSource:
 
         from follow.runlog import skeleton_from_json
 
-        stamps, skeletons = [], []
+        stamps, skeletons, damaged = [], [], []
         for c, log_time_ns, raw in self._reader.messages(connections):
-            text = self._reader.deserialize(raw, c.msgtype).data
+            try:
+                text = self._decode(raw, c, log_time_ns).data
+            except InvalidInput as exc:  # its frame is run without recorded skeletons
+                damaged.append(str(exc))
+                continue
             try:
                 skeletons.append([skeleton_from_json(d) for d in json.loads(text)])
             except (ValueError, KeyError, TypeError) as exc:
@@ -146,6 +165,9 @@ class BagSource:
                     f"writes them: is it the skeletons topic?): {type(exc).__name__}: {exc}"
                 ) from None
             stamps.append(log_time_ns * 1e-9)
+        if damaged:
+            log.warning("bag %s: %d skeleton message(s) skipped (first: %s)",
+                        self.spec, len(damaged), damaged[0])  # fmt: skip
         order = sorted(range(len(stamps)), key=stamps.__getitem__)
         return [stamps[i] for i in order], [skeletons[i] for i in order]
 
@@ -171,7 +193,12 @@ class BagSource:
     def __iter__(self) -> Iterator[Frame]:
         last_stamp = None
         for connection, log_time_ns, raw in self._reader.messages(self._images):
-            msg = self._reader.deserialize(raw, connection.msgtype)
+            try:
+                msg = self._decode(raw, connection, log_time_ns)
+            except InvalidInput as exc:
+                self.damaged_images += 1
+                log.warning("skipping an image: %s", exc)
+                continue
             stamp = stamp_s(msg.header)
             if stamp == 0.0:  # an unstamped image: the time it was recorded
                 stamp = log_time_ns * 1e-9

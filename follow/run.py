@@ -454,8 +454,12 @@ def _run_source(args, config: Config, source) -> dict:
     without_odometry = getattr(source, "frames_without_odometry", summary.frames_without_odometry)
     if without_odometry is not None:
         result["frames_without_odometry"] = without_odometry
+    damaged = getattr(source, "damaged_images", 0)  # a bag's image messages that do not decode
+    if damaged:
+        result["damaged_images"] = damaged
     if not args.json:
         skipped = f", {without_odometry} without odometry" if without_odometry else ""
+        skipped += f", {damaged} damaged" if damaged else ""
         print(f"{summary.frames} frames at {result['fps']} fps "
               f"({dropped} dropped{skipped}); states: {summary.states}")  # fmt: skip
         latency = summary.capture_to_command_ms

@@ -446,3 +446,31 @@ def test_a_skeletons_topic_holding_other_json_is_named_as_such(tmp_path, small_f
             bag.write_string("/people", frame.stamp_s, json.dumps({"7": [1.0, 2.0]}))
     with pytest.raises(SourceError, match="/people at .* is not a JSON list of skeletons"):
         BagSource(str(path), "/camera/image_raw", skeletons_topic="/people")
+
+
+def test_a_message_whose_bytes_do_not_decode_is_skipped_not_fatal(
+    tmp_path, small_frames, caplog, capsys
+):
+    """A damaged bag (a few bytes of one image, one odometry sample and one skeletons
+    message): each is skipped with a warning naming its topic and time, the rest is run."""
+    path = tmp_path / "damaged.mcap"
+    poses = odometry_track(small_frames[0].stamp_s, small_frames[-1].stamp_s)
+    damaged_image_s = small_frames[3].stamp_s
+    with BagWriter(path) as bag:
+        for pose in poses:
+            bag.write_odometry("/odom", pose)
+        for frame in small_frames:
+            bag.write_string("/skeletons", frame.stamp_s, "[]")
+            bag.write_image("/camera/image_raw", frame.stamp_s, frame.image, "camera")
+        for topic, stamp_s in (("/camera/image_raw", damaged_image_s + 0.05),
+                               ("/odom", poses[5].stamp_s + 0.001),
+                               ("/skeletons", damaged_image_s + 0.05)):  # fmt: skip
+            bag._writer.write(bag._connections[topic], int(stamp_s * 1e9), b"\xff\x01\x02")
+    source = BagSource(str(path), "/camera/image_raw", "/odom", skeletons_topic="/skeletons")
+    frames = list(source)
+    assert [f.stamp_s for f in frames] == [f.stamp_s for f in small_frames]
+    assert source.damaged_images == 1
+    text = caplog.text
+    assert "skipping an image: /camera/image_raw at" in text and "does not decode" in text
+    assert "1 odometry message(s) on /odom skipped" in text
+    assert "1 skeleton message(s) skipped (first: /skeletons at" in text
