@@ -13,7 +13,7 @@ from pathlib import Path
 
 from calib.camera_file import write_image_atomic
 from calib.chessboard import ImageInputError, is_video, iter_video_frames, read_image
-from calib.cmd_common import image_path
+from calib.cmd_common import image_path, refuse_overwriting_inputs
 from calib.overlay import calibration_overlay, visible_ground_extent
 from follow.camera import CameraModel
 from follow.cli_args import positive_float
@@ -56,6 +56,7 @@ def _frame(source: str, index: int):
 
 
 def main(args: argparse.Namespace) -> dict:
+    refuse_overwriting_inputs({"source": args.source, "--camera": args.camera}, {"-o": args.output})
     camera = CameraModel.load(args.camera)
     frame = _frame(args.source, args.frame)
     h, w = frame.shape[:2]

@@ -67,3 +67,22 @@ def read_grey_frames(
     refuse_videos_among_images(sources)
     out = [(path.name, to_gray(read_image(path), str(path))) for path in sources]
     return out[:limit] if limit else out
+
+
+def refuse_overwriting_inputs(inputs: dict, outputs: dict) -> None:
+    """Refuse, before anything is read or written, an output that is one of the inputs
+    (a photo, a video, a Tsai file, a camera file read but not rewritten) or another
+    output, or that is a folder: found after the calibration, the photo is already lost.
+    `inputs`: name -> path, list of paths or None; `outputs`: name -> path."""
+    seen: dict[Path, str] = {}
+    for name, value in inputs.items():
+        for path in value if isinstance(value, list) else [value]:
+            if path is not None and str(path) and Path(path).exists():
+                seen[Path(path).resolve()] = f"{name} {path}"
+    for name, path in outputs.items():
+        resolved = Path(path).resolve()
+        if resolved in seen:
+            raise ValueError(f"{name} {path} is also the {seen[resolved]}: it would be overwritten")
+        if resolved.is_dir():
+            raise ValueError(f"{name} {path} is a folder: give a file name")
+        seen[resolved] = f"{name} {path}"

@@ -9,7 +9,12 @@ from pathlib import Path
 
 from calib.camera_file import write_camera_file, write_image_atomic
 from calib.chessboard import ImageInputError
-from calib.cmd_common import add_board_arguments, image_path, read_grey_frames
+from calib.cmd_common import (
+    add_board_arguments,
+    image_path,
+    read_grey_frames,
+    refuse_overwriting_inputs,
+)
 from calib.ground import average_frames, estimate_ground_pose
 from calib.overlay import calibration_overlay
 from follow.camera import CameraModel
@@ -57,6 +62,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> dict:
+    output = args.output or args.camera
+    overlay_path = args.overlay or output.with_name(output.stem + "_ground.png")
+    inputs = {"input": list(args.inputs)}
+    if output.resolve() != args.camera.resolve():  # else the camera file is rewritten in place
+        inputs["--camera"] = args.camera
+    refuse_overwriting_inputs(inputs, {"-o": output, "--overlay": overlay_path})
     camera = CameraModel.load(args.camera)
     if args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
@@ -76,7 +87,6 @@ def main(args: argparse.Namespace) -> dict:
         old = camera.pose
         pose = result.pose(old.yaw_rad, old.x_m, old.y_m)
     calibrated = camera.with_pose(pose)
-    output = args.output or args.camera
     notes = {
         "pose": "follow-calib ground",
         "pose_board_rms_px": round(result.reprojection_rms_px, 4),
@@ -87,7 +97,6 @@ def main(args: argparse.Namespace) -> dict:
     centre_base = rotation_2d(pose.yaw_rad) @ result.board_centre_level_m + [pose.x_m, pose.y_m]
     board_yaw_base = math.degrees(result.board_yaw_level_rad + pose.yaw_rad)
     board_yaw_base = (board_yaw_base + 180.0) % 360.0 - 180.0
-    overlay_path = args.overlay or output.with_name(output.stem + "_ground.png")
     lines = [
         f"height {pose.height_m:.3f} m  pitch {math.degrees(pose.pitch_rad):.2f} deg  "
         f"roll {math.degrees(pose.roll_rad):.2f} deg",

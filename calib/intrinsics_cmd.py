@@ -12,7 +12,12 @@ import numpy as np
 from calib import intrinsics as intr
 from calib.camera_file import write_camera_file
 from calib.chessboard import ImageInputError, iter_video_frames, list_inputs, read_image
-from calib.cmd_common import add_board_arguments, refuse_videos_among_images, video_source
+from calib.cmd_common import (
+    add_board_arguments,
+    refuse_overwriting_inputs,
+    refuse_videos_among_images,
+    video_source,
+)
 from follow.camera import PLACEHOLDER_POSE_NOTE, CameraFileError, CameraModel, CameraPose
 from follow.cli_args import non_negative_float, positive_float
 
@@ -116,6 +121,7 @@ def main(args: argparse.Namespace) -> dict:
             f"--every must be >= 1 and --max-views >= {intr.MIN_VIEWS}, "
             f"got {args.every} and {args.max_views}"
         )
+    refuse_overwriting_inputs({"input": list(args.inputs)}, {"-o": args.output})
     paths = _image_files(args.inputs)
     camera_index = paths is None and video_source(args.inputs).isdigit()
     kept_pose = _pose_to_keep(args.output)

@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 from calib.camera_file import write_camera_file
+from calib.cmd_common import refuse_overwriting_inputs
 from calib.gt_boxes import motion_figures, read_boxes
 from calib.tsai import TsaiCamera
 from follow.cli_args import positive_float
@@ -37,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> dict:
+    refuse_overwriting_inputs({"Tsai file": args.tsai_xml, "--boxes": args.boxes},
+                              {"-o": args.output})  # fmt: skip
     tsai = TsaiCamera.from_xml(args.tsai_xml)
     # Read before the camera file is written: a bad box file must not cost the old one.
     boxes = read_boxes(args.boxes) if args.boxes is not None else None

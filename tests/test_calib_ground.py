@@ -386,3 +386,41 @@ def test_a_board_size_in_the_wrong_unit_is_warned_of(board_scene, capsys):
     assert out["height_m"] == pytest.approx(0.08, abs=0.002)
     [warning] = out["warnings"]
     assert "outside 0.1-5 m" in warning and "--square-size-m (0.01)" in warning
+
+
+@pytest.mark.parametrize(
+    "extra, named",
+    [([], "--overlay"),  # the camera file cam0.yaml's overlay would be cam0_ground.png
+     (["-o", "{board}"], "-o"), (["--overlay", "{board}"], "--overlay")],
+)  # fmt: skip
+def test_no_output_of_the_ground_command_overwrites_its_photo(board_scene, capsys, extra, named):
+    cam, folder = board_scene
+    photo = folder / "cam0_ground.png"
+    photo.write_bytes((folder / "board0.png").read_bytes())
+    (folder / "cam0.yaml").write_bytes((folder / "cam.yaml").read_bytes())
+    before = photo.read_bytes(), (folder / "cam0.yaml").read_bytes()
+    argv = [str(photo), "--camera", str(folder / "cam0.yaml"), "--pattern", "7x5",
+            "--square-size-m", "0.1", *[a.format(board=photo) for a in extra]]  # fmt: skip
+    assert cli.main(["ground", *argv]) == 2
+    err = capsys.readouterr().err
+    assert f"{named} {photo} is also the input {photo}: it would be overwritten" in err
+    assert (photo.read_bytes(), (folder / "cam0.yaml").read_bytes()) == before
+
+
+def test_other_calibration_commands_refuse_to_overwrite_their_inputs(board_scene, capsys):
+    cam, folder = board_scene
+    board, camera = folder / "board0.png", folder / "cam.yaml"
+    before = board.read_bytes(), camera.read_bytes()
+    for argv, named in (
+        (["check", str(board), "--camera", str(camera), "-o", str(board)], "source"),
+        (["intrinsics", str(board), str(folder / "board1.png"), "--pattern", "7x5",
+          "--square-size-m", "0.1", "-o", str(board)], "input"),  # fmt: skip
+    ):
+        assert cli.main(argv) == 2
+        assert f"-o {board} is also the {named} {board}" in capsys.readouterr().err
+    assert (board.read_bytes(), camera.read_bytes()) == before
+    (folder / "out").mkdir()
+    assert cli.main(["ground", str(board), "--camera", str(camera), "--pattern", "7x5",
+                     "--square-size-m", "0.1", "-o", str(folder / "out")]) == 2  # fmt: skip
+    assert "is a folder: give a file name" in capsys.readouterr().err
+    assert list((folder / "out").iterdir()) == [] and not (folder / "out_ground.png").exists()
