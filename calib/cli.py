@@ -15,7 +15,7 @@ import logging
 import math
 import sys
 
-from follow.cli_args import is_library_error, print_error
+from follow.cli_args import ArgumentParser, is_library_error, print_error
 
 # command -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -28,7 +28,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     """The parser; only the module of the command being run is imported."""
-    parser = argparse.ArgumentParser(prog="follow-calib", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="follow-calib", description=__doc__.splitlines()[0],
+                            json_requested="--json" in argv)  # fmt: skip
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     chosen = next((a for a in argv if not a.startswith("-")), None)

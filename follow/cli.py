@@ -13,7 +13,7 @@ import json
 import logging
 import sys
 
-from follow.cli_args import is_library_error, print_error
+from follow.cli_args import ArgumentParser, is_library_error, print_error
 
 # (command, subcommand or None) -> (module, one-line help); one row per command.
 # fmt: off
@@ -57,7 +57,8 @@ def _selected(argv: list[str]) -> tuple[str, str | None] | None:
 
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     """The parser; only the module of the command being run is imported."""
-    parser = argparse.ArgumentParser(prog="follow", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="follow", description=__doc__.splitlines()[0],
+                            json_requested="--json" in argv)  # fmt: skip
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     top = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     groups: dict[str, argparse._SubParsersAction] = {}

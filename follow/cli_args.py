@@ -1,7 +1,8 @@
 """argparse types for counts and quantities: a value out of range is refused by
 argparse with the option named (`argument --frames: expected an integer >= 1, got '0'`)
 before any work is done, instead of failing deep inside an evaluation. Also what
-`follow` and `follow-calib` alike say of bad input: camera indices, one-line errors."""
+`follow` and `follow-calib` alike say of bad input: camera indices, one-line errors, a
+refused command line under `--json`."""
 
 from __future__ import annotations
 
@@ -16,6 +17,30 @@ from pathlib import Path
 # The largest camera index a source may name: OpenCV takes a C int (which may add a
 # back-end, 200 + n: V4L2).
 MAX_CAMERA_INDEX = 2**31 - 1
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser, whose refusal of a command line (a bad option value, an unknown
+    option) also ends stdout with `{"error": ...}` when that command line asks for
+    `--json`, as every other error does (`print_error`); it still exits with 2."""
+
+    def __init__(self, *args, json_requested: bool = False, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.json_requested = json_requested
+
+    def add_subparsers(self, **kwargs):
+        kwargs.setdefault("parser_class", _parser_class(self.json_requested))
+        return super().add_subparsers(**kwargs)
+
+    def error(self, message: str):
+        self.print_usage(sys.stderr)
+        if self.json_requested:
+            print(json.dumps({"error": message}), flush=True)
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _parser_class(json_requested: bool):
+    return lambda **kwargs: ArgumentParser(json_requested=json_requested, **kwargs)
 
 
 def camera_index_too_large(index_text: str) -> str | None:

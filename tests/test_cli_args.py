@@ -4,6 +4,7 @@ named, before any work (they used to fail deep inside with a traceback, or run o
 from __future__ import annotations
 
 import argparse
+import json
 
 import pytest
 
@@ -139,3 +140,28 @@ def test_robot_scene_options_without_the_robot_scene_are_refused(options, capsys
     """`follow bench --people 3` timed the PETS frames and ignored the option."""
     assert main(["bench", *options, "--frames", "1"]) == 1
     assert f"{options[0]}: for the robot scene only" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "main, argv",
+    [("follow", ["run", "frames/", "--camera", "cam.yaml", "--max-frames", "abc"]),
+     ("follow", ["bench", "--frames", "-1"]),
+     ("follow-calib", ["ground", "b.png", "--camera", "c.yaml", "--square-size-m", "1",
+                       "--pattern", "7"])],
+)  # fmt: skip
+def test_a_refused_command_line_ends_stdout_with_the_error_under_json(main, argv, capsys):
+    from calib import cli as calib_cli
+    from follow import cli as follow_cli
+
+    run = follow_cli.main if main == "follow" else calib_cli.main
+    for as_json in (False, True):
+        with pytest.raises(SystemExit) as exit_:
+            run(argv + (["--json"] if as_json else []))
+        assert exit_.value.code == 2
+        out, err = capsys.readouterr()
+        message = err.strip().splitlines()[-1].split(": error: ", 1)[1]
+        assert message.startswith("argument --")
+        if as_json:
+            assert json.loads(out.strip().splitlines()[-1]) == {"error": message}
+        else:
+            assert out == ""
