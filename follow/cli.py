@@ -87,7 +87,14 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    trailing = getattr(args, "_names_after_options", None)
+    if extras and trailing and not any(word.startswith("-") for word in extras):
+        # `follow models fetch --from DIR ccf10`: argparse fills a command's list of names
+        # where its first positional stands, and leaves the names after an option over
+        getattr(args, trailing).extend(extras)
+    elif extras:
+        parser.error(f"unrecognized arguments: {' '.join(extras)}")
     sub = getattr(args, "subcommand", None)
     if sub is not None and _selected(argv) != (args.command, sub):
         # an option's value came before the command's name (`follow bench --frames 5 pose`):

@@ -393,6 +393,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--force", action="store_true",
                         help="fetch (or prepare) even if already cached")  # fmt: skip
+    parser.set_defaults(_names_after_options="names")  # names may follow the options too
 
 
 def main(args: argparse.Namespace) -> dict | int:

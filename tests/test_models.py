@@ -148,11 +148,17 @@ def test_a_model_file_with_the_wrong_hash_is_refused(tmp_path, monkeypatch):
 
 def test_cli_fetch_and_verify(http_server, cache, capsys):
     assert cli.main(["models", "verify", "ccf10"]) == 1
-    assert cli.main(["models", "fetch", "ccf10", "--from", http_server]) == 0
+    # the names may follow the options as well as come before them
+    assert cli.main(["models", "fetch", "--from", http_server, "ccf10"]) == 0
     capsys.readouterr()
     assert cli.main(["models", "verify", "ccf10", "--json"]) == 0
     report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert report["ok"] and len(report["files"]) == 2
+    assert cli.main(["models", "verify", "--json", "ccf10"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1]) == report
+    with pytest.raises(SystemExit):  # an unknown option after them is still refused
+        cli.main(["models", "verify", "--json", "ccf10", "--bogus"])
+    assert "unrecognized arguments: ccf10 --bogus" in capsys.readouterr().err
     assert cli.main(["models", "list", "--json"]) == 0
     listing = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     present = {m["name"]: m["present"] for m in listing["models"]}
