@@ -88,7 +88,11 @@ class FrameSource:
     def __iter__(self) -> Iterator[Frame]:
         if self._folder is not None:
             for index, path in enumerate(self._folder):
-                data = path.read_bytes()
+                try:
+                    data = path.read_bytes()
+                except OSError as exc:  # a dangling link, a folder named *.jpg, no access
+                    log.warning("skipping %s: cannot be read (%s)", path, exc.strerror or exc)
+                    continue
                 if not data:
                     log.warning("skipping %s: an empty file", path)
                     continue

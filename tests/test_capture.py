@@ -49,6 +49,17 @@ def test_an_empty_image_file_in_a_folder_is_skipped_as_empty(tmp_path, caplog):
     assert "001.jpg: an empty file" in caplog.text and "cut short" not in caplog.text
 
 
+def test_an_entry_of_a_folder_that_cannot_be_read_is_skipped_not_fatal(tmp_path, caplog):
+    """A dangling link or a folder named like an image: the rest of the run goes on."""
+    for i in (0, 3):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), np.full((20, 30, 3), 40 * i, np.uint8))
+    (tmp_path / "001.png").symlink_to(tmp_path / "gone.png")
+    (tmp_path / "002.png").mkdir()
+    frames = list(FrameSource(str(tmp_path), folder_fps=10.0))
+    assert [int(f.image[0, 0, 0]) for f in frames] == [0, 120]
+    assert "001.png: cannot be read" in caplog.text and "002.png: cannot be read" in caplog.text
+
+
 def test_video_source_reads_frames_with_file_timestamps(tmp_path):
     path = tmp_path / "v.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 5.0, (32, 24))
