@@ -78,14 +78,20 @@ def main(args: argparse.Namespace) -> dict:
         seen = camera.for_image_size(w, h)
     except ValueError as exc:
         raise ImageInputError(f"image against the camera file {args.camera}: {exc}") from None
-    result = estimate_ground_pose(image, seen.K, seen.dist, args.pattern, args.square_size_m)
-    if args.board_in_base is not None:
-        bx, by, byaw_deg = args.board_in_base
-        prior = camera.pose.yaw_rad
-        pose = result.pose_from_board_in_base((bx, by), math.radians(byaw_deg), prior)
-    else:
-        old = camera.pose
-        pose = result.pose(old.yaw_rad, old.x_m, old.y_m)
+    try:
+        result = estimate_ground_pose(image, seen.K, seen.dist, args.pattern, args.square_size_m)
+        if args.board_in_base is not None:
+            bx, by, byaw_deg = args.board_in_base
+            prior = camera.pose.yaw_rad
+            pose = result.pose_from_board_in_base((bx, by), math.radians(byaw_deg), prior)
+        else:
+            old = camera.pose
+            pose = result.pose(old.yaw_rad, old.x_m, old.y_m)
+    except ValueError as exc:  # the board's scale sets the height: a square in cm is 100x
+        if "not a possible mounting" not in str(exc):
+            raise
+        raise ValueError(f"{exc}; is --square-size-m ({args.square_size_m:g}) the side of "
+                         "one square in metres?") from None  # fmt: skip
     calibrated = camera.with_pose(pose)
     notes = {
         "pose": "follow-calib ground",

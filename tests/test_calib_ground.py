@@ -424,3 +424,16 @@ def test_other_calibration_commands_refuse_to_overwrite_their_inputs(board_scene
                      "--square-size-m", "0.1", "-o", str(folder / "out")]) == 2  # fmt: skip
     assert "is a folder: give a file name" in capsys.readouterr().err
     assert list((folder / "out").iterdir()) == [] and not (folder / "out_ground.png").exists()
+
+
+def test_a_square_size_given_in_centimetres_is_named_as_the_likely_cause(board_scene, capsys):
+    """A 10 cm square given as 10 puts the camera 80 m up: no possible mounting, and the
+    message says which option most likely holds the mistake."""
+    cam, folder = board_scene
+    before = (folder / "cam.yaml").read_bytes()
+    assert cli.main(["ground", str(folder / "board0.png"), "--camera", str(folder / "cam.yaml"),
+                     "--pattern", "7x5", "--square-size-m", "10"]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert "is not a possible mounting" in err
+    assert "is --square-size-m (10) the side of one square in metres?" in err
+    assert (folder / "cam.yaml").read_bytes() == before
