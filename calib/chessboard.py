@@ -10,7 +10,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from follow.cli_args import camera_index_too_large, no_camera_at
+from follow.cli_args import (
+    EARLY_END_TOLERANCE_FRAMES,
+    MAX_UNDECODABLE_RUN,
+    camera_index_too_large,
+    no_camera_at,
+)
 
 log = logging.getLogger(__name__)
 
@@ -106,18 +111,33 @@ def iter_video_frames(
         if camera_index:
             raise ImageInputError(f"camera {source}: {no_camera_at(source)}")
         raise ImageInputError(f"video {source}: cannot be opened")
+    count = 0 if camera_index else capture.get(cv2.CAP_PROP_FRAME_COUNT)
+    announced = int(count) if count and np.isfinite(count) and count > 0 else 0
     try:
-        index = taken = 0
+        index = taken = damaged = failures = 0
         while limit is None or taken < limit:
             ok, frame = capture.read()
             if not ok:
+                # A file's damaged frame, before the frames its header announces: skipped,
+                # as `follow run` does, not taken for the end of the video.
+                if index < announced - EARLY_END_TOLERANCE_FRAMES and failures < MAX_UNDECODABLE_RUN:
+                    failures += 1
+                    damaged += 1
+                    index += 1
+                    continue
                 break
+            failures = 0
             if index % every == 0:
                 yield f"frame {index}", frame
                 taken += 1
             index += 1
-        if index == 0:
+        if index == damaged:
             raise ImageInputError(f"video {source}: no frame could be decoded")
+        if damaged:
+            log.warning("video %s: %d damaged frame(s) skipped", source, damaged)
+        if limit is None and index < announced - EARLY_END_TOLERANCE_FRAMES:
+            log.warning("video %s: ends after %d of the %d frames its header announces "
+                        "(cut short or damaged)", source, index, announced)  # fmt: skip
     finally:
         capture.release()
 

@@ -13,17 +13,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from follow.cli_args import camera_index_too_large, no_camera_at
+from follow.cli_args import (
+    EARLY_END_TOLERANCE_FRAMES,
+    MAX_UNDECODABLE_RUN,
+    camera_index_too_large,
+    no_camera_at,
+)
 from follow.handoff import Mailbox
 from follow.repeated_image import RepeatedImages
 from follow.types import Frame, InvalidInput
 
 log = logging.getLogger(__name__)
 
-# Containers may count a frame more than they decode; fewer than this is a short file.
-EARLY_END_TOLERANCE_FRAMES = 1
-# Failed reads in a row skipped as damaged frames before a file counts as cut short.
-MAX_UNDECODABLE_RUN = 30
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 # An image folder's frame rate unless told (`follow run --folder-fps`): its frames' times.
 DEFAULT_FOLDER_FPS = 15.0

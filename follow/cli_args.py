@@ -19,6 +19,14 @@ from pathlib import Path
 MAX_CAMERA_INDEX = 2**31 - 1
 
 
+# A video file's damaged frames, read alike by `follow run` and `follow-calib`: a failed
+# read before the frame count the file's header announces is a damaged frame, skipped,
+# up to this many in a row (then the file counts as cut short); containers may count a
+# frame more than they decode, so a file this much short ends without a warning.
+MAX_UNDECODABLE_RUN = 30
+EARLY_END_TOLERANCE_FRAMES = 1
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse's parser, whose refusal of a command line (a bad option value, an unknown
     option) also ends stdout with `{"error": ...}` when that command line asks for

@@ -3,6 +3,7 @@ many frames the video has."""
 
 from __future__ import annotations
 
+from test_capture import damaged_mjpeg
 from test_run_bad_input import _video
 
 from calib import cli
@@ -75,3 +76,16 @@ def test_a_camera_index_that_cannot_be_opened_is_named_as_one(tmp_path, capsys, 
     assert cli.main(["check", "7", *argv[1:]]) == 2
     err = capsys.readouterr().err
     assert "no camera at index 7 can be opened" in err and "Traceback" not in err
+
+
+def test_a_damaged_frame_of_a_video_is_skipped_not_taken_for_its_end(tmp_path, caplog):
+    """As `follow run` reads past a frame that cannot be decoded, so do the calibration
+    commands: the frames after it are there, and the skip is said."""
+    from calib.chessboard import iter_video_frames
+
+    video = damaged_mjpeg(tmp_path / "clip.avi", frames=30, damaged=15)
+    names = [name for name, _ in iter_video_frames(video)]
+    assert len(names) == 29 and "frame 15" not in names and names[-1] == "frame 29"
+    assert "1 damaged frame(s) skipped" in caplog.text
+    argv = ["check", str(video), "--camera", str(_camera(tmp_path)), "-o", str(tmp_path / "c.png")]
+    assert cli.main([*argv, "--frame", "28"]) == 0  # the 29th frame that decodes

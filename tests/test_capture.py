@@ -192,19 +192,24 @@ def test_an_unusable_image_in_a_folder_is_skipped_by_name(tmp_path, caplog):
     assert "001b.png" in caplog.text and "too small" in caplog.text
 
 
-def test_an_undecodable_frame_in_a_video_is_skipped_not_the_end_of_the_file(tmp_path, caplog):
-    path = tmp_path / "v.avi"
+def damaged_mjpeg(path, frames: int = 30, damaged: int = 15):
+    """A 10 fps MJPEG video of `frames` frames whose frame `damaged` cannot be decoded."""
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
-    for i in range(30):
+    for i in range(frames):
         image = np.full((48, 64, 3), 90, np.uint8)
         cv2.rectangle(image, (5 + i, 5), (20 + i, 40), (30, 60, 200), -1)
         writer.write(image)
     writer.release()
     data = bytearray(path.read_bytes())
     starts = [i for i in range(len(data) - 1) if data[i : i + 2] == b"\xff\xd8"]
-    assert len(starts) == 30  # one JPEG per frame
-    data[starts[15] + 2 : starts[15] + 400] = bytes(398)  # frame 15's picture destroyed
+    assert len(starts) == frames  # one JPEG per frame
+    data[starts[damaged] + 2 : starts[damaged] + 400] = bytes(398)  # its picture destroyed
     path.write_bytes(bytes(data))
+    return path
+
+
+def test_an_undecodable_frame_in_a_video_is_skipped_not_the_end_of_the_file(tmp_path, caplog):
+    path = damaged_mjpeg(tmp_path / "v.avi")
     frames = list(FrameSource(str(path)))
     assert len(frames) == 29  # the frames after the damaged one are not lost
     stamps = [f.stamp_s for f in frames]
