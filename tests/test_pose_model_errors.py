@@ -45,3 +45,31 @@ def test_a_folder_or_a_missing_file_to_cut_is_named_as_such(tmp_path):
         initial_stage_file(tmp_path / "notes")
     with pytest.raises(ModelError, match=r"gone\.onnx: no such file, not an ONNX model file"):
         initial_stage_file(tmp_path / "gone.onnx")
+
+
+@pytest.mark.parametrize("provider", ["cpu", "openvino"])
+def test_another_network_named_as_the_pose_model_is_refused_when_loaded(model_path, provider):
+    """The re-id network given as `[pose] model_file`: refused naming the file and its
+    input, not by the runtime on the first frame (a shape check deep in OpenVINO)."""
+    if provider == "openvino" and not openvino_installed():
+        pytest.skip("openvino is not installed")
+    reid = model_path("reid/person-reidentification-retail-0248.onnx")
+    with pytest.raises(ModelError, match=r"person-reid.*is not a pose network of this kind: "
+                       r"its input is \[1, 256, 128, 3\]"):  # fmt: skip
+        create_backend(provider, reid)
+    assert create_backend(provider, model_path("pose/human-pose-estimation-0001.onnx")).name
+
+
+def test_the_pose_signature_takes_free_dimensions_and_refuses_other_shapes():
+    from follow.pose.runtime import check_pose_signature
+
+    outputs = [[1, 38, "h8", "w8"], [1, 19, "h8", "w8"]]
+    check_pose_signature("p.onnx", [1, 3, "height", "width"], outputs)
+    check_pose_signature("p.onnx", ["n", None, None, None], [[1, None, None, None]] * 2)
+    for shape, outs, what in (([1, 256, 128, 3], outputs, "its input"),
+                              ([1, 3, 256], outputs, "its input"),
+                              ([1, 3, "h", "w"], [[1, 38, "h", "w"]], "1 output"),
+                              ([1, 3, "h", "w"], [[1, 256], [1, 19, 2, 2]], "its outputs"),
+                              ([1, 3, "h", "w"], [[1, 17, 2, 2], [1, 34, 2, 2]], "its outputs")):  # fmt: skip
+        with pytest.raises(ModelError, match=what):
+            check_pose_signature("p.onnx", shape, outs)

@@ -72,6 +72,33 @@ def with_frame_input(model_path: Path) -> bytes:
     return model.SerializeToString()
 
 
+def check_pose_signature(model_path: Path, input_shape: list, output_shapes: list[list]) -> None:
+    """Refuse, when it is loaded, a network that cannot be the pose network: one BGR
+    image in (rank 4, 3 channels where the file fixes them), heatmaps and PAFs out (19
+    and 38 channels where fixed). Another network named by `[pose] model_file` (the re-id
+    one) otherwise fails on the first frame inside the runtime, naming neither. Shapes
+    as the runtimes give them: a dimension that is not an int is free."""
+    def fixed(dim) -> int | None:
+        return dim if isinstance(dim, int) and dim > 0 else None
+
+    problem = None
+    if len(input_shape) != 4 or fixed(input_shape[1]) not in (None, 3):
+        problem = f"its input is {list(input_shape)}, not an image [1, 3, H, W]"
+    elif len(output_shapes) < 2:
+        problem = f"it has {len(output_shapes)} output(s), not heatmaps and PAFs"
+    else:
+        channels = [fixed(shape[1]) if len(shape) == 4 else -1 for shape in output_shapes]
+        known = {c for c in channels if c is not None}
+        if -1 in known or (known and not known <= {HEATMAP_CHANNELS, PAF_CHANNELS}):
+            problem = (f"its outputs are {[list(s) for s in output_shapes]}, not heatmaps "
+                       f"({HEATMAP_CHANNELS} channels) and PAFs ({PAF_CHANNELS})")  # fmt: skip
+    if problem:
+        raise ModelError(
+            f"pose model {model_path} is not a pose network of this kind: {problem} "
+            "([pose] model_file names another network?)"
+        )
+
+
 def _split_outputs(outputs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Heatmaps and PAFs told apart by their channel counts (names differ between files)."""
     by_channels = {o.shape[1]: o for o in outputs}
@@ -131,6 +158,8 @@ class OrtBackend:
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         model = with_frame_input(model_path) if frame_input else str(model_path)
         self.session = ort.InferenceSession(model, options, providers=provider_entries(providers))
+        check_pose_signature(model_path, self.session.get_inputs()[0].shape,
+                             [o.shape for o in self.session.get_outputs()])  # fmt: skip
         self.input_name = self.session.get_inputs()[0].name
         active = self.session.get_providers()
         if active[0] != providers[0]:
@@ -157,6 +186,8 @@ class OpenVinoBackend:
 
         self._core = openvino_core()
         self._model = self._core.read_model(str(model_path))
+        check_pose_signature(model_path, _openvino_shape(self._model.inputs[0]),
+                             [_openvino_shape(o) for o in self._model.outputs])  # fmt: skip
         if frame_input:
             from openvino.preprocess import PrePostProcessor
 
@@ -183,6 +214,11 @@ class OpenVinoBackend:
         request = self._request(tuple(tensor.shape))
         request.infer({0: tensor})
         return _split_outputs([request.get_output_tensor(i).data.copy() for i in range(2)])
+
+
+def _openvino_shape(port) -> list:
+    """An OpenVINO port's shape as onnxruntime gives one: ints where fixed, else None."""
+    return [d.get_length() if d.is_static else None for d in port.get_partial_shape()]
 
 
 @functools.cache
