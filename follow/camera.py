@@ -185,6 +185,48 @@ def _radial_fold_r2(dist: np.ndarray) -> float:
     return math.inf if not len(turns) else float(r[turns[0]] ** 2)
 
 
+def _check_distortion_covers_image(K: np.ndarray, dist: np.ndarray, fold_r2: float,
+                                   width: int, height: int) -> None:  # fmt: skip
+    """Refuse distortion whose polynomial turns back before the nearest edge of the image
+    (k1 = -1.8 for -0.18): the pixels past the fold have no ray, and the rays inside it
+    land far from where the lens puts them; or that squeezes the image into a field of
+    view no following camera has (k1 = 1e9). A calibration folding only near the
+    corners, beyond the views it was fitted to, is a lens's and is kept."""
+    if not dist.size:
+        return
+    d = np.zeros(8)
+    d[: dist.size] = dist
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    nearest_edge = min((cx + 0.5) / fx, (width - 0.5 - cx) / fx,
+                       (cy + 0.5) / fy, (height - 0.5 - cy) / fy)  # fmt: skip
+    reach = math.sqrt(min(fold_r2, FOLD_SEARCH_RADIUS**2))
+    widest = reach * float(_radial_factor(d, np.array(reach * reach)))
+    if math.isfinite(fold_r2) and not widest >= nearest_edge:
+        raise ValueError(
+            f"camera distortion {dist.tolist()} turns back {widest:.3g} focal lengths off "
+            f"the axis, inside the image (its nearest edge is {nearest_edge:.3g} off): "
+            "no lens does that (a typing error in distortion?)"
+        )
+    if widest < nearest_edge:
+        return  # the edge lies past the search: a field of view near 170 deg or more
+    # The ray through the nearest edge (where the growing distorted radius reaches it):
+    # a strong pincushion (k1 = 1e9) squeezes the whole image into a pencil of rays.
+    low, high = 0.0, reach
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        if middle * float(_radial_factor(d, np.array(middle * middle))) < nearest_edge:
+            low = middle
+        else:
+            high = middle
+    narrowest_deg = math.degrees(2.0 * math.atan(high))
+    if narrowest_deg < MIN_FIELD_OF_VIEW_DEG:
+        raise ValueError(
+            f"camera distortion {dist.tolist()} squeezes the image into {narrowest_deg:.2g} "
+            f"deg (across its narrowest way), under the {MIN_FIELD_OF_VIEW_DEG:g} deg of any "
+            "camera that can follow a person (a typing error in distortion?)"
+        )
+
+
 def _only_numbers(value) -> bool:
     """Whether `value` is a number (not a bool, not text) or nested lists of them."""
     if isinstance(value, list | tuple):
@@ -208,6 +250,12 @@ def _check_principal_point(K: np.ndarray, width: int, height: int) -> None:
 # field of view under MIN_FIELD_OF_VIEW_DEG (a person 8 m away would fill 0.7 m of it).
 MAX_PIXEL_ASPECT = 2.0
 MIN_FIELD_OF_VIEW_DEG = 5.0
+# Nor a field of view near 180 deg through the pinhole model (f_x = 1 on a 640 px image:
+# 179.6 deg; a fish-eye lens calibrated with OpenCV's usual model reads well under it),
+# nor pixels sheared by more than this share of f_x (OpenCV calibrates none; 5000 is a
+# typing error in camera_matrix[0][1]).
+MAX_FIELD_OF_VIEW_DEG = 160.0
+MAX_SKEW_PER_FOCAL = 0.1
 
 
 def _check_focal_lengths(K: np.ndarray, width: int, height: int) -> None:
@@ -219,6 +267,18 @@ def _check_focal_lengths(K: np.ndarray, width: int, height: int) -> None:
             f"camera focal lengths f_x {fx:g} and f_y {fy:g} differ by more than "
             f"{MAX_PIXEL_ASPECT:g}x: no camera's pixels are that far from square (a typing "
             "error in camera_matrix?)"
+        )
+    if abs(K[0, 1]) > MAX_SKEW_PER_FOCAL * fx:
+        raise ValueError(
+            f"camera_matrix[0][1] (skew) {K[0, 1]:g} is over {MAX_SKEW_PER_FOCAL:g} of f_x "
+            f"{fx:g}: no camera's pixels are that sheared (a typing error? OpenCV writes 0)"
+        )
+    widest_deg = math.degrees(2.0 * math.atan(max(width / fx, height / fy) / 2.0))
+    if widest_deg > MAX_FIELD_OF_VIEW_DEG:
+        raise ValueError(
+            f"camera focal lengths ({fx:g}, {fy:g}) give a {width}x{height} image a "
+            f"{widest_deg:.4g} deg field of view, over the {MAX_FIELD_OF_VIEW_DEG:g} deg the "
+            "pinhole model can describe (a typing error in camera_matrix?)"
         )
     fov_deg = math.degrees(2.0 * math.atan(max(width / fx, height / fy) / 2.0))
     if fov_deg < MIN_FIELD_OF_VIEW_DEG:
@@ -269,6 +329,7 @@ class CameraModel:
         object.__setattr__(self, "_R", self.pose.rotation_base_from_cam())
         object.__setattr__(self, "_t", self.pose.position_base())
         object.__setattr__(self, "_fold_r2", _radial_fold_r2(dist))
+        _check_distortion_covers_image(K, dist, self._fold_r2, w, h)
 
     # ------------------------------------------------------------------ construction
     @classmethod

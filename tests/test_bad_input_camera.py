@@ -194,9 +194,41 @@ def test_focal_lengths_no_camera_has_are_refused(tmp_path, fx, fy, match):
 
 
 def test_real_lenses_from_telephoto_to_wide_load(tmp_path):
-    for fov_deg in (6.0, 40.0, 70.0, 120.0):
+    for fov_deg in (6.0, 40.0, 70.0, 120.0, 155.0):
         model = CameraModel.from_fov((640, 480), fov_deg, CameraPose(height_m=0.9))
         assert CameraModel.from_dict(model.to_dict()).image_size == (640, 480)
+    # real distortion: a wide lens's barrel (PETS's converted Tsai lens), a pincushion
+    for dist in ([-0.158, 0.074, 0.0, 0.0, -0.037], [-0.28, 0.07, 0.001, -0.0005, 0.0],
+                 [0.12, -0.3, 0.0, 0.0, 0.2], [-0.18, 0.04, 0.001, -0.0005, 40.0]):  # fmt: skip
+        data = _data()
+        data["distortion"] = dist
+        assert CameraModel.load(_write(tmp_path, data)).dist.tolist() == dist
+
+
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        ({"skew": 5000.0}, r"camera_matrix\[0\]\[1\] \(skew\) 5000 is over 0.1 of f_x"),
+        ({"fx": 1.0, "fy": 1.0}, "179.6 deg field of view, over the 160 deg"),
+        ({"distortion": [-1.8, 0.04, 0.001, -0.0005, 0.0]}, "turns back 0.287 focal lengths"),
+        ({"distortion": [-0.5, 0.2, 0, 0, 0, 50.0, -100.0, 1e6]}, "turns back .* inside the image"),
+        ({"distortion": [1e9, 0.0, 0.0, 0.0, 0.0]}, "squeezes the image into 0.0"),
+    ],
+)  # fmt: skip
+def test_intrinsics_no_lens_has_are_refused_naming_what_to_check(tmp_path, edit, match):
+    """Typing errors that loaded and then moved where every person is in view (a sign
+    dropped from k1 = -0.18 put a standing person's neck at 1.37 m instead of 2.25 m)."""
+    data = _data()
+    if "skew" in edit:
+        data["camera_matrix"][0][1] = edit["skew"]
+    if "fx" in edit:
+        data["camera_matrix"][0][0], data["camera_matrix"][1][1] = edit["fx"], edit["fy"]
+    if "distortion" in edit:
+        data["distortion"] = edit["distortion"]
+    path = _write(tmp_path, data)
+    with pytest.raises(CameraFileError, match=match) as err:
+        CameraModel.load(path)
+    assert str(path) in str(err.value)
 
 
 def test_quoted_numbers_and_a_grid_of_coefficients_are_refused(tmp_path):
