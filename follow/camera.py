@@ -608,6 +608,8 @@ class CameraModel:
 def read_camera_data(path: str | Path):
     """The parsed contents of a camera file, YAML (.yaml/.yml) or JSON; CameraFileError
     naming the file where it cannot be read or parsed."""
+    if not str(path).strip():  # Path("") is the current folder: "cannot read ." says nothing
+        raise CameraFileError("camera file: no path given (an empty --camera?)")
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")  # a byte order mark is dropped

@@ -80,7 +80,7 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
                 "--json", action="store_true", help="print one JSON object as the last line"
             )
             module.add_arguments(p)
-            p.set_defaults(_module=module)
+            p.set_defaults(_module=module, _parser=p)
     return parser
 
 
@@ -93,8 +93,8 @@ def main(argv: list[str] | None = None) -> int:
         # `follow models fetch --from DIR ccf10`: argparse fills a command's list of names
         # where its first positional stands, and leaves the names after an option over
         getattr(args, trailing).extend(extras)
-    elif extras:
-        parser.error(f"unrecognized arguments: {' '.join(extras)}")
+    elif extras:  # named by the command they were given to, with its usage
+        getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extras)}")
     sub = getattr(args, "subcommand", None)
     if sub is not None and _selected(argv) != (args.command, sub):
         # an option's value came before the command's name (`follow bench --frames 5 pose`):

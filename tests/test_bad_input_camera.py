@@ -257,3 +257,8 @@ def test_numbers_written_as_yaml_1_2_writes_them_are_numbers(tmp_path):
     assert loaded.pose.height_m == pytest.approx(0.9)
     assert loaded.pose.pitch_rad == pytest.approx(0.2)
     assert loaded.dist.tolist() == pytest.approx([-0.28, 0.07, 0.0, 0.0, -0.0005])
+
+
+def test_an_empty_camera_path_is_named_as_such():
+    with pytest.raises(CameraFileError, match="no path given"):
+        CameraModel.load("")
