@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ SUBPIX_WINDOW_FRACTION = 0.35
 SUBPIX_WINDOW_MIN_PX = 2
 SUBPIX_WINDOW_MAX_PX = 6
 UPSCALE = 2.0  # last resort: look for the board at this magnification
+UNMEASURED_EDGE_WIDTH_PX = 9999.0  # what estimateChessboardSharpness gives when it cannot
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
 
 
@@ -45,7 +47,8 @@ class Detection:
 
     corners_px: np.ndarray
     image_size: tuple[int, int]  # (width, height)
-    sharpness_px: float  # mean edge width across the board's squares (lower = sharper)
+    # mean edge width across the board's squares (lower = sharper); NaN: not measured
+    sharpness_px: float
 
 
 def check_pattern_size(pattern_size: tuple[int, int]) -> tuple[int, int]:
@@ -231,4 +234,7 @@ def detect_chessboard(
         corners = (found + 0.5) / UPSCALE - 0.5  # pixel centres at integer coordinates
     corners = refine_corners(gray, corners, pattern_size)
     sharpness = cv2.estimateChessboardSharpness(gray, pattern_size, corners.astype(np.float32))
-    return Detection(corners, (gray.shape[1], gray.shape[0]), float(sharpness[0][0]))
+    edge_width_px = float(sharpness[0][0])
+    if edge_width_px >= UNMEASURED_EDGE_WIDTH_PX:  # OpenCV's "could not measure" (small squares)
+        edge_width_px = math.nan
+    return Detection(corners, (gray.shape[1], gray.shape[0]), edge_width_px)

@@ -156,6 +156,8 @@ def main(args: argparse.Namespace) -> dict:
             f"  board    centre at x {centre_base[0]:.3f} y {centre_base[1]:.3f} m "
             f"({out['board_distance_m']:.2f} m away), rows at {board_yaw_base:.1f} deg"
         )
-        print(f"  corners  {result.reprojection_rms_px:.3f} px RMS, edge width "
-              f"{result.sharpness_px:.2f} px, {len(frames)} frame(s) averaged")  # fmt: skip
+        width = result.sharpness_px
+        edges = f"edge width {width:.2f} px" if width == width else "edge width not measured"
+        print(f"  corners  {result.reprojection_rms_px:.3f} px RMS, {edges}, "
+              f"{len(frames)} frame(s) averaged")  # fmt: skip
     return out

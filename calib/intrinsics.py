@@ -242,12 +242,10 @@ def calibrate_intrinsics(
             rejected.append((name, f"no {cols}x{rows} board found"))
             continue
         if not detection.sharpness_px <= max_edge_width_px:
-            rejected.append(
-                (
-                    name,
-                    f"blurred (edge width {detection.sharpness_px:.1f} px > {max_edge_width_px})",
-                )
-            )
+            width = detection.sharpness_px
+            why = (f"blurred (edge width {width:.1f} px > {max_edge_width_px})" if width == width
+                   else "its edges' sharpness cannot be measured (squares too small?)")  # fmt: skip
+            rejected.append((name, why))
             continue
         limit_px = duplicate_fraction * math.hypot(*image_size)
         twin = next(
