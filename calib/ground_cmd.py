@@ -157,7 +157,7 @@ def main(args: argparse.Namespace) -> dict:
             f"({out['board_distance_m']:.2f} m away), rows at {board_yaw_base:.1f} deg"
         )
         width = result.sharpness_px
-        edges = f"edge width {width:.2f} px" if width == width else "edge width not measured"
+        edges = f"edge width {width:.2f} px" if math.isfinite(width) else "edge width not measured"
         print(f"  corners  {result.reprojection_rms_px:.3f} px RMS, {edges}, "
               f"{len(frames)} frame(s) averaged")  # fmt: skip
     return out

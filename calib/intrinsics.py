@@ -243,7 +243,7 @@ def calibrate_intrinsics(
             continue
         if not detection.sharpness_px <= max_edge_width_px:
             width = detection.sharpness_px
-            why = (f"blurred (edge width {width:.1f} px > {max_edge_width_px})" if width == width
+            why = (f"blurred (edge width {width:.1f} px > {max_edge_width_px})" if math.isfinite(width)
                    else "its edges' sharpness cannot be measured (squares too small?)")  # fmt: skip
             rejected.append((name, why))
             continue

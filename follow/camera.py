@@ -273,14 +273,13 @@ def _check_focal_lengths(K: np.ndarray, width: int, height: int) -> None:
             f"camera_matrix[0][1] (skew) {K[0, 1]:g} is over {MAX_SKEW_PER_FOCAL:g} of f_x "
             f"{fx:g}: no camera's pixels are that sheared (a typing error? OpenCV writes 0)"
         )
-    widest_deg = math.degrees(2.0 * math.atan(max(width / fx, height / fy) / 2.0))
-    if widest_deg > MAX_FIELD_OF_VIEW_DEG:
+    fov_deg = math.degrees(2.0 * math.atan(max(width / fx, height / fy) / 2.0))
+    if fov_deg > MAX_FIELD_OF_VIEW_DEG:
         raise ValueError(
             f"camera focal lengths ({fx:g}, {fy:g}) give a {width}x{height} image a "
-            f"{widest_deg:.4g} deg field of view, over the {MAX_FIELD_OF_VIEW_DEG:g} deg the "
+            f"{fov_deg:.4g} deg field of view, over the {MAX_FIELD_OF_VIEW_DEG:g} deg the "
             "pinhole model can describe (a typing error in camera_matrix?)"
         )
-    fov_deg = math.degrees(2.0 * math.atan(max(width / fx, height / fy) / 2.0))
     if fov_deg < MIN_FIELD_OF_VIEW_DEG:
         raise ValueError(
             f"camera focal lengths ({fx:g}, {fy:g}) give a {width}x{height} image a "
