@@ -370,6 +370,12 @@ def main(args) -> dict:
     drives_base = bool(config.mavlink.connection) and not args.replay
     check_pose_measured(args.camera, drives_base, log.warning)
     if args.replay:
+        ignored = [name for name, value in (("--log", args.log), ("--output-video",
+                   args.output_video), ("--frames-dir", args.frames_dir),
+                   ("--max-frames", args.max_frames)) if value]  # fmt: skip
+        if ignored:  # a replay compares a log with the source; it writes and cuts nothing
+            raise ValueError(f"--replay takes no {', '.join(ignored)}: it re-runs the whole "
+                             "log against its source and reports whether they agree")
         return replay(args, config)
     source = open_source(args.source, args.image_topic, args.odom_topic, args.camera_info_topic,
                          config.ros.max_odometry_age_s, args.skeletons_topic,
@@ -531,8 +537,15 @@ def check_replay_source(header: dict, log_path: str, source: str) -> None:
     logged = header.get("source")
     if logged is None:
         raise ValueError(f"--replay {log_path}: the log's header names no source")
-    if not _same_path(logged, source):
-        raise ValueError(f"--replay {log_path}: the log is of source {logged}, not {source}")
+    if _same_path(logged, source):
+        return
+    if Path(str(logged)).name == Path(source).name and Path(source).exists():
+        # recorded from another folder (a path relative to where the run was started) or
+        # moved since: the frames' sizes and numbers are checked as they are replayed
+        log.warning("--replay %s: the log was recorded from %s; replaying %s, a file of "
+                    "the same name", log_path, logged, source)  # fmt: skip
+        return
+    raise ValueError(f"--replay {log_path}: the log is of source {logged}, not {source}")
 
 
 def warn_if_other_camera(header: dict, camera: str | Path) -> None:

@@ -67,6 +67,21 @@ def test_replay_of_another_source(tmp_path, capsys):
     assert f"the log is of source {tmp_path / 'a.avi'}, not {video}" in err
 
 
+def test_replay_of_the_same_file_from_another_folder_is_allowed(tmp_path, capsys, caplog):
+    """The log names its source as it was typed where the run started: the same file
+    from another folder, or moved, replays (with a warning), and what a replay does not
+    write is refused rather than silently ignored."""
+    (tmp_path / "moved").mkdir()
+    video = _video(tmp_path / "moved" / "a.avi")
+    log = _log(tmp_path / "run.jsonl", {"source": "recorded/a.avi", "image_size": [64, 48]}, [])
+    argv = ["run", str(video), "--camera", str(_camera(tmp_path)), "--replay", str(log)]
+    err = _error(capsys, argv)
+    assert "the log is of source" not in err  # it got past the source: no frame matches
+    assert "the log was recorded from recorded/a.avi" in caplog.text
+    err = _error(capsys, [*argv, "--log", str(tmp_path / "again.jsonl"), "--max-frames", "5"])
+    assert "--replay takes no --log, --max-frames" in err
+
+
 def test_replay_of_another_image_size(tmp_path, capsys):
     video = _video(tmp_path / "a.avi")
     record = json.dumps({"frame": 0, "stamp_s": 0.0, "skeletons": []})

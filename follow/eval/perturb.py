@@ -149,6 +149,9 @@ def selected_variants(args) -> list[Variant] | None:
         chosen = [variant(n.strip()) for n in names.split(",") if n.strip()]
         if not chosen:
             raise ValueError("--variants names no variant")
+        twice = sorted({v.name for v in chosen if chosen.count(v) > 1})
+        if twice:  # each variant is one row of the figures, its mean and its worst
+            raise ValueError(f"--variants names {', '.join(twice)} more than once")
         return chosen
     return list(SUITE) if getattr(args, "perturb", False) else None
 

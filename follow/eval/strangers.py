@@ -27,7 +27,7 @@ import logging
 
 import numpy as np
 
-from follow.cli_args import identifier_list, non_negative_int
+from follow.cli_args import identifier_list, non_negative_int, positive_int
 from follow.config import Config
 from follow.eval.perturb import (
     Variant,
@@ -61,7 +61,7 @@ SUITE_METRICS = {"wrong_person_s": False, "driving_toward_stranger_s": False,
 def add_arguments(p) -> None:
     p.add_argument("--identifiers", default="ccf10,ccf10+reid", type=identifier_list,
                    help="comma-separated identifier configurations (default ccf10,ccf10+reid)")  # fmt: skip
-    p.add_argument("--strangers", type=non_negative_int, default=5, help="people who walk in (default 5)")
+    p.add_argument("--strangers", type=positive_int, default=5, help="people who walk in (default 5)")
     p.add_argument("--seed", type=non_negative_int, default=0,
                    help="the strangers' heights and looks, and the detector's noise (default 0)")  # fmt: skip
     p.add_argument("--seeds", help="run several draws of the scenario, e.g. 0-4 or 0,3,7, and "
@@ -202,8 +202,6 @@ def main(args) -> dict:
     from tqdm import tqdm
 
     base = Config.load(args.config) if args.config else Config()
-    if args.strangers < 1:
-        raise ValueError(f"--strangers must be >= 1, got {args.strangers}")
     variants = selected_pixel_variants(args, "identification-sim")
     names = [s.strip() for s in args.identifiers.split(",") if s.strip()]
     seeds = parse_seeds(args.seeds) if getattr(args, "seeds", None) else None
