@@ -56,3 +56,28 @@ def test_identification_options_are_refused_before_any_data_is_read(capsys, monk
         main(["eval", "identification", *argv])
     assert exit_.value.code == 2
     assert f"argument {option}:" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["eval", "safety", "--fault-at-s", "1"], "--fault-at-s"),  # not yet following at 1 s
+    (["eval", "identification-sim", "--strangers", "0"], "--strangers"),
+])  # fmt: skip
+def test_what_the_help_allows_is_what_the_command_runs(capsys, argv, option):
+    from follow.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert f"argument {option}:" in capsys.readouterr().err
+
+
+def test_a_variant_named_twice_is_refused_by_name():
+    """It used to cancel itself out of `follow eval pose` (a traceback for original twice)."""
+    import argparse
+
+    from follow.eval.perturb import selected_variants
+
+    with pytest.raises(ValueError, match="--variants names original more than once"):
+        selected_variants(argparse.Namespace(variants="original,dark,original", perturb=False))
+    chosen = selected_variants(argparse.Namespace(variants="original,dark", perturb=False))
+    assert [v.name for v in chosen] == ["original", "dark"]
