@@ -343,3 +343,25 @@ def test_a_skeleton_cache_cut_short_or_of_another_shape_is_made_again(tmp_path, 
     for path in (cut, no_score):
         assert _read_cached_skeletons(path, [3, 4]) is None
         assert f"cache {path} is unreadable" in caplog.text
+
+
+def test_a_cache_folder_that_cannot_be_made_is_refused_before_the_network_runs(
+    tmp_path, monkeypatch
+):
+    """With a file where the skeletons' folder goes, the evaluation used to run the pose
+    network over every frame (13 minutes on PETS) and then fail to keep its work."""
+    from follow.eval import pets_setup
+
+    monkeypatch.setattr("follow.pose.detector.PoseDetector", PixelDetector)
+    monkeypatch.setenv("FOLLOW_CACHE_DIR", str(tmp_path / "cache" / "models"))
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "eval").write_text("in the way")
+    model = tmp_path / "pose.onnx"
+    model.write_bytes(b"model one")
+    config = PoseConfig(model_file=str(model), network_stages=2)
+    PixelDetector.calls = 0
+    for use_cache in (True, False):
+        with pytest.raises(OSError, match="cannot write .*eval, in the cache"):
+            pets_setup.pets_skeletons(SimpleNamespace(sequence=FakeSequence()), [0, 1],
+                                      config, use_cache)  # fmt: skip
+    assert PixelDetector.calls == 0

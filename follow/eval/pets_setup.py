@@ -197,6 +197,11 @@ def pets_skeletons(
     frames' pixels, the pose settings and the model file's hash, so that every method of
     an evaluation, and every later run on the same frames, sees the same detections."""
     path = _cache_path(pose_config, frames, frames_digest(setup.sequence, frames))
+    from follow.models import make_cache_folder
+
+    # Before the network's minutes (with --no-cache too: its skeletons are kept for the
+    # next run): a cache folder that cannot be made is refused now, not after the work.
+    make_cache_folder(path.parent)
     if use_cache and path.exists():
         cached = _read_cached_skeletons(path, frames)
         if cached is not None:
@@ -212,9 +217,6 @@ def pets_skeletons(
                              desc="pose network on PETS", unit="frame", leave=False):  # fmt: skip
         out[index] = detector.detect(image)
     rows = [(i, s) for i in frames for s in out[i]]
-    from follow.models import make_cache_folder
-
-    make_cache_folder(path.parent)
     # Written aside, then renamed: a reader (or a second run) never sees half a file.
     partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.npz")
     np.savez_compressed(
