@@ -61,6 +61,8 @@ def test_identification_options_are_refused_before_any_data_is_read(capsys, monk
 @pytest.mark.parametrize("argv, option", [
     (["eval", "safety", "--fault-at-s", "1"], "--fault-at-s"),  # not yet following at 1 s
     (["eval", "identification-sim", "--strangers", "0"], "--strangers"),
+    (["eval", "pose-scene", "--scenes", "1:3,6:3"], "--scenes"),  # the last, before the first
+    (["eval", "pose-scene", "--scenes", "2:20"], "--scenes"),
 ])  # fmt: skip
 def test_what_the_help_allows_is_what_the_command_runs(capsys, argv, option):
     from follow.cli import main

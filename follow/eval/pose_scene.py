@@ -31,6 +31,14 @@ def scene_list(text: str) -> list[tuple[int, float]]:
         scenes = []
     if not scenes:
         raise argparse.ArgumentTypeError(f"'{text}': give PEOPLE:FAR_M pairs, e.g. 1:5,5:8")
+    from follow.eval.robot_scene import MAX_FAR_M, MAX_PEOPLE, MIN_FAR_M
+
+    for people, far in scenes:  # every scene checked before the first one runs
+        if not (1 <= people <= MAX_PEOPLE and MIN_FAR_M <= far <= MAX_FAR_M):
+            raise argparse.ArgumentTypeError(
+                f"'{people}:{far:g}': a scene holds 1-{MAX_PEOPLE} people, the farthest "
+                f"{MIN_FAR_M:g}-{MAX_FAR_M:g} m away"
+            )
     return scenes
 
 

@@ -28,6 +28,7 @@ PERSON_HEIGHT_M = 1.7
 TARGET_DISTANCE_M = 2.5
 FPS = 30.0
 MAX_PEOPLE = 5
+MIN_FAR_M, MAX_FAR_M = 3.0, 15.0  # where the farthest person may stand
 # Side-to-side walk: amplitude (m) and period (s); each person in their own phase.
 SWAY_M = 0.3
 SWAY_PERIOD_S = 3.0
@@ -58,8 +59,9 @@ class RobotScene:
                  frame_count: int = 65):  # fmt: skip
         if not 1 <= people <= MAX_PEOPLE:
             raise ValueError(f"robot scene: people must be 1-{MAX_PEOPLE}, got {people}")
-        if not 3.0 <= far_m <= 15.0:
-            raise ValueError(f"robot scene: the farthest person must be 3-15 m away, got {far_m}")
+        if not MIN_FAR_M <= far_m <= MAX_FAR_M:
+            raise ValueError(f"robot scene: the farthest person must be {MIN_FAR_M:g}-"
+                             f"{MAX_FAR_M:g} m away, got {far_m}")  # fmt: skip
         self.frame_count = frame_count
         self.fps = FPS
         self.camera = CameraModel.from_fov(FRAME_SIZE, HORIZONTAL_FOV_DEG,
