@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import time
 from pathlib import Path
 
@@ -83,6 +84,10 @@ def ensure_int8_model(path: Path | None, sequence: PetsSequence, height: int) ->
         return prepare_int8()  # the model `precision = "auto"` runs
     if path.exists():
         return path
+    folder = path.absolute().parent
+    if not (folder.is_dir() and os.access(folder, os.W_OK | os.X_OK)):  # before the minutes
+        raise OSError(f"--int8-model {path}: {folder} is not a folder that can be written in "
+                      "(the model is made there when missing)")  # fmt: skip
     log.info("no INT8 pose model at %s: calibrating one on PETS frames", path)
     return make_int8_model(sequence, height, path)
 
