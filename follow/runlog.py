@@ -205,8 +205,11 @@ def _header(path: Path, line: str) -> dict:
         raise ValueError(f"run log {path}: line 1 (header) is not JSON ({exc})") from None
     if not isinstance(header, dict):
         raise ValueError(f"run log {path}: line 1 (header) is not a JSON object")
-    if header.get("log_version") != LOG_VERSION:
-        raise ValueError(f"run log {path}: unsupported log_version {header.get('log_version')}")
+    version = header.get("log_version")
+    if version != LOG_VERSION or isinstance(version, bool):
+        shown = f"{version!r} (text, not a number)" if isinstance(version, str) else version
+        raise ValueError(f"run log {path}: unsupported log_version {shown}; this version of "
+                         f"follow reads log_version {LOG_VERSION}")  # fmt: skip
     size = header.get("image_size")
     if size is not None and not _is_image_size(size):
         raise ValueError(f"run log {path}: header image_size {size!r} is not [width, height] "

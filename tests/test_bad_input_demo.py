@@ -70,3 +70,9 @@ def test_missing_ccf_weights_fall_back_to_the_channels(model_dirs, present):
     _weights(model_dirs, present)
     assert choose_identifier(None) == "channels"
     assert choose_identifier("ccf25") == "ccf25"  # a named identifier is kept as given
+
+
+@pytest.mark.parametrize("option", ["--output", "--bag", "--identifier"])
+def test_an_empty_demo_option_is_refused_not_read_as_this_folder(option, capsys):
+    assert cli.main(["demo", option, "", "--seconds", "1", "--no-video"]) == 1
+    assert f"{option} is empty" in capsys.readouterr().err

@@ -52,3 +52,11 @@ def test_follow_run_says_which_file_is_binary_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "Traceback" not in err and len(err.splitlines()) == 1, err
     assert str(config) in err and "not a text config file" in err
+
+
+def test_a_log_version_written_as_text_is_named_as_such(tmp_path):
+    path = tmp_path / "run.jsonl"
+    path.write_text('{"log_version": "1"}\n')
+    with pytest.raises(ValueError, match=r"log_version '1' \(text, not a number\); this "
+                       r"version of follow reads log_version 1"):  # fmt: skip
+        read_run_log(path)

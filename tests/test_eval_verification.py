@@ -88,6 +88,14 @@ def _args(root, **given) -> argparse.Namespace:
     return argparse.Namespace(**{**options, **given})
 
 
+def test_a_data_folder_without_the_robot_crops_is_refused_before_the_work(tmp_path):
+    from follow.eval.verification import main
+
+    (tmp_path / "cuhk03_val").mkdir()
+    with pytest.raises(ValueError, match="no ccf_crops/ folder"):
+        main(_args(tmp_path))
+
+
 def test_verification_under_perturbation_reports_each_variant_mean_and_worst(
     data_path, model_path
 ):

@@ -314,6 +314,9 @@ def main(args) -> dict:
     config = Config.load(args.config).identify if args.config else IdentifyConfig()
     root = data_root(args.data_dir)
     variants = selected_pixel_variants(args, "verification")
+    if not (root / "ccf_crops").is_dir():  # scored last: say so before CUHK03's minutes
+        raise ValueError(f"{root}: no ccf_crops/ folder (the robot-camera crops this "
+                         "evaluation scores besides cuhk03_val/)")  # fmt: skip
     people = load_cuhk03(root / "cuhk03_val", args.identities)
     calibration = [p for p in people if p.identity % 2 == 0]
     test = [p for p in people if p.identity % 2 == 1]

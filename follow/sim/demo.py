@@ -379,6 +379,10 @@ def plot_top_down(trajectory: dict, path: Path) -> None:
 
 
 def main(args) -> dict:
+    for option, value in (("--output", args.output), ("--bag", args.bag),
+                          ("--identifier", args.identifier)):  # fmt: skip
+        if value is not None and not value.strip():  # "" would be this folder, or a default
+            raise ValueError(f"{option} is empty: give a name or leave the option out")
     summary = run_demo(args.seconds, args.seed, args.identifier, Path(args.output),
                        write_video=not args.no_video, bag_path=args.bag)  # fmt: skip
     if not args.json:
