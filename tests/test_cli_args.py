@@ -43,6 +43,9 @@ from follow.cli_args import (
         (["eval", "pose-near", "--person-heights", "1"], "--person-heights"),
         (["bench", "pose", "--frames", "1", "--height", "0"], "--height"),
         (["bench", "pose", "--frames", "1", "--height", "100000"], "--height"),
+        # what the help allows is what the command runs (they used to pass the parser)
+        (["eval", "safety", "--fault-at-s", "1"], "--fault-at-s"),  # not yet following
+        (["eval", "identification-sim", "--strangers", "0"], "--strangers"),
     ],
 )
 def test_out_of_range_options_are_refused_by_name(argv, option, capsys):
