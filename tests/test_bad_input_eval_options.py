@@ -79,3 +79,25 @@ def test_a_variant_named_twice_is_refused_by_name():
         selected_variants(argparse.Namespace(variants="original,dark,original", perturb=False))
     chosen = selected_variants(argparse.Namespace(variants="original,dark", perturb=False))
     assert [v.name for v in chosen] == ["original", "dark"]
+
+
+def test_options_that_would_be_silently_ignored_are_refused(tmp_path):
+    """`--seed` beside `--seeds`, and `--only-after-learning` with no variant to apply."""
+    import argparse
+
+    from follow.eval import strangers, verification
+
+    both = argparse.Namespace(identifiers="ccf10", strangers=1, seed=7, seeds="0-0",
+                              config=None, json=True, perturb=False, variants=None,
+                              only_after_learning=False)  # fmt: skip
+    with pytest.raises(ValueError, match="give --seed or --seeds, not both"):
+        strangers.main(both)
+    alone = argparse.Namespace(**{**vars(both), "seed": None, "seeds": None,
+                                  "only_after_learning": True})  # fmt: skip
+    with pytest.raises(ValueError, match="--only-after-learning .* give --perturb or --variants"):
+        strangers.main(alone)
+    with pytest.raises(ValueError, match="--only-after-learning"):
+        verification.main(argparse.Namespace(data_dir=str(tmp_path), identifiers="reid",
+                                             identities=None,
+                                             config=None, json=True, perturb=False,
+                                             variants=None, only_after_learning=True))  # fmt: skip

@@ -74,7 +74,7 @@ def test_over_several_seeds_each_run_is_the_single_seed_run(model_path):
     from follow.eval.strangers import main
 
     model_path("ccf/ccf10")
-    args = argparse.Namespace(identifiers="ccf10", strangers=1, seed=0, seeds="0-1",
+    args = argparse.Namespace(identifiers="ccf10", strangers=1, seed=None, seeds="0-1",
                               config=None, json=True, perturb=False, variants=None,
                               only_after_learning=False)  # fmt: skip
     out = main(args)

@@ -162,6 +162,9 @@ def selected_pixel_variants(args, what: str) -> list[Variant] | None:
     original); a later start named in `--variants` means nothing there and is refused."""
     chosen = selected_variants(args)
     if chosen is None:
+        if getattr(args, "only_after_learning", False):  # it would be silently ignored
+            raise ValueError("--only-after-learning changes what a variant shows: give "
+                             "--perturb or --variants with it")  # fmt: skip
         return None
     for v in chosen:
         if v.first_frame and getattr(args, "variants", None) is not None:

@@ -62,7 +62,7 @@ def add_arguments(p) -> None:
     p.add_argument("--identifiers", default="ccf10,ccf10+reid", type=identifier_list,
                    help="comma-separated identifier configurations (default ccf10,ccf10+reid)")  # fmt: skip
     p.add_argument("--strangers", type=positive_int, default=5, help="people who walk in (default 5)")
-    p.add_argument("--seed", type=non_negative_int, default=0,
+    p.add_argument("--seed", type=non_negative_int, default=None,
                    help="the strangers' heights and looks, and the detector's noise (default 0)")  # fmt: skip
     p.add_argument("--seeds", help="run several draws of the scenario, e.g. 0-4 or 0,3,7, and "
                    "report each plus the mean and the worst (not with --perturb)")  # fmt: skip
@@ -205,6 +205,9 @@ def main(args) -> dict:
     variants = selected_pixel_variants(args, "identification-sim")
     names = [s.strip() for s in args.identifiers.split(",") if s.strip()]
     seeds = parse_seeds(args.seeds) if getattr(args, "seeds", None) else None
+    if seeds is not None and args.seed is not None:  # one of the two would be ignored
+        raise ValueError("give --seed or --seeds, not both")
+    args.seed = args.seed if args.seed is not None else 0
     if seeds is not None:
         if variants is not None:
             raise ValueError("--seeds runs the plain scenario: take --perturb one --seed at a time")
