@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.chessboard import ImageInputError, is_video, iter_video_frames, read_image, to_gray
-from follow.cli_args import picture_path, positive_float
+from follow.cli_args import picture_path, positive_float, refuse_overwriting
 
 
 def pattern_size(text: str) -> tuple[int, int]:
@@ -69,20 +69,16 @@ def read_grey_frames(
     return out[:limit] if limit else out
 
 
+
 def refuse_overwriting_inputs(inputs: dict, outputs: dict) -> None:
     """Refuse, before anything is read or written, an output that is one of the inputs
     (a photo, a video, a Tsai file, a camera file read but not rewritten) or another
-    output, or that is a folder: found after the calibration, the photo is already lost.
-    `inputs`: name -> path, list of paths or None; `outputs`: name -> path."""
-    seen: dict[Path, str] = {}
-    for name, value in inputs.items():
-        for path in value if isinstance(value, list) else [value]:
-            if path is not None and str(path) and Path(path).exists():
-                seen[Path(path).resolve()] = f"{name} {path}"
+    output, or that is a folder (`follow.cli_args.refuse_overwriting`, each input named
+    with its path). `inputs`: name -> path, list of paths or None; `outputs`: name -> path."""
+    labelled = {f"{name} {path}": path for name, value in inputs.items()
+                for path in (value if isinstance(value, list) else [value])
+                if path is not None}  # fmt: skip
+    refuse_overwriting(labelled, outputs)
     for name, path in outputs.items():
-        resolved = Path(path).resolve()
-        if resolved in seen:
-            raise ValueError(f"{name} {path} is also the {seen[resolved]}: it would be overwritten")
-        if resolved.is_dir():
+        if Path(path).is_dir():
             raise ValueError(f"{name} {path} is a folder: give a file name")
-        seen[resolved] = f"{name} {path}"

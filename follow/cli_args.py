@@ -27,6 +27,24 @@ MAX_UNDECODABLE_RUN = 30
 EARLY_END_TOLERANCE_FRAMES = 1
 
 
+def refuse_overwriting(inputs: dict, outputs: dict) -> None:
+    """Refuse an output that is one of the inputs or another output, before anything is
+    read or written (`follow run` and `follow-calib` alike): found after the work, the
+    input is already lost. `inputs`: label -> path (None, empty or missing skipped);
+    `outputs`: option -> path (None or empty skipped)."""
+    seen: dict[Path, str] = {}
+    for label, value in inputs.items():
+        if value and Path(value).exists():
+            seen[Path(value).resolve()] = label
+    for name, value in outputs.items():
+        if not value:
+            continue
+        path = Path(value).resolve()
+        if path in seen:
+            raise ValueError(f"{name} {value} is also the {seen[path]}: it would be overwritten")
+        seen[path] = name
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse's parser, whose refusal of a command line (a bad option value, an unknown
     option) also ends stdout with `{"error": ...}` when that command line asks for

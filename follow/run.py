@@ -24,7 +24,7 @@ import numpy as np
 from follow.bag import is_bag
 from follow.camera import CameraModel, check_pose_measured
 from follow.capture import DEFAULT_FOLDER_FPS, open_source, played_at_own_stamps
-from follow.cli_args import non_negative_int, positive_float
+from follow.cli_args import non_negative_int, positive_float, refuse_overwriting
 from follow.config import Config
 from follow.person_in_view import log_person_in_view
 from follow.pipeline import FrameResult, Perception, build_runner, run_offline
@@ -326,17 +326,11 @@ def check_output_paths(args) -> None:
               "--replay": args.replay}  # fmt: skip
     outputs = {"--output-video": args.output_video, "--log": args.log,
                "--frames-dir": args.frames_dir}  # fmt: skip
-    seen: dict[Path, str] = {}
-    for name, value in inputs.items():
-        if value and Path(value).exists():
-            seen[Path(value).resolve()] = name
+    refuse_overwriting(inputs, outputs)
     for name, value in outputs.items():
         if not value:
             continue
         path = Path(value).resolve()
-        if path in seen:
-            raise ValueError(f"{name} {value} is also the {seen[path]}: it would be overwritten")
-        seen[path] = name
         if name == "--frames-dir":
             if path.exists() and not path.is_dir():
                 raise ValueError(f"--frames-dir {value} is a file, not a folder")
