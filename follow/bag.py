@@ -157,12 +157,16 @@ class BagSource:
                 damaged.append(str(exc))
                 continue
             try:
-                skeletons.append([skeleton_from_json(d) for d in json.loads(text)])
-            except (ValueError, KeyError, TypeError) as exc:
+                listed = json.loads(text)
+                if not isinstance(listed, list):
+                    raise ValueError("its JSON is no list")
+                skeletons.append([skeleton_from_json(d, f"skeleton {i}")
+                                  for i, d in enumerate(listed)])  # fmt: skip
+            except ValueError as exc:  # json.JSONDecodeError is one
                 raise SourceError(
                     f"bag {self.spec}: {c.topic} at {log_time_ns} ns is not a JSON list of "
                     "skeletons (objects with keypoints_px and confidences, as the run log "
-                    f"writes them: is it the skeletons topic?): {type(exc).__name__}: {exc}"
+                    f"writes them: is it the skeletons topic?): {exc}"
                 ) from None
             stamps.append(log_time_ns * 1e-9)
         if damaged:

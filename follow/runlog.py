@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from follow.types import (
+    NUM_KEYPOINTS,
     Odometry,
     Skeleton,
     TargetEstimate,
@@ -38,9 +39,51 @@ def skeleton_to_json(s: Skeleton) -> dict:
     }
 
 
-def skeleton_from_json(d: dict) -> Skeleton:
-    kp = np.array([[np.nan if v is None else v for v in p] for p in d["keypoints_px"]], float)
-    return Skeleton(kp, np.asarray(d["confidences"], float), float(d.get("score", 0.0)))
+def skeleton_from_json(d: dict, name: str = "skeleton") -> Skeleton:
+    """A skeleton as `skeleton_to_json` writes it; ValueError naming the field otherwise
+    (a log or a bag's skeleton topic may be cut, edited or of another program)."""
+    if not isinstance(d, dict):
+        raise ValueError(f"{name} is {_shown(d)}, not a JSON object")
+    for key in ("keypoints_px", "confidences"):
+        if key not in d:
+            raise ValueError(f"{name} has no {key!r}")
+    points, conf = d["keypoints_px"], d["confidences"]
+    if not isinstance(points, list) or len(points) != NUM_KEYPOINTS:
+        raise ValueError(f"{name} keypoints_px is {_shown(points)}, not a list of "
+                         f"{NUM_KEYPOINTS} [x, y]")  # fmt: skip
+    kp = np.array([_numbers(p, f"{name} keypoints_px[{i}]", 2, missing_ok=True)
+                   for i, p in enumerate(points)], float)  # fmt: skip
+    confidences = _numbers(conf, f"{name} confidences", NUM_KEYPOINTS, missing_ok=True)
+    score = _number(d.get("score", 0.0), f"{name} score")
+    return Skeleton(kp, np.asarray(confidences, float), score)
+
+
+def _shown(value) -> str:
+    """A JSON value as a message quotes it: short, as it stands in the file."""
+    text = json.dumps(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _number(value, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+        raise ValueError(f"{name} is {_shown(value)}, not a finite number")
+    return float(value)
+
+
+def _numbers(value, name: str, count: int, missing_ok: bool = False) -> list[float]:
+    """A list of `count` finite numbers (null, a missing value, read as NaN if allowed)."""
+    if not isinstance(value, list) or len(value) != count:
+        raise ValueError(f"{name} is {_shown(value)}, not a list of {count} numbers")
+    return [np.nan if v is None and missing_ok else _number(v, f"{name}[{i}]")
+            for i, v in enumerate(value)]  # fmt: skip
+
+
+def _whole(value, name: str) -> int:
+    if isinstance(value, bool) or not (
+        isinstance(value, int) or isinstance(value, float) and value.is_integer()
+    ):
+        raise ValueError(f"{name} is {_shown(value)}, not a whole number")
+    return int(value)
 
 
 def track_to_json(t: TrackState) -> dict:
@@ -173,8 +216,7 @@ def _read(path: Path) -> Iterator:
                 raise ValueError(f"run log {path}: line {number} is not JSON") from None
             try:
                 record = _record(d)
-            except (KeyError, TypeError, ValueError, IndexError, AttributeError,
-                    OverflowError) as exc:
+            except (KeyError, ValueError) as exc:
                 raise ValueError(f"run log {path}: line {number}: {_problem(exc)}") from None
             yield record
 
@@ -223,26 +265,58 @@ def _is_image_size(size) -> bool:
 
 
 def _record(d: dict) -> FrameRecord:
-    """One frame line, parsed; KeyError / TypeError / ValueError (or AttributeError,
-    OverflowError: a field of the wrong shape) when malformed."""
+    """One frame line, parsed; KeyError for a missing key, ValueError naming the field
+    that is of the wrong shape."""
     if not isinstance(d, dict):
-        raise TypeError(f"a frame record must be a JSON object, got {type(d).__name__}")
-    stamp_s = float(d["stamp_s"])
+        raise ValueError(f"a frame record must be a JSON object, got {_shown(d)}")
+    stamp_s = _number(d["stamp_s"], "stamp_s")
+    frame = _whole(d["frame"], "frame")
+    skeletons = d["skeletons"]
+    if not isinstance(skeletons, list):
+        raise ValueError(f"skeletons is {_shown(skeletons)}, not a list")
     robot = d.get("robot")
     target = d.get("target") or {}
+    if not isinstance(target, dict):
+        raise ValueError(f"target is {_shown(target)}, not a JSON object")
     command = d.get("command")
     return FrameRecord(
-        frame_index=int(d["frame"]),
+        frame_index=frame,
         stamp_s=stamp_s,
-        robot=None if robot is None else Odometry(*robot, stamp_s),
-        skeletons=[skeleton_from_json(s) for s in d["skeletons"]],  # replayed: never assumed
-        tracks=d.get("tracks", []),
-        target_status=target.get("status", ""),
-        target_id=target.get("id"),
-        confidences={int(k): v for k, v in target.get("confidences", {}).items()},
-        command=None if command is None else VelocityCommand(command[0], command[1], stamp_s),
-        timing_ms=d.get("timing_ms", {}),
+        robot=None if robot is None else Odometry(*_numbers(robot, "robot", 3), stamp_s),
+        skeletons=[skeleton_from_json(s, f"skeletons[{i}]")  # replayed: never assumed
+                   for i, s in enumerate(skeletons)],  # fmt: skip
+        tracks=_of_type(d.get("tracks", []), list, "tracks"),
+        target_status=_of_type(target.get("status", ""), str, "target status"),
+        target_id=_target_id(target.get("id")),
+        confidences=_confidences(target.get("confidences", {})),
+        command=None if command is None
+        else VelocityCommand(*_numbers(command, "command", 2), stamp_s),
+        timing_ms=_of_type(d.get("timing_ms", {}), dict, "timing_ms"),
     )
+
+
+def _of_type(value, kind: type, name: str):
+    if not isinstance(value, kind):
+        expected = {list: "a list", str: "text", dict: "a JSON object"}[kind]
+        raise ValueError(f"{name} is {_shown(value)}, not {expected}")
+    return value
+
+
+def _target_id(value) -> int | None:
+    return None if value is None else _whole(value, "target id")
+
+
+def _confidences(value) -> dict[int, float]:
+    """The target's confidence per track: a JSON object keyed by track id."""
+    _of_type(value, dict, "target confidences")
+    confidences = {}
+    for key, v in value.items():
+        try:
+            track_id = int(key)
+        except ValueError:
+            raise ValueError(f"target confidences key {key!r} is no track id") from None
+        confidences[track_id] = _number(v, f"target confidences[{key!r}]")
+    return confidences
 
 
 def _problem(exc: Exception) -> str:

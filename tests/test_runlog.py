@@ -1,3 +1,5 @@
+import json
+
 import numpy as np
 import pytest
 
@@ -98,6 +100,33 @@ def test_a_frame_record_of_the_wrong_shape_is_named_not_a_crash(tmp_path, record
     _, records = read_run_log(path)
     with pytest.raises(ValueError, match=rf"run log {path}: line 2: malformed frame record"):
         list(records)
+
+
+_POINTS = json.dumps([[1.0, 2.0]] * 17 + [[1.0, "a"]])
+
+
+@pytest.mark.parametrize(
+    "fields, named",
+    [('"stamp_s": "abc", "skeletons": []', 'stamp_s is "abc", not a finite number'),
+     ('"stamp_s": 0, "skeletons": [], "robot": [1, 2]', "robot is [1, 2], not a list of 3"),
+     ('"stamp_s": 0, "skeletons": 5', "skeletons is 5, not a list"),
+     ('"stamp_s": 0, "skeletons": [{"keypoints_px": [[1, 2]], "confidences": [1]}]',
+      "skeletons[0] keypoints_px is [[1, 2]], not a list of 18"),
+     ('"stamp_s": 0, "skeletons": [{"keypoints_px": ' + _POINTS + ', "confidences": []}]',
+      'skeletons[0] keypoints_px[17][1] is "a", not a finite number'),
+     ('"stamp_s": 0, "skeletons": [], "target": {"confidences": {"x": 0.5}}',
+      "target confidences key 'x' is no track id"),
+     ('"stamp_s": 0, "skeletons": [], "command": [1, null]', "command[1] is null"),
+     ('"stamp_s": 0, "skeletons": [], "target": {"id": "7"}', 'target id is "7", not a whole')],
+)  # fmt: skip
+def test_a_malformed_frame_record_names_the_field_and_its_value(tmp_path, fields, named):
+    path = tmp_path / "run.jsonl"
+    path.write_text('{"log_version": 1}\n{"frame": 0, ' + fields + "}\n"
+                    '{"frame": 1, "stamp_s": 0.1, "skeletons": []}\n')  # fmt: skip
+    _, records = read_run_log(path)
+    with pytest.raises(ValueError) as caught:
+        list(records)
+    assert f"run log {path}: line 2: malformed frame record ({named}" in str(caught.value)
 
 
 def test_a_frame_record_without_its_skeletons_is_refused_not_replayed_as_nobody(tmp_path):
