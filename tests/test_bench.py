@@ -198,3 +198,23 @@ def test_the_robot_scene_runs_the_input_height_follow_run_chooses_for_its_camera
     focal_px = FRAME_SIZE[0] / 2 / math.tan(math.radians(HORIZONTAL_FOV_DEG) / 2)
     assert robot == input_height_for_camera(focal_px, FRAME_SIZE[1], wide.pose) == 256
     assert bench.config_for_scene(wide, setup, "pets").pose.input_height_px == 368
+
+
+@pytest.mark.parametrize(
+    "argv, named",
+    [(["--repeats", "3"], "--repeats: with --matrix only"),
+     (["--providers", "cpu,cuda", "--repeats", "2"], "--providers and --repeats: with --matrix"),
+     (["--matrix", "--settings", "pets"], "leave out --settings"),
+     (["--matrix", "--provider", "cpu"], "leave out --provider")],
+)  # fmt: skip
+def test_options_one_kind_of_run_would_ignore_are_refused_before_any_frame(argv, named):
+    """A single run compares no runtimes and repeats nothing; the matrix chooses every
+    setting and runtime itself: either way the option would change nothing in silence."""
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    bench.add_arguments(parser)
+    args = parser.parse_args(argv)
+    args.json = True
+    with pytest.raises(ValueError, match=named):
+        bench.main(args)

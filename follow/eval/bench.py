@@ -60,8 +60,9 @@ ROBOT_SCENE_FAR_M = 5.0
 def add_arguments(p) -> None:
     p.add_argument("--frames", type=positive_int, default=60, help="frames to time (default 60)")
     p.add_argument("--warmup", type=non_negative_int, default=5, help="frames run before timing")
-    p.add_argument("--settings", choices=SETTINGS_CHOICES, default="robot",
-                   help="robot defaults, or the PETS settings (follow/eval/pets2009.toml)")  # fmt: skip
+    p.add_argument("--settings", choices=SETTINGS_CHOICES, default=None,
+                   help="robot defaults, or the PETS settings (follow/eval/pets2009.toml; "
+                        "default robot)")  # fmt: skip
     p.add_argument("--provider", choices=PROVIDER_CHOICES,
                    help="pose runtime: cpu = onnxruntime (the plain install), openvino, "
                         "cuda, tensorrt (default: the config's); with cpu or openvino the "
@@ -79,10 +80,10 @@ def add_arguments(p) -> None:
     p.add_argument("--config", help="TOML configuration over the chosen settings")
     p.add_argument("--matrix", action="store_true",
                    help="robot and PETS settings x runtimes (--providers), one process each")  # fmt: skip
-    p.add_argument("--providers", type=provider_list, default=MATRIX_PROVIDERS,
+    p.add_argument("--providers", type=provider_list, default=None,
                    help="with --matrix: runtimes to compare (default cpu,openvino; "
                         "cpu,cuda,tensorrt on a GPU machine)")  # fmt: skip
-    p.add_argument("--repeats", type=positive_int, default=1,
+    p.add_argument("--repeats", type=positive_int, default=None,
                    help="with --matrix: runs per cell; the table shows medians (default 1)")  # fmt: skip
 
 
@@ -123,8 +124,12 @@ def main(args) -> dict:
                          "--scene robot")  # fmt: skip
     args.people = args.people or ROBOT_SCENE_PEOPLE
     args.far_m = args.far_m or ROBOT_SCENE_FAR_M
+    refuse_ignored_options(args)
     if args.matrix:
+        args.providers = args.providers or MATRIX_PROVIDERS
+        args.repeats = args.repeats or 1
         return run_matrix(args)
+    args.settings = args.settings or "robot"
     from follow.pose.detector import CHOSEN_HERE, PoseDetector, auto_fp32_reason
 
     setup, scene = bench_scene(args)
@@ -402,6 +407,23 @@ def ran_on(row: dict) -> str:
     stages = "stages overlapped" if row["overlap_stages"] else "stages in turn"
     return (f"{row['pose_model']} on {row['pose_backend']}, {stages}, re-id "
             f"{row['reid_backend'] or 'none'}")  # fmt: skip
+
+
+def refuse_ignored_options(args) -> None:
+    """Options that one kind of run would ignore in silence: the matrix picks every
+    setting and runtime itself, and a single run has no runtimes to compare or repeat."""
+    if args.matrix:
+        chosen = [o for o, v in (("--settings", args.settings), ("--provider", args.provider))
+                  if v is not None]  # fmt: skip
+        if chosen:
+            raise ValueError(f"--matrix runs every setting and runtime: leave out "
+                             f"{' and '.join(chosen)} (--providers names the runtimes)")  # fmt: skip
+        return
+    matrix_only = [o for o, v in (("--providers", args.providers), ("--repeats", args.repeats))
+                   if v is not None]  # fmt: skip
+    if matrix_only:
+        raise ValueError(f"{' and '.join(matrix_only)}: with --matrix only (a single run is "
+                         "one runtime, --provider, once)")  # fmt: skip
 
 
 def run_matrix(args) -> dict:
