@@ -31,6 +31,14 @@ DEFAULT_FOLDER_FPS = 15.0
 # A file's presentation time this close to index / fps is a frame on its frame rate's
 # grid (containers store times to the millisecond): it keeps index / fps exactly.
 FRAME_RATE_GRID_TOLERANCE_S = 1e-3
+# A live camera's driver keeps capturing into a queue of buffers while nobody reads
+# (OpenCV's V4L2 back-end queues 4): after a pause in reading (the models loading after
+# the first frame was read for its size), the queue's frames are as old as the pause.
+# A read that returns within this fraction of the frame period did not wait for the
+# sensor: it came from the queue. At most MAX_QUEUED_FRAMES are dropped so.
+QUEUE_PAUSE_PERIODS = 2.0
+QUEUED_READ_MAX_PERIOD_FRACTION = 0.25
+MAX_QUEUED_FRAMES = 8
 
 
 class SourceError(RuntimeError):
@@ -45,7 +53,8 @@ class FrameSource:
     keep failing raises SourceError (a camera does not end: it was lost). Timestamps are
     taken from a video file's presentation times (a variable frame rate kept; where the
     file has none, from its frame rate), from the frame rate for folders (so replay is
-    reproducible) and from the monotonic clock for live cameras.
+    reproducible) and from the monotonic clock for live cameras, whose frames queued in
+    the driver during a pause in reading are dropped (they are as old as the pause).
     """
 
     def __init__(self, spec: str, folder_fps: float = DEFAULT_FOLDER_FPS):
@@ -119,8 +128,12 @@ class FrameSource:
         grey_said = False
         repeats = RepeatedImages()
         frozen_said = False
+        returned_s = None  # when the last frame was handed over (a live camera's)
         while True:
-            ok, image = self._cap.read()
+            paused = self.live and returned_s is not None and (
+                time.monotonic() - returned_s > QUEUE_PAUSE_PERIODS / self.fps
+            )
+            ok, image = self._read_past_queue() if paused else self._cap.read()
             if not ok:
                 if self.live and failures < 10:
                     failures += 1
@@ -160,9 +173,28 @@ class FrameSource:
                     grey_said = True
                 image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
             try:
-                yield Frame(image, stamp)
+                frame = Frame(image, stamp)
             except InvalidInput as exc:  # the decoder gave something odd
                 log.warning("skipping frame %d: %s", index, exc)
+                continue
+            returned_s = time.monotonic()
+            yield frame
+
+    def _read_past_queue(self) -> tuple[bool, np.ndarray | None]:
+        """The first frame a live camera captures after a pause in reading: the frames
+        its driver queued meanwhile (as old as the pause, and stamped as new if read)
+        are grabbed and dropped until a grab waits for the sensor."""
+        period_s = 1.0 / self.fps
+        for dropped in range(MAX_QUEUED_FRAMES):
+            started_s = time.monotonic()
+            if not self._cap.grab():
+                return False, None
+            if time.monotonic() - started_s >= QUEUED_READ_MAX_PERIOD_FRACTION * period_s:
+                break
+        if dropped:
+            log.info("source %s: %d frame(s) queued in the camera's driver during a pause in "
+                     "reading dropped (older than they would be stamped)", self.spec, dropped)  # fmt: skip
+        return self._cap.retrieve()
 
     def _frames_announced_after(self, position: int) -> bool:
         """Whether a file's header announces frames beyond `position`: a read that fails

@@ -1,5 +1,6 @@
 import itertools
 import threading
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -181,6 +182,65 @@ def test_a_frozen_camera_repeating_its_last_image_delivers_nothing_new(monkeypat
     images = [int(next(frames).image[0, 0, 0]) for _ in range(4)]
     assert images == [1, 2, 3, 4]  # the five repeats of image 2 never came out
     assert "the same image again" in caplog.text
+
+
+class _QueueingCamera:
+    """A 30 fps camera on a fake clock whose driver queues `queued` frames while nobody
+    reads: a grab of a queued frame returns at once, a grab of a new one waits for the
+    sensor (a frame period). Each image carries the time it was captured, in ms."""
+
+    def __init__(self, clock, queued: int):
+        self.clock, self.queued = clock, queued
+        self._grabbed = None
+
+    def isOpened(self):
+        return True
+
+    def get(self, prop):
+        return 30.0
+
+    def grab(self):
+        if self.queued:  # captured when the pause began
+            self.queued -= 1
+            self._grabbed = 0.0
+        else:
+            self.clock.now_s += 1 / 30
+            self._grabbed = self.clock.now_s
+        return True
+
+    def retrieve(self):
+        return True, np.full((24, 32, 3), int(self._grabbed * 1000) % 256, np.uint8)
+
+    def read(self):
+        self.grab()
+        return self.retrieve()
+
+    def release(self):
+        pass
+
+
+def test_frames_a_camera_queued_while_nobody_read_are_dropped_not_stamped_as_new(monkeypatch):
+    """The first frame is read for its size, then the models load for seconds while the
+    driver queues frames; stamped when read, those would pass seconds-old views of the
+    scene off as new. After the pause the first frame handed over is one the sensor
+    captured after it."""
+    import follow.capture as capture
+
+    clock = SimpleNamespace(now_s=0.0)
+    monkeypatch.setattr(capture.time, "monotonic", lambda: clock.now_s)
+    camera = _QueueingCamera(clock, queued=0)
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: camera)
+    frames = iter(FrameSource("0"))
+    next(frames)
+    clock.now_s += 3.0  # the models load; the driver fills its four buffers
+    camera.queued = 4
+    after_pause = next(frames)
+    captured_ms = int(clock.now_s * 1000) % 256
+    assert int(after_pause.image[0, 0, 0]) == captured_ms != 0  # not a queued frame
+    assert camera.queued == 0
+    # reading on without a pause drops nothing: each frame is the next one captured
+    camera.queued = 1  # (a frame the driver had ready: taken as it is, no pause)
+    assert int(next(frames).image[0, 0, 0]) == 0
 
 
 def test_an_unusable_image_in_a_folder_is_skipped_by_name(tmp_path, caplog):
