@@ -185,10 +185,12 @@ class FrameSource:
         its driver queued meanwhile (as old as the pause, and stamped as new if read)
         are grabbed and dropped until a grab waits for the sensor."""
         period_s = 1.0 / self.fps
-        for dropped in range(MAX_QUEUED_FRAMES):
+        dropped = -1  # the last frame grabbed is the one handed on
+        while dropped < MAX_QUEUED_FRAMES:
             started_s = time.monotonic()
             if not self._cap.grab():
                 return False, None
+            dropped += 1
             if time.monotonic() - started_s >= QUEUED_READ_MAX_PERIOD_FRACTION * period_s:
                 break
         if dropped:
