@@ -150,16 +150,28 @@ class ShutdownSignals:
             return
 
         def stop() -> None:
-            try:
-                emergency = getattr(base, "emergency_stop", None)
-                if emergency is not None:
-                    emergency()
-                else:
-                    base.send(VelocityCommand.stop(0.0))
-                    base.close()
-            except Exception as exc:  # closing already, or the link is gone
-                log.error("emergency stop: %s", exc)
+            emergency = getattr(base, "emergency_stop", None)
+            if emergency is not None:
+                emergency()
+            else:
+                base.send(VelocityCommand.stop(0.0))
+                base.close()
 
-        worker = threading.Thread(target=stop, name="emergency-stop", daemon=True)
-        worker.start()
-        worker.join(EMERGENCY_STOP_WAIT_S)
+        stop_within(stop)
+
+
+def stop_within(stop: Callable[[], None], wait_s: float = EMERGENCY_STOP_WAIT_S) -> None:
+    """Run `stop` (a zero command on a second signal) on a helper thread and wait for it
+    `wait_s` at most: the process exits next whatever the link does, and a send that
+    hangs must not keep it alive. An error is logged (closing already, or the link is
+    gone)."""
+
+    def guarded() -> None:
+        try:
+            stop()
+        except Exception as exc:
+            log.error("emergency stop: %s", exc)
+
+    worker = threading.Thread(target=guarded, name="emergency-stop", daemon=True)
+    worker.start()
+    worker.join(wait_s)

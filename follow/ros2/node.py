@@ -9,7 +9,8 @@ newest image, and (with `[control] overlap_stages`) tracking, identification and
 publishers of the previous image beside it, in order. Safety as in
 `follow run`: an image older than `max_image_age_s`, odometry older than
 `max_odometry_age_s`, a lost target or a stop request give a zero cmd_vel, and so does
-shutdown (SIGINT or SIGTERM); a camera file whose pose is a placeholder, not measured,
+shutdown (SIGINT, SIGTERM or SIGHUP; a second signal while it shuts down publishes zero
+and exits at once); a camera file whose pose is a placeholder, not measured,
 publishes no cmd_vel at all (the node refuses to start with `ros.publish_cmd_vel`).
 """
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 import signal
 import statistics
 import threading
@@ -53,7 +55,7 @@ from follow.rosmsg import (
     odometry_from_msg,
     stamp_s,
 )
-from follow.shutdown import SIGNALS
+from follow.shutdown import SIGNALS, stop_within
 from follow.types import Frame, InvalidInput, Odometry, VelocityCommand
 
 log = logging.getLogger(__name__)
@@ -591,15 +593,28 @@ class FollowNode(Node):
 
 
 def run(config: Config, camera: CameraModel, ros_args: list[str], camera_file=None) -> dict:
-    """Spin the node until SIGINT, SIGTERM or SIGHUP, then stop the base and shut down.
+    """Spin the node until SIGINT, SIGTERM or SIGHUP, then stop the base and shut down; a
+    second signal (a shutdown that hangs) publishes zero and exits with 128 + its number.
     `camera_file`, the file `camera` was read from, must have a measured pose for the node
     to publish cmd_vel (`follow.camera.check_pose_measured`)."""
     rclpy.init(args=["follow", "--ros-args", *ros_args] if ros_args else ["follow"],
                signal_handler_options=SignalHandlerOptions.NO)  # fmt: skip
     stop = threading.Event()
-    # SIGHUP too: a closed terminal or ssh session must stop the base, not kill the node
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in SIGNALS}
     node = None
+
+    def on_signal(signum: int, _frame) -> None:
+        if not stop.is_set():
+            stop.set()  # the loop below ends and shuts the node down
+            return
+        # a second signal: the shutdown hangs (a worker that will not end) or is too slow
+        log.error("%s during shutdown: publishing zero and exiting now",
+                  signal.Signals(signum).name)  # fmt: skip
+        if node is not None and config.ros.publish_cmd_vel:
+            stop_within(lambda: node._publish_twist(VelocityCommand.stop(node.now_s())))
+        os._exit(128 + signum)
+
+    # SIGHUP too: a closed terminal or ssh session must stop the base, not kill the node
+    previous = {sig: signal.signal(sig, on_signal) for sig in SIGNALS}
     summary: dict = {}
     try:
         node = FollowNode(config, camera, camera_file=camera_file)
