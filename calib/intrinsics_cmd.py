@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,7 @@ from calib.cmd_common import (
     video_source,
 )
 from follow.camera import PLACEHOLDER_POSE_NOTE, CameraFileError, CameraModel, CameraPose
-from follow.cli_args import non_negative_float, positive_float
+from follow.cli_args import non_negative_float, positive_float, refuse_unwritable
 
 log = logging.getLogger(__name__)
 
@@ -105,16 +104,6 @@ def _pose_to_keep(output: Path) -> CameraPose | None:
         ) from exc
 
 
-def _check_writable(output: Path) -> None:
-    """Refuse an -o whose folder cannot be made or written in before the calibration runs,
-    not after it (the missing folders are made when the file is written)."""
-    folder = output.absolute().parent
-    while not folder.exists():
-        folder = folder.parent
-    if not (folder.is_dir() and os.access(folder, os.W_OK | os.X_OK)):
-        raise OSError(f"cannot write {output}: {folder} is not a folder that can be written in")
-
-
 def main(args: argparse.Namespace) -> dict:
     if args.every < 1 or args.max_views < intr.MIN_VIEWS:
         raise ValueError(
@@ -125,7 +114,7 @@ def main(args: argparse.Namespace) -> dict:
     paths = _image_files(args.inputs)
     camera_index = paths is None and video_source(args.inputs).isdigit()
     kept_pose = _pose_to_keep(args.output)
-    _check_writable(args.output)
+    refuse_unwritable(args.output, "-o")
     unreadable: list[tuple[str, str]] = []
     try:
         result = intr.calibrate_intrinsics(

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import sys
 import tempfile
@@ -43,6 +44,19 @@ def refuse_overwriting(inputs: dict, outputs: dict) -> None:
         if path in seen:
             raise ValueError(f"{name} {value} is also the {seen[path]}: it would be overwritten")
         seen[path] = name
+
+
+def refuse_unwritable(output: Path, name: str, why: str = "") -> None:
+    """Refuse an output whose folder cannot be made or written in before the work that
+    makes it (minutes of calibration or quantisation), not after. Missing folders are
+    fine when the nearest existing one can be written in: the writer makes them. `name`
+    is the option, `why` what is written there, for the message."""
+    folder = Path(output).absolute().parent
+    while not folder.exists():
+        folder = folder.parent
+    if not (folder.is_dir() and os.access(folder, os.W_OK | os.X_OK)):
+        raise OSError(f"cannot write {output} ({name}): {folder} is not a folder that can be "
+                      "written in" + (f"; {why}" if why else ""))  # fmt: skip
 
 
 class ArgumentParser(argparse.ArgumentParser):

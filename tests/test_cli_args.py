@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 
 import pytest
 
@@ -168,3 +169,20 @@ def test_a_refused_command_line_ends_stdout_with_the_error_under_json(main, argv
             assert json.loads(out.strip().splitlines()[-1]) == {"error": message}
         else:
             assert out == ""
+
+
+def test_an_output_folder_is_checked_for_writing_up_to_the_nearest_that_exists(tmp_path):
+    """Folders the writer would make are fine; a file in the way, or a folder that cannot
+    be written in, is refused before the work."""
+    from follow.cli_args import refuse_unwritable
+
+    refuse_unwritable(tmp_path / "new" / "deeper" / "model.onnx", "--int8-model")
+    (tmp_path / "notes.txt").write_text("")
+    with pytest.raises(OSError, match=r"cannot write .*model\.onnx \(--int8-model\): .*notes\.txt "
+                       r"is not a folder that can be written in; made there"):  # fmt: skip
+        refuse_unwritable(tmp_path / "notes.txt" / "model.onnx", "--int8-model", "made there")
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    if not os.access(locked, os.W_OK):  # root writes anywhere: nothing to refuse then
+        with pytest.raises(OSError, match="locked is not a folder that can be written in"):
+            refuse_unwritable(locked / "sub" / "camera.yaml", "-o")

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -23,7 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from follow import models
-from follow.cli_args import non_negative_int, positive_int
+from follow.cli_args import non_negative_int, positive_int, refuse_unwritable
 from follow.config import PoseConfig
 from follow.eval.pets import PetsSequence, evenly_spaced_frames
 from follow.eval.pose import data_dir, input_height
@@ -84,10 +83,7 @@ def ensure_int8_model(path: Path | None, sequence: PetsSequence, height: int) ->
         return prepare_int8()  # the model `precision = "auto"` runs
     if path.exists():
         return path
-    folder = path.absolute().parent
-    if not (folder.is_dir() and os.access(folder, os.W_OK | os.X_OK)):  # before the minutes
-        raise OSError(f"--int8-model {path}: {folder} is not a folder that can be written in "
-                      "(the model is made there when missing)")  # fmt: skip
+    refuse_unwritable(path, "--int8-model", "the model is made there when missing")
     log.info("no INT8 pose model at %s: calibrating one on PETS frames", path)
     return make_int8_model(sequence, height, path)
 
