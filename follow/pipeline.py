@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import sys
 import threading
 import time
@@ -250,9 +251,21 @@ class ControlLoop:
                       "commands from now on", STOP_JOIN_TIMEOUT_S)  # fmt: skip
         self._send_last_stop(lock_timeout_s=STOP_JOIN_TIMEOUT_S if busy else -1.0)
 
+    def _stop_stamp_s(self) -> float:
+        """The last zero's stamp: the loop's clock, or, where that clock is what failed
+        (it raised, or gave no finite time), the last command's stamp: a stop must go out
+        whatever its time."""
+        try:
+            stamp_s = float(self.clock())
+        except Exception:
+            stamp_s = math.nan
+        if math.isfinite(stamp_s):
+            return stamp_s
+        return self.last_command.stamp_s if self.last_command is not None else 0.0
+
     def _send_last_stop(self, lock_timeout_s: float = -1.0) -> None:
         try:
-            self._send(VelocityCommand.stop(self.clock()), lock_timeout_s=lock_timeout_s)
+            self._send(VelocityCommand.stop(self._stop_stamp_s()), lock_timeout_s=lock_timeout_s)
         except Exception as exc:  # the link is gone: nothing more can be sent
             log.error("the base did not take the stop command: %s", exc)
             if self.error is None:

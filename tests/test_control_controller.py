@@ -211,3 +211,37 @@ def test_a_starved_control_step_speeds_up_by_two_periods_at_most_but_brakes_in_f
     assert slew(0.2, -1.0, 1.5, 2.0, 1.0, rise_dt_s=2 * PERIOD) == pytest.approx(
         -1.5 * 2 * PERIOD
     )
+
+
+@pytest.mark.parametrize("xy", [(-1.0, 0.25), (-3.0, 0.5), (-0.2, 1.2)])
+def test_a_target_behind_is_never_driven_toward_or_reversed_into(xy):
+    """With `turn_in_place_bearing_rad` past 90 degrees (allowed up to pi) a target
+    behind the robot was inside the forward rule: close, it was backed into at full
+    backing speed; far, driven away from. Only the part along the heading counts."""
+    cfg = ControlConfig(allow_backing_off=True, turn_in_place_bearing_rad=3.0)
+    command = run(FollowingController(cfg), lambda t: target(*xy, stamp=t), 1.0)
+    assert command.forward_mps == 0.0 and command.yaw_rate_radps != 0.0
+
+
+def test_backing_off_from_a_close_target_ahead_still_works():
+    cfg = ControlConfig(allow_backing_off=True)
+    command = run(FollowingController(cfg), lambda t: target(0.8, 0.1, stamp=t), 2.0)
+    assert command.forward_mps < 0.0
+
+
+def test_a_search_ends_when_the_clock_steps_back_instead_of_lasting_the_step():
+    """The search turn is timed from the loss; a clock stepped back a minute (NTP, a
+    simulator restarted) made it last that minute more."""
+    cfg = ControlConfig(search_duration_s=2.0, search_yaw_rate_radps=0.4)
+    c = FollowingController(cfg)
+    run(c, lambda t: target(3.0, 1.0, stamp=t), 0.5, t0=100.0)
+    assert c.update(None, 100.6).yaw_rate_radps > 0.0  # searching
+    turning = [not c.update(None, 40.6 + i * PERIOD).is_stop for i in range(60)]
+    assert not any(turning)
+
+
+def test_a_target_far_past_any_person_is_refused_by_name_not_overflowed():
+    with pytest.raises(InvalidInput, match=r"target position_m \[1e\+155, 0.0\] is beyond"):
+        target(1e155, 0.0)
+    with pytest.raises(InvalidInput, match="target velocity_mps .* is beyond"):
+        target(2.0, 0.0, vx=1e308)

@@ -255,6 +255,32 @@ def test_one_failed_zero_neither_cancels_the_others_nor_goes_unreported(rover):
     assert wait_for(lambda: rover.true_velocity()[0] == 0.0, 1.0)
 
 
+def test_close_returns_when_a_write_hangs(rover):
+    """A serial port that stops draining blocks the sender in a write while it holds the
+    send lock; close() waited for that lock for ever (and with it the run's cleanup). It
+    now gives up on its zeros after a bounded wait, says so, and still stops its
+    threads."""
+    base = MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST))
+    drive(base, 0.5, 0.0, 0.3)
+    wedged, release = threading.Event(), threading.Event()
+
+    def hanging_write(buf):
+        wedged.set()
+        release.wait(30.0)
+
+    base._conn.write = hanging_write
+    assert wedged.wait(2.0) and base._send_lock.locked()
+    closer = threading.Thread(target=base.close, daemon=True)
+    started = time.monotonic()
+    closer.start()
+    closer.join(10.0)
+    try:
+        assert not closer.is_alive() and time.monotonic() - started < 5.0
+        assert "has not returned" in base.last_error and "while closing" in base.last_error
+    finally:
+        release.set()
+
+
 def test_exception_in_the_with_block_still_stops(rover):
     with pytest.raises(KeyError):
         with MavlinkBase(MavlinkConfig(connection=rover.connection, **FAST)) as base:
@@ -290,6 +316,10 @@ def test_no_vehicle_and_bad_config_are_clear_errors():
         MavlinkBase(MavlinkConfig(connection="udpout:127.0.0.1:1", stream_rate_hz=5.0))
     with pytest.raises(ConfigError, match="autopilot"):
         MavlinkBase(MavlinkConfig(connection="udpout:127.0.0.1:1", autopilot="pixhawk"))
+    # a driver built in code is held to the loaded configuration's ranges: a command
+    # time-out of minutes would let the vehicle drive on a command nobody renews
+    with pytest.raises(ConfigError, match=r"command_timeout_s = 1000000000.0 is out of range"):
+        MavlinkBase(MavlinkConfig(connection="udpout:127.0.0.1:1", command_timeout_s=1e9))
 
 
 def test_only_the_newest_telemetry_is_used(rover, base):

@@ -161,6 +161,8 @@ class FollowingController:
         dt_s = stamp_s - self._last.stamp_s
         if dt_s < 0:
             log.warning("controller time went backwards by %.3f s", -dt_s)
+            if self._lost_since_s is not None:  # a search timed on the old clock would
+                self._lost_since_s = -math.inf  # last as long as the step: it ends now
             return 0.0
         return dt_s
 
@@ -200,8 +202,8 @@ class FollowingController:
         forward += ff * radial_speed
         if abs(bearing) > cfg.turn_in_place_bearing_rad:
             forward = 0.0
-        elif forward > 0:
-            forward *= math.cos(bearing)  # do not drive away sideways from the target
+        else:  # only the part along the heading: none for a target beside or behind
+            forward *= max(0.0, math.cos(bearing))  # (backing off must not reverse into it)
         min_forward = -cfg.max_backward_speed_mps if cfg.allow_backing_off else 0.0
         forward = float(np.clip(forward, min_forward, cfg.max_forward_speed_mps))
         yaw = float(np.clip(yaw, -cfg.max_yaw_rate_radps, cfg.max_yaw_rate_radps))

@@ -32,6 +32,9 @@ mavlink = mavutil.mavlink
 # How much longer than the settle time (odometry_timeout_s) connecting waits for steady
 # telemetry before it leaves the robot to stand until odometry comes.
 ODOMETRY_WAIT_MARGIN_S = 1.0
+# How long `close` waits for a write under way before each of its zeros (a write that
+# hangs longer is given up on: the threads are stopped and the connection closed anyway).
+CLOSE_SEND_WAIT_S = 0.5
 # Boot-time counters that jump back by more than this are a vehicle reboot, not reordering.
 _REBOOT_JUMP_MS = 10_000
 # How far the vehicle's clock may seem to run ahead of ours across a window of telemetry
@@ -64,19 +67,15 @@ class MavlinkError(RuntimeError):
 
 
 def check_mavlink_config(config: MavlinkConfig) -> None:
+    """The ranges a loaded configuration is held to (follow/config_bounds.py), for a
+    driver built from a MavlinkConfig made in code: a command time-out of minutes would
+    let the vehicle drive on a command nobody renews."""
+    from follow.config_bounds import section_errors
+
     if not config.connection:
         raise ConfigError("[mavlink] connection is empty (e.g. 'udpin:0.0.0.0:14550')")
-    if config.autopilot not in ("ardupilot", "px4"):
-        raise ConfigError(
-            f"[mavlink] autopilot must be 'ardupilot' or 'px4', got {config.autopilot!r}"
-        )
-    if not config.stream_rate_hz >= 10:
-        raise ConfigError(f"[mavlink] stream_rate_hz must be >= 10, got {config.stream_rate_hz}")
-    for name in ("heartbeat_timeout_s", "telemetry_rate_hz", "connect_timeout_s",
-                 "command_timeout_s", "odometry_timeout_s", "px4_turn_horizon_s"):  # fmt: skip
-        value = getattr(config, name)
-        if not (math.isfinite(value) and value > 0):
-            raise ConfigError(f"[mavlink] {name} must be > 0, got {value}")
+    if errors := section_errors("mavlink", config):
+        raise ConfigError("; ".join(errors))
 
 
 def _message_type(msg) -> str:
@@ -203,7 +202,7 @@ class MavlinkBase:
             self._state = LinkState.CLOSED
         atexit.unregister(self.close)
         if was_connected:
-            failure = self._send_zeros(self._send_setpoint, pause_s=0.01)
+            failure = self._send_zeros(self._send_closing_zero, pause_s=0.01)
             if failure is not None:  # a port gone: the threads must stop all the same
                 self.last_error = f"send failed while closing: {failure}"
                 log.error("MAVLink %s", self.last_error)
@@ -653,6 +652,20 @@ class MavlinkBase:
             if self._state is LinkState.CLOSED and not cmd.is_stop:
                 return
             self._write_setpoint(cmd)
+
+    def _send_closing_zero(self, cmd: VelocityCommand) -> None:
+        """A zero from `close`: behind a write under way, but not behind one that hangs
+        (a serial port that stopped draining holds `_send_lock` for ever; the threads must
+        still be stopped and the connection closed)."""
+        if self._target is None:
+            return
+        if not self._send_lock.acquire(timeout=CLOSE_SEND_WAIT_S):
+            raise MavlinkError(f"a write to the vehicle has not returned for "
+                               f"{CLOSE_SEND_WAIT_S:g} s: the zero could not be sent")  # fmt: skip
+        try:
+            self._write_setpoint(cmd)
+        finally:
+            self._send_lock.release()
 
     def _write_setpoint(self, cmd: VelocityCommand) -> None:
         """One SET_POSITION_TARGET_LOCAL_NED (the caller holds `_send_lock`, or cannot)."""

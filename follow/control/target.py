@@ -10,6 +10,11 @@ import numpy as np
 from follow.types import InvalidInput
 
 
+# Far past any person a camera sees or any walking speed; beyond them a target is a
+# fault upstream (and the controller's squares of it would overflow).
+TARGET_MAGNITUDE_LIMITS = {"position_m": 1e4, "velocity_mps": 1e3}
+
+
 @dataclass(frozen=True)
 class TargetMotion:
     """The target's ground position (m) and ground velocity (m/s, relative to the world,
@@ -33,6 +38,10 @@ class TargetMotion:
                 raise InvalidInput(f"target {name}: expected shape (2,), got {arr.shape}")
             if not np.isfinite(arr).all():
                 raise InvalidInput(f"target {name} is not finite: {arr.tolist()}")
+            if np.abs(arr).max() > TARGET_MAGNITUDE_LIMITS[name]:
+                raise InvalidInput(f"target {name} {arr.tolist()} is beyond "
+                                   f"{TARGET_MAGNITUDE_LIMITS[name]:g}: no person a camera "
+                                   "sees (a fault upstream)")  # fmt: skip
             arr = arr.copy()
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)
