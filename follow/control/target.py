@@ -9,7 +9,6 @@ import numpy as np
 
 from follow.types import InvalidInput
 
-
 # Far past any person a camera sees or any walking speed; beyond them a target is a
 # fault upstream (and the controller's squares of it would overflow).
 TARGET_MAGNITUDE_LIMITS = {"position_m": 1e4, "velocity_mps": 1e3}
