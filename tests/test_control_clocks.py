@@ -9,6 +9,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from follow import pipeline
 from follow.capture import LatestSlot
@@ -212,32 +213,32 @@ def test_after_an_operator_stop_the_base_speeds_up_from_rest():
     assert 0 < first.forward_mps <= config.max_forward_accel_mps2 / 15 + 1e-9
 
 
-def test_the_last_zero_goes_out_when_the_loop_clock_is_what_failed():
+@pytest.mark.parametrize("failure", ["nan", "raise"])
+def test_the_last_zero_goes_out_when_the_loop_clock_is_what_failed(failure):
     """A clock that raises or gives NaN ends the loop; the stop meant for that failure
     was stamped with the same clock, failed too, and the base kept the moving command."""
-    for failure in ("nan", "raise"):
-        now = [100.0]
-        broken = [False]
+    now = [100.0]
+    broken = [False]
 
-        def clock():
-            if broken[0]:
-                if failure == "raise":
-                    raise RuntimeError("the ROS context is shut down")
-                return float("nan")
-            return now[0]
+    def clock():
+        if broken[0]:
+            if failure == "raise":
+                raise RuntimeError("the ROS context is shut down")
+            return float("nan")
+        return now[0]
 
-        base = NullBase(clock=lambda: now[0])
-        slot = LatestSlot()
-        loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=15.0,
-                           perception_timeout_s=0.5, clock=clock)  # fmt: skip
-        for _ in range(10):
-            now[0] += 1 / 15
-            slot.put(_result(now[0]))
-            loop.tick()
-        assert base.last_command.forward_mps > 0.0
-        broken[0] = True
-        loop.start()
-        loop._thread.join(timeout=5.0)
-        assert loop.error is not None and base.last_command.is_stop
-        loop.stop()
-        assert base.last_command.is_stop
+    base = NullBase(clock=lambda: now[0])
+    slot = LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=15.0,
+                       perception_timeout_s=0.5, clock=clock)  # fmt: skip
+    for _ in range(10):
+        now[0] += 1 / 15
+        slot.put(_result(now[0]))
+        loop.tick()
+    assert base.last_command.forward_mps > 0.0
+    broken[0] = True
+    loop.start()
+    loop._thread.join(timeout=5.0)
+    assert loop.error is not None and base.last_command.is_stop
+    loop.stop()
+    assert base.last_command.is_stop
