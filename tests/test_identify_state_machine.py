@@ -400,3 +400,14 @@ def test_a_stranger_in_the_targets_shirt_and_other_trousers_is_not_taken(part_ru
     assert named == {None}
     back = run(identifier, [Person(20, 2.0, 320, RED, trousers=(30, 30, 30))], 15, rng, t0=5.0)
     assert back[-1].status == TargetStatus.TRACKING and back[-1].target_id == 20
+
+
+@pytest.mark.parametrize("track_id", [2.7, True, None, "2", -1])
+def test_select_target_refuses_what_is_no_track_id_by_name(identifier, track_id):
+    """int() made 2.7 track 2 and True track 1: another person than the one asked for."""
+    from follow.types import InvalidInput
+
+    with pytest.raises(InvalidInput, match="select_target: track id"):
+        identifier.select_target(track_id)
+    identifier.select_target(np.int64(3))  # a numpy id from an array of track ids is fine
+    assert identifier.context.requested_id == 3

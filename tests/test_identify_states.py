@@ -154,6 +154,7 @@ def tracked_context(target_position_m=(2.0, 0.0), stamp_s=10.0, **kwargs):
     ctx = context(**kwargs)
     seen = frame([person(1, *target_position_m, last_seen_s=stamp_s)], stamp_s, {1: 0.9})
     ctx.note_target(1, seen)
+    ctx.note_vouched(seen)
     ctx.note_stature(1, seen)
     return ctx
 
@@ -192,17 +193,25 @@ def test_initial_takes_only_the_selected_track_once_it_is_seen():
 
 
 # -------------------------------------------------------------------- initial training
-def test_initial_training_becomes_tracking_after_the_configured_learnt_frames():
+def test_initial_training_becomes_tracking_after_the_configured_learnt_frames_in_a_row():
+    """A crossing (another box over the target's) in the middle drops what was learnt:
+    the track may carry the other person after it, and a model of both takes either for
+    the target. Training starts again once the crop is clear."""
     ctx = context()
     state = InitialTraining(1)
     tracks = [person(1, 2.0), person(2, 2.0 + CFG.identity_risk_distance_m + 1.0)]
     for k in range(CFG.initial_training_frames - 1):
         assert state.update(ctx, frame(tracks, 0.1 * k, {1: 0.0, 2: 0.0})) is state
+    assert len(ctx.model.learnt) == CFG.initial_training_frames - 1
+    resets = ctx.model.resets
     overlapping = {1: (0, 0, 100, 200), 2: (20, 0, 120, 200)}  # 80 % of the target covered
     assert state.update(ctx, frame(tracks, 0.5, {1: 0.0, 2: 0.0}, boxes=overlapping)) is state
-    assert len(ctx.model.learnt) == CFG.initial_training_frames - 1  # that frame not learnt
-    nxt = state.update(ctx, frame(tracks, 0.6, {1: 0.0, 2: 0.0}))
+    assert ctx.model.resets == resets + 1 and state.frames_learnt == 0  # dropped
+    for k in range(CFG.initial_training_frames - 1):
+        assert state.update(ctx, frame(tracks, 0.6 + 0.1 * k, {1: 0.0, 2: 0.0})) is state
+    nxt = state.update(ctx, frame(tracks, 2.0, {1: 0.0, 2: 0.0}))
     assert isinstance(nxt, Tracking) and nxt.target_id == 1
+    assert len(ctx.model.learnt) == 2 * CFG.initial_training_frames - 1  # (every call)
 
 
 def test_initial_training_learns_no_frame_in_which_someone_walks_near_the_target():
@@ -330,6 +339,59 @@ def test_at_risk_the_others_are_scored_with_re_id_as_the_target_is(with_reid, le
     assert len(ctx.model.learnt) == learnt
     assert looked.appearances[2].embedding is not None
     assert looked.confidences == {1: 0.6, 2: with_reid}
+
+
+def test_a_person_passing_in_front_puts_the_identity_at_risk_though_far_behind_on_the_floor():
+    """Boxes that overlap in the image are a moment the tracker could swap two people,
+    whatever their distance on the floor (a passer-by nearer the camera covers the
+    target): a low confidence after it is not excused as the target turning round."""
+    ctx = tracked_context(stamp_s=10.0)
+    ctx.identity_risk_s = 10.0 - CFG.identity_trust_s - 1.0  # nobody near for a while
+    state = Tracking(1)
+    far_apart = [person(1, 5.0, last_seen_s=10.1), person(2, 2.0, last_seen_s=10.1)]
+    touching = {1: (0, 0, 100, 200), 2: (90, 0, 190, 300)}  # 10 % of the target covered
+    assert state.update(ctx, frame(far_apart, 10.1, {1: 0.5, 2: -0.5}, boxes=touching)) is state
+    assert ctx.identity_risk_s == 10.1
+    low = CFG.id_switch_confidence - 0.1
+    nxt = state.update(ctx, frame(far_apart, 10.2, {1: low, 2: -0.5}))
+    assert isinstance(nxt, Reidentification)
+
+
+def test_trust_does_not_come_back_with_time_alone_while_no_crop_is_judged():
+    """Someone came near while the target was seen without a crop (too small, covered):
+    the risk's window passing judged nothing, so the first low confidence after it is
+    not excused as a turn, and a frame that confirms the target gives the trust back."""
+    low = CFG.id_switch_confidence - 0.1
+    near = [person(1, 2.0, last_seen_s=10.1),
+            person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m, last_seen_s=10.1)]  # fmt: skip
+
+    def without_crop():  # the target seen, but no crop of it to judge
+        seen = frame(near, 10.1, {1: 0.0, 2: -0.5})
+        del seen.appearances[1], seen.confidences[1]
+        return seen
+
+    ctx = tracked_context(stamp_s=10.0)
+    state = Tracking(1)
+    assert state.update(ctx, without_crop()) is state and ctx.identity_risk_s == 10.1
+    later = 10.1 + CFG.identity_trust_s + 0.5
+    apart = [person(1, 2.0, last_seen_s=later), person(2, 5.0, last_seen_s=later)]
+    assert not ctx.identity_trusted(later)
+    nxt = Tracking(1).update(ctx, frame(apart, later, {1: low, 2: -0.5}))
+    assert isinstance(nxt, Reidentification)
+
+    ctx = tracked_context(stamp_s=10.0)
+    state = Tracking(1)
+    assert state.update(ctx, without_crop()) is state
+    assert state.update(ctx, frame(apart, 10.2, {1: 0.6, 2: -0.5})) is state  # confirmed
+    assert ctx.identity_trusted(later)
+    assert state.update(ctx, frame(apart, later, {1: low, 2: -0.5})) is state  # a turn
+
+
+def test_marks_of_tracks_the_tracker_dropped_are_forgotten():
+    ctx = context()
+    ctx.seen_apart, ctx.rejected = {2, 3, 4}, {3, 5}
+    ctx.forget_departed(frame([person(1, 2.0), person(3, 4.0)], 1.0, {1: 0.5, 3: 0.0}))
+    assert ctx.seen_apart == {3} and ctx.rejected == {3}
 
 
 def test_after_a_gap_the_target_is_not_learnt_while_a_new_track_looks_more_like_it():

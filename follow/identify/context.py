@@ -57,6 +57,7 @@ class IdentityContext:
         """Forget the target and everything learnt (the frame counts of tracks stay)."""
         self.model.reset()
         self.identity_risk_s = -math.inf  # when the tracker last could have swapped it
+        self.vouched_s = -math.inf  # the last frame whose crop confirmed the identity
         self.last_target_position_m: np.ndarray | None = None  # odom frame
         self.last_target_s = -math.inf
         self.last_target_seen_s = -math.inf  # when the target was last observed
@@ -174,10 +175,11 @@ class IdentityContext:
     # ------------------------------------------------------------------ the target
     def note_target(self, target_id: int, frame: FrameTracks) -> None:
         """Remember where the target is, when it was seen, and whether the tracker could
-        be swapping it with someone this frame (another track near it, or its track
-        unseen, or no frame handed over, for `identity_risk_unseen_s`: `note_frame`; a
-        target first named this frame was chosen from it, past any gap). What a frame
-        that vouches for the identity adds is `note_stature` and `note_seen_apart`."""
+        be swapping it with someone this frame (another track near it on the floor or
+        touching its box in the image, or its track unseen, or no frame handed over, for
+        `identity_risk_unseen_s`: `note_frame`; a target first named this frame was
+        chosen from it, past any gap). What a frame that vouches for the identity adds
+        is `note_vouched`, `note_stature` and `note_seen_apart`."""
         track = frame.by_id[target_id]
         named_before = math.isfinite(self.last_target_s)
         self.last_target_position_m = track.position_m.copy()
@@ -187,10 +189,21 @@ class IdentityContext:
         unseen_s = frame.stamp_s - track.last_seen_s
         if named_before:  # no frame in the gap: the target was unseen all along it
             unseen_s = max(unseen_s, self.frame_gap_s)
-        near = self._near_target(target_id, frame)
-        if near or unseen_s > self.config.identity_risk_unseen_s:
+        swappable = self.swappable(target_id, frame)
+        if swappable or unseen_s > self.config.identity_risk_unseen_s:
             self.identity_risk_s = frame.stamp_s
-        self.seen_apart -= near | self._touching_target(target_id, frame)
+        self.seen_apart -= swappable
+
+    def note_vouched(self, frame: FrameTracks) -> None:
+        """This frame's crop confirmed the target's identity (it is learnt): trust can
+        come back once the risk is `identity_trust_s` old (`identity_trusted`)."""
+        self.vouched_s = frame.stamp_s
+
+    def forget_departed(self, frame: FrameTracks) -> None:
+        """Drop the marks of tracks the tracker no longer has (its ids are never reused):
+        over an hour of passers-by they would only grow."""
+        self.seen_apart &= frame.by_id.keys()
+        self.rejected &= frame.by_id.keys()
 
     def note_stature(self, target_id: int, frame: FrameTracks) -> None:
         """Take the target's height from this frame, unless its track is unseen or another
@@ -222,12 +235,13 @@ class IdentityContext:
         at risk, and who was seen beside it: what `note_target` moves, besides its
         height, to be put back with `restore`."""
         return (self.last_target_position_m, self.last_target_s, self.last_target_seen_s,
-                self.identity_risk_s, set(self.seen_apart), self.odom_moved.copy())  # fmt: skip
+                self.identity_risk_s, self.vouched_s, set(self.seen_apart),
+                self.odom_moved.copy())  # fmt: skip
 
     def restore(self, whereabouts: tuple) -> None:
         """Put back `whereabouts`, the position moved by any odometry jump since."""
         (position, self.last_target_s, self.last_target_seen_s, self.identity_risk_s,
-         seen_apart, odom_moved) = whereabouts  # fmt: skip
+         self.vouched_s, seen_apart, odom_moved) = whereabouts  # fmt: skip
         self.seen_apart = set(seen_apart)
         since = self.odom_moved @ np.linalg.inv(odom_moved)
         self.last_target_position_m = None if position is None else _moved(since, position)
@@ -256,8 +270,12 @@ class IdentityContext:
         return self.config.reid_excludes_seen_beside and track_id in self.seen_apart
 
     def identity_trusted(self, stamp_s: float) -> bool:
-        """Whether nobody could have swapped the target's track for `identity_trust_s`."""
-        return stamp_s - self.identity_risk_s > self.config.identity_trust_s
+        """Whether nobody could have swapped the target's track for `identity_trust_s`,
+        and a crop has confirmed who it is since the last moment somebody could: time
+        alone judges nothing (a target seen without a crop, too small or covered, for as
+        long may have been swapped unexamined)."""
+        return (stamp_s - self.identity_risk_s > self.config.identity_trust_s
+                and self.vouched_s > self.identity_risk_s)  # fmt: skip
 
     def may_learn(self, target_id: int, frame: FrameTracks, confidence: float) -> bool:
         """Whether a frame that keeps the target is learnt: while its identity is at risk

@@ -87,6 +87,10 @@ class TargetIdentifier:
 
     def select_target(self, track_id: int) -> None:
         """Follow this track id: learning starts afresh on the next frame it is present."""
+        if isinstance(track_id, bool) or not isinstance(track_id, int | np.integer):
+            raise InvalidInput(f"select_target: track id {track_id!r} is not a whole number")
+        if track_id < 0:
+            raise InvalidInput(f"select_target: track id {track_id} is negative: no track's")
         self.context.requested_id = int(track_id)
         self.reset()
 
@@ -127,6 +131,7 @@ class TargetIdentifier:
         self.context.count_observations(by_id)
         self.context.note_frame(stamp_s, robot)
         frame = FrameTracks(image_bgr, list(tracks), stamp_s, robot, by_id)
+        self.context.forget_departed(frame)
         self.state = self.state.update(self.context, frame)
         target_id = self.state.target_id
         seen = target_id in by_id and by_id[target_id].observation is not None

@@ -67,10 +67,12 @@ class Initial(State):
 
 class InitialTraining(State):
     """The target is learnt as positive and every other observed track as negative, in
-    `initial_training_frames` frames in which it is seen, its crop shows nobody else and
-    nobody walks near it (the tracker could swap them there, and the model would learn
-    the other person as the target from its first frames); losing its track before then
-    starts over, from the frame it is lost in."""
+    `initial_training_frames` frames in a row in which it is seen, its crop shows nobody
+    else and nobody walks near it (the tracker could swap them there, and the model would
+    learn the other person as the target from its first frames); someone coming near
+    drops what was learnt before (the track may carry the other person after, and a model
+    of two people takes either for the target) and learning starts again once they are
+    gone; losing its track before then starts over, from the frame it is lost in."""
 
     status = TargetStatus.INITIAL_TRAINING
 
@@ -94,9 +96,14 @@ class InitialTraining(State):
         if crowded and not self.crowded:  # said once; again (someone at the limit) quietly
             log.log(logging.DEBUG if self.waited else logging.INFO,
                     "target track %d has someone beside it: learning it waits until nobody "
-                    "is within %.1f m of it or overlaps it in the image", self.target_id,
-                    context.config.identity_risk_distance_m)  # fmt: skip
+                    "is within %.1f m of it or overlaps it in the image%s", self.target_id,
+                    context.config.identity_risk_distance_m,
+                    f", and starts again ({self.frames_learnt} frame(s) learnt before are "
+                    "dropped)" if self.frames_learnt else "")  # fmt: skip
             self.waited = True
+        if crowded and self.frames_learnt:
+            context.forget()  # the model, the stature and who was seen beside it
+            self.frames_learnt = 0
         self.crowded = crowded
         learnt = (
             self.target_id in frame.appearances
@@ -106,6 +113,7 @@ class InitialTraining(State):
         context.note_target(self.target_id, frame)
         context.note_stature(self.target_id, frame)
         if learnt:
+            context.note_vouched(frame)
             context.note_seen_apart(self.target_id, frame)
             self.frames_learnt += 1
             if self.frames_learnt >= context.config.initial_training_frames:
@@ -165,7 +173,8 @@ class Tracking(State):
                 if self.notes_stature:
                     context.note_stature(self.target_id, frame)
                 context.note_seen_apart(self.target_id, frame)
-                context.learn(self.target_id, frame)
+                if context.learn(self.target_id, frame):
+                    context.note_vouched(frame)
             return True
         if self._excused_as_turn(context, frame.stamp_s):
             log.debug(
