@@ -125,8 +125,9 @@ class InitialTraining(State):
 class Tracking(State):
     """Following the target's track, learning while its confidence stays at or above
     `id_switch_confidence`. Below it the identity is no longer trusted, unless nobody
-    came near the target for `identity_trust_s` (it turned round) or another person
-    covers its crop (judged once the crop is clear); losing the track also ends it.
+    came near the target for `identity_trust_s` and a learnt frame confirmed it since
+    (it turned round) or another person covers its crop (judged once the crop is
+    clear); losing the track also ends it.
 
     The target's stature is taken from the track learnt in initial training only
     (`reidentified` False): a re-identified track may be a stranger who passed every
