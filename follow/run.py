@@ -53,6 +53,9 @@ def add_arguments(p) -> None:
     p.add_argument("--camera", required=True, help="camera file (YAML/JSON, from follow-calib)")
     p.add_argument("--config", help="TOML configuration over the robot defaults (docs/config.md)")
     p.add_argument("--mavlink", help="MAVLink connection string, e.g. udpin:0.0.0.0:14550")
+    p.add_argument("--no-base", action="store_true",
+                   help="drive no base, even where the configuration names a MAVLink "
+                        "connection (to check the view first)")  # fmt: skip
     p.add_argument("--target-id", type=non_negative_int,
                    help="follow this track id instead of the nearest")  # fmt: skip
     p.add_argument("--output-video", help="write the annotated video here (.mp4 or .avi)")
@@ -358,18 +361,20 @@ def main(args) -> dict:
                     args.source)  # fmt: skip
     args.folder_fps = args.folder_fps or DEFAULT_FOLDER_FPS
     config = Config.load(args.config) if args.config else Config()
-    if args.mavlink:
-        config = config.replace("mavlink", connection=args.mavlink)
+    config = base_connection(args, config)
     # a replay opens no base; any MAVLink connection (the simulated rover's too) is one
     drives_base = bool(config.mavlink.connection) and not args.replay
     check_pose_measured(args.camera, drives_base, log.warning)
     if args.replay:
         ignored = [name for name, value in (("--log", args.log), ("--output-video",
                    args.output_video), ("--frames-dir", args.frames_dir),
-                   ("--max-frames", args.max_frames)) if value]  # fmt: skip
-        if ignored:  # a replay compares a log with the source; it writes and cuts nothing
+                   ("--max-frames", args.max_frames), ("--mavlink", args.mavlink),
+                   ("--realtime", args.realtime), ("--odom-topic", args.odom_topic),
+                   ("--skeletons-topic", args.skeletons_topic)) if value]  # fmt: skip
+        if ignored:  # a replay compares a log with the source; it drives, writes, cuts nothing
             raise ValueError(f"--replay takes no {', '.join(ignored)}: it re-runs the whole "
-                             "log against its source and reports whether they agree")
+                             "log against its source (with the log's own topics, driving "
+                             "no base) and reports whether they agree")  # fmt: skip
         return replay(args, config)
     source = open_source(args.source, args.image_topic, args.odom_topic, args.camera_info_topic,
                          config.ros.max_odometry_age_s, args.skeletons_topic,
@@ -378,6 +383,22 @@ def main(args) -> dict:
         return _run_source(args, config, source)
     finally:
         source.close()
+
+
+def base_connection(args, config: Config) -> Config:
+    """The configuration with the base the command line asks for: `--mavlink` over the
+    configuration's connection, `--no-base` none at all (a configuration that names the
+    robot's base, checked on the view first, must not switch it to guided and drive)."""
+    if args.mavlink is not None and not args.mavlink.strip():
+        raise ValueError("--mavlink is empty: give a connection (e.g. udpin:0.0.0.0:14550), "
+                         "or --no-base to drive no base")  # fmt: skip
+    if args.no_base and args.mavlink:
+        raise ValueError("--no-base and --mavlink contradict each other: give one")
+    if args.no_base:
+        return config.replace("mavlink", connection="")
+    if args.mavlink:
+        return config.replace("mavlink", connection=args.mavlink)
+    return config
 
 
 def source_camera(camera_file, source, width: int, height: int) -> CameraModel:
@@ -417,11 +438,13 @@ def _run_source(args, config: Config, source) -> dict:
     watch = TargetIdWatch(args.target_id, config.control.missing_target_warn_s)
     elapsed = None  # the frames' time: not the base's connection, nor the closing
     with ShutdownSignals() as signals:
-        outputs = Outputs(header, source.fps, args.output_video, args.frames_dir, args.log)
-        base = None
+        base = outputs = None
         try:
+            # the base first: a connection that fails must not have emptied a log or a
+            # video of the same name (an earlier run's, perhaps an incident's only record)
             base = open_base(config)
             signals.base = base
+            outputs = Outputs(header, source.fps, args.output_video, args.frames_dir, args.log)
             frames = checked_frames(first, frames, args.source, yield_first=not source.live)
             started = time.perf_counter()
             try:
@@ -438,7 +461,8 @@ def _run_source(args, config: Config, source) -> dict:
                 if base is not None:
                     base.close()
             finally:
-                outputs.close()
+                if outputs is not None:
+                    outputs.close()
     dropped = summary.dropped_frames
     result = {
         "frames": summary.frames,

@@ -190,3 +190,63 @@ def test_a_replay_takes_the_runs_target_id_and_refuses_another_or_a_malformed_on
     for bad in ("3", 2.5, True):
         with pytest.raises(ValueError, match="run.jsonl: the header's target_id .* is no track"):
             replay_target_id({"target_id": bad}, "run.jsonl", None)
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [(["--mavlink", ""], "--mavlink is empty"),
+     (["--mavlink", " "], "--mavlink is empty"),
+     (["--no-base", "--mavlink", "udpin:127.0.0.1:14550"], "--no-base and --mavlink contradict")],
+)  # fmt: skip
+def test_an_empty_or_contradicting_base_is_refused(tmp_path, capsys, extra, message):
+    """`--mavlink ""` used to run on the configuration's connection: the base driven by a
+    command line that looks as if it drives none."""
+    video = _video(tmp_path / "a.avi")
+    err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)), *extra])
+    assert message in err
+
+
+def test_no_base_drives_no_base_though_the_configuration_names_one(tmp_path, monkeypatch,
+                                                                   model_path):  # fmt: skip
+    """The README's first look at the view passes the robot's configuration, which names
+    its base: `--no-base` must keep the run from connecting to it."""
+    from follow import run as run_module
+
+    model_path("pose/human-pose-estimation-0001.onnx")
+    config = tmp_path / "robot.toml"
+    config.write_text('[mavlink]\nconnection = "udpin:127.0.0.1:1"\n')
+    opened = []
+    real_open_base = run_module.open_base
+    monkeypatch.setattr(run_module, "open_base",
+                        lambda c: opened.append(c.mavlink.connection) or real_open_base(c))  # fmt: skip
+    video = _video(tmp_path / "a.avi")
+    argv = ["run", str(video), "--camera", str(_camera(tmp_path)), "--config", str(config),
+            "--no-base", "--max-frames", "2", "--json"]  # fmt: skip
+    assert cli.main(argv) == 0
+    assert opened == [""]  # asked for no connection: a NullBase
+
+
+def test_a_base_that_cannot_be_reached_leaves_an_earlier_log_as_it_was(tmp_path, capsys,
+                                                                        model_path):  # fmt: skip
+    model_path("pose/human-pose-estimation-0001.onnx")
+    video = _video(tmp_path / "a.avi")
+    log = tmp_path / "run.jsonl"
+    log.write_text("an earlier run's log\n")
+    err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)), "--mavlink",
+                          "not a connection string", "--log", str(log)])  # fmt: skip
+    assert "MAVLink" in err or "mavlink" in err
+    assert log.read_text() == "an earlier run's log\n"
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [["--mavlink", "udpin:127.0.0.1:14550"], ["--realtime"], ["--odom-topic", "/odom"],
+     ["--skeletons-topic", "/people"]],
+)  # fmt: skip
+def test_a_replay_refuses_what_it_would_ignore(tmp_path, capsys, extra):
+    video = _video(tmp_path / "a.avi")
+    record = json.dumps({"frame": 0, "stamp_s": 0.0, "skeletons": []})
+    log = _log(tmp_path / "run.jsonl", {"source": str(video), "image_size": [64, 48]}, [record])
+    err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)), "--replay",
+                          str(log), *extra])  # fmt: skip
+    assert f"--replay takes no {extra[0]}" in err
