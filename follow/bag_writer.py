@@ -21,6 +21,19 @@ from follow.types import Odometry
 WRITTEN_BAG_SUFFIXES = (".bag", ".mcap")  # ROS 1, one ROS 2 MCAP file; else a ROS 2 folder
 
 
+def check_bag_path(path: str | Path) -> None:
+    """Refuse a bag to write that exists already or is named as no bag is, before any
+    other output of the run is opened (the checks `BagWriter` makes, without rosbags)."""
+    path = Path(path)
+    if path.exists():
+        raise FileExistsError(f"bag {path} exists already; not overwriting it")
+    suffix = path.suffix
+    if suffix not in WRITTEN_BAG_SUFFIXES and suffix[1:].isalpha():  # run.txt, run.db3;
+        # a folder named with a date (runs/2024.05.01) is a ROS 2 bag folder
+        raise ValueError(f"bag {path}: name a .mcap or .bag file, or a folder (a ROS 2 "
+                         f"bag), not a {suffix} file")  # fmt: skip
+
+
 class BagWriter:
     """One bag being written; topics are added on their first message."""
 
@@ -30,13 +43,8 @@ class BagWriter:
         except ImportError:
             raise RuntimeError("writing bags needs rosbags: pip install 'follow[bag]'") from None
         self.path = Path(path)
-        if self.path.exists():
-            raise FileExistsError(f"bag {self.path} exists already; not overwriting it")
+        check_bag_path(self.path)
         suffix = self.path.suffix
-        if suffix not in WRITTEN_BAG_SUFFIXES and suffix[1:].isalpha():  # run.txt, run.db3;
-            # a folder named with a date (runs/2024.05.01) is a ROS 2 bag folder
-            raise ValueError(f"bag {self.path}: name a .mcap or .bag file, or a folder (a ROS 2 "
-                             f"bag), not a {suffix} file")  # fmt: skip
         self.ros1 = suffix == ".bag"
         self._single_mcap = suffix == ".mcap"
         # Written in a hidden folder beside the bag, not in a temp folder that may be on

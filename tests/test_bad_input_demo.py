@@ -31,6 +31,22 @@ def test_a_bad_length_is_refused_before_the_earlier_log_is_touched(tmp_path, cap
     assert sorted(p.name for p in out.iterdir()) == ["demo.jsonl"]
 
 
+@pytest.mark.parametrize("bag", ["existing.mcap", "demo/demo.jsonl", "run.txt"])
+def test_a_bag_it_could_not_write_is_refused_before_the_earlier_log_is_touched(tmp_path, capsys,
+                                                                              bag):  # fmt: skip
+    """The bag was refused only once the demo had opened (and emptied) its own log: with
+    `--bag demo/demo.jsonl`, the very log it had just emptied."""
+    out = tmp_path / "demo"
+    out.mkdir()
+    earlier = out / "demo.jsonl"
+    earlier.write_text('{"log_version":1}\n{"frame":0}\n')
+    (tmp_path / "existing.mcap").write_text("x")
+    err = _error(capsys, ["demo", "--seconds", "2", "--no-video", "--output", str(out),
+                          "--bag", str(tmp_path / bag)])  # fmt: skip
+    assert "exists already" in err or "name a .mcap or .bag file" in err
+    assert earlier.read_text() == '{"log_version":1}\n{"frame":0}\n'
+
+
 def test_run_demo_checks_its_length_too(tmp_path):
     with pytest.raises(ValueError, match="--seconds"):
         run_demo(seconds=0.0, identifier="channels", output=tmp_path / "demo")

@@ -383,6 +383,10 @@ def main(args) -> dict:
                           ("--identifier", args.identifier)):  # fmt: skip
         if value is not None and not value.strip():  # "" would be this folder, or a default
             raise ValueError(f"{option} is empty: give a name or leave the option out")
+    if args.bag:  # before the demo's own log and video are opened (and emptied)
+        from follow.bag_writer import check_bag_path
+
+        check_bag_path(args.bag)
     summary = run_demo(args.seconds, args.seed, args.identifier, Path(args.output),
                        write_video=not args.no_video, bag_path=args.bag)  # fmt: skip
     if not args.json:
