@@ -218,3 +218,22 @@ def test_verify_reports_a_made_model_whose_record_was_lost(cache):
     (status,) = models.verify_derived_files()
     assert status.path == int8 and not status.ok
     assert "no integrity record" in status.detail
+
+
+@pytest.mark.parametrize(
+    "settings, message",
+    [({"precision": "int8"}, "precision 'int8', but model_file .*pose.onnx is not an INT8"),
+     ({"model": "human-pose-estimation-0001-ir"}, "both name the network to run")],
+)  # fmt: skip
+def test_a_model_file_refuses_settings_it_would_override_in_silence(tmp_path, settings, message):
+    """An FP32 file ran where INT8 was asked for, without a word."""
+    from follow.models import ModelError
+
+    model = tmp_path / "pose.onnx"
+    model.write_bytes(b"not read before the check")
+    with pytest.raises(ModelError, match=message):
+        model_file_for(PoseConfig(model_file=str(model), **settings))
+    named_int8 = tmp_path / "pose-int8.onnx"
+    named_int8.write_bytes(b"x")
+    with pytest.raises(ModelError, match="is an INT8 model by its name"):
+        model_file_for(PoseConfig(model_file=str(named_int8), precision="fp32"))

@@ -66,6 +66,8 @@ def model_file_for(config: PoseConfig, model_path: Path | None = None) -> Path:
         raise ValueError(
             f"pose network_stages must be one of {STAGE_CHOICES}, got {config.network_stages}"
         )
+    if model_path:  # `--model-file`: held to the same settings as `[pose] model_file`
+        check_model_file_settings(dataclasses.replace(config, model_file=str(model_path)))
     source = Path(model_path) if model_path else _source_model_file(config)
     if not source.exists():
         raise models.ModelError(f"pose model file {source} does not exist")
@@ -91,6 +93,23 @@ def resolved_precision(config: PoseConfig) -> str:
     if config.precision not in CHOSEN_HERE:
         return config.precision
     return "fp32" if auto_fp32_reason(config) else "int8"
+
+
+def check_model_file_settings(config: PoseConfig) -> None:
+    """A `model_file` names the network to run: a `model` or a fixed `precision` that says
+    otherwise would be ignored in silence (an FP32 file run where INT8 was asked for)."""
+    if config.model != SOURCE_MODEL:
+        raise models.ModelError(
+            f"[pose] model_file {config.model_file} and model '{config.model}' both name the "
+            "network to run: give one"
+        )
+    named = resolved_precision(config)  # by the file's name
+    if config.precision in ("int8", "fp32") and config.precision != named:
+        raise models.ModelError(
+            f"[pose] precision '{config.precision}', but model_file {config.model_file} is "
+            f"{'an INT8' if named == 'int8' else 'not an INT8'} model by its name (INT8 "
+            "files have 'int8' in it): leave precision at 'auto' with a model_file"
+        )
 
 
 # The precisions settled on the machine that runs: "auto" by its CPU and cache,
@@ -119,6 +138,7 @@ def auto_fp32_reason(config: PoseConfig) -> str | None:
 
 def _source_model_file(config: PoseConfig) -> Path:
     if config.model_file:
+        check_model_file_settings(config)
         return Path(config.model_file)
     from follow.pose.quantize import default_int8_path
 
