@@ -143,6 +143,14 @@ def int_at_least(lowest: int):
     return _at_least(int, lowest, False, f"an integer >= {lowest}")
 
 
+def seed_number(text: str) -> int:
+    """An argparse type: a random seed, an integer from 0 to 2**32 - 1 (numpy's range)."""
+    value = _number(text, int)
+    if not 0 <= value <= 2**32 - 1:
+        raise argparse.ArgumentTypeError(f"expected an integer from 0 to 2**32 - 1, got {text!r}")
+    return value
+
+
 positive_int = _at_least(int, 1, False, "an integer >= 1")
 non_negative_int = _at_least(int, 0, False, "an integer >= 0")
 positive_float = _at_least(float, 0.0, True, "a positive number")

@@ -47,6 +47,8 @@ from follow.cli_args import (
         # what the help allows is what the command runs (they used to pass the parser)
         (["eval", "safety", "--fault-at-s", "1"], "--fault-at-s"),  # not yet following
         (["eval", "identification-sim", "--strangers", "0"], "--strangers"),
+        (["demo", "--seed", "-1"], "--seed"),  # was named as [identify] seed, a config key
+        (["demo", "--seed", str(2**32)], "--seed"),
     ],
 )
 def test_out_of_range_options_are_refused_by_name(argv, option, capsys):

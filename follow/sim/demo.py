@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from follow.cli_args import seed_number
 from follow.config import Config, MavlinkConfig
 from follow.sim.appearance import Appearance, PersonView, render_scene
 from follow.sim.people import Walker
@@ -46,7 +47,8 @@ def add_arguments(p) -> None:
                    help="folder for the video, plot and log (default follow-demo)")  # fmt: skip
     p.add_argument("--seconds", type=float, default=34.0,
                    help="length of the scenario (default 34)")  # fmt: skip
-    p.add_argument("--seed", type=int, default=0, help="people's heights and looks (default 0)")
+    p.add_argument("--seed", type=seed_number, default=0,
+                   help="people's heights and looks (default 0)")  # fmt: skip
     p.add_argument("--identifier", help="identifier to use (default: ccf10 if its weights "
                    "are available, else channels)")  # fmt: skip
     p.add_argument("--no-video", action="store_true", help="skip writing the video")
