@@ -303,6 +303,17 @@ def test_scoring_can_stop_before_the_end_of_the_run(small_pose, capsys):
     assert "--score-until-frame 6 leaves no frame to score" in capsys.readouterr().err
 
 
+def test_an_empty_scoring_window_is_refused_before_the_pose_network_runs(small_pose, capsys,
+                                                                         monkeypatch):  # fmt: skip
+    """Said after the pose network had run over every frame (minutes on a cold cache)."""
+    from follow.eval import tracking
+
+    monkeypatch.setattr(tracking, "variant_inputs", lambda *a, **k: 1 / 0)
+    args = ["eval", "tracking", "--frames", "12", "--config", small_pose]
+    assert cli.main([*args, "--score-from-frame", "8", "--score-until-frame", "6"]) == 1
+    assert "--score-until-frame 6 leaves no frame to score" in capsys.readouterr().err
+
+
 def test_the_cache_key_follows_the_runtime_auto_picks(tmp_path, monkeypatch):
     """`provider = "auto"` runs OpenVINO where it is installed, onnxruntime where not:
     their skeletons differ, so one's cache must not serve the other."""

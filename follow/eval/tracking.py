@@ -138,8 +138,11 @@ def plot(results: dict, path: str) -> None:
 
 def evaluate(args, config: Config, setup: PetsSetup, variant=None) -> tuple[dict, list[int]]:
     """Every method's figures on the sequence (seen through `variant`), and the frames."""
+    from follow.eval.perturb import SUITE
+
+    # the scored window is checked before the pose network runs over every frame
+    check_scored_frames(args, (variant or SUITE[0]).frame_range(setup.frame_count, args.frames))
     setup, frames, skeletons = variant_inputs(args, config, setup, variant)
-    check_scored_frames(args, frames)
     hypotheses = run_methods(setup, frames, skeletons, config)
     results = score(setup, frames, hypotheses, args.match_threshold_m, args.score_from_frame,
                     args.score_until_frame)  # fmt: skip
