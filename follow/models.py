@@ -300,6 +300,9 @@ def fetch(name: str, source: str | None = None, force: bool = False) -> Path:
     root = cache_dir()
     for f in spec.files:
         target = root / f.relpath
+        if target.is_dir():
+            raise ModelError(f"model '{name}': {target} is a folder, not a file: move it away "
+                             "so that the file can be fetched there")  # fmt: skip
         if target.exists() and not force and sha256_of(target) == f.sha256:
             log.info("%s: already in the cache", target)
             continue
@@ -399,6 +402,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> dict | int:
     if args.source is not None and args.action != "fetch":
         raise ValueError(f"--from names where fetch downloads from; {args.action} takes none")
+    if args.source is not None and not args.source.strip():
+        raise ValueError("--from is empty: give a base URL or a local folder (a mirror)")
+    if args.force and args.action not in ("fetch", "prepare"):
+        raise ValueError(f"--force fetches or prepares again; {args.action} takes none")
     if args.action == "prepare" and args.names:
         raise ValueError(
             f"prepare takes no model names (it makes the INT8 pose model), got {' '.join(args.names)}"
@@ -448,9 +455,10 @@ def main(args: argparse.Namespace) -> dict | int:
                 continue
             try:
                 fetched.append({"name": n, "path": str(fetch(n, args.source, args.force))})
-            except ModelError as exc:
-                failed[n] = str(exc)
-                print(f"{n}: {exc}")
+            except (ModelError, OSError) as exc:  # one model's failure stops no other's
+                failed[n] = str(exc) if isinstance(exc, ModelError) else (
+                    f"{exc.filename or 'the cache'}: {exc.strerror or exc}")  # fmt: skip
+                print(f"{n}: {failed[n]}")
         result = {"fetched": fetched, "failed": failed, "skipped": skipped}
         if args.json:
             import json

@@ -191,6 +191,9 @@ def test_fetching_everything_skips_models_without_a_download(cache, monkeypatch,
         (["models", "prepare", "ccf10"], "ccf10"),
         (["models", "verify", "ccf10", "--from", "/media/usb/models"], "--from"),
         (["models", "prepare", "--from", "/media/usb/models"], "--from"),
+        (["models", "list", "--force"], "--force"),
+        (["models", "verify", "--force"], "--force"),
+        (["models", "fetch", "ccf10", "--from", ""], "--from is empty"),
     ],
 )
 def test_what_an_action_does_not_take_is_refused_not_ignored(argv, named, cache, monkeypatch,
@@ -223,6 +226,17 @@ def test_verify_reports_a_folder_in_place_of_a_model_file_and_goes_on(mirror, ca
     by_path = {f["path"].rsplit("/", 1)[-1]: f for f in report["files"]}
     assert not by_path["conv_t1"]["ok"] and "folder" in by_path["conv_t1"]["detail"]
     assert by_path["conv_t2"]["ok"]
+
+
+def test_fetch_names_a_folder_in_place_of_a_cached_file_and_fetches_the_others(mirror, cache,
+                                                                               capsys):  # fmt: skip
+    """It ended the whole batch with a bare errno, the other models never fetched."""
+    (cache / "ccf/ccf10/conv_t1").mkdir(parents=True)
+    assert cli.main(["models", "fetch", "ccf10", "ccf25", "--from", str(mirror), "--json"]) == 1
+    result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert "conv_t1 is a folder, not a file" in result["failed"]["ccf10"]
+    assert "ccf25" in result["failed"]  # tried all the same (the mirror has no ccf25)
+    assert "is a folder" not in result["failed"]["ccf25"]
 
 
 def test_verify_checks_the_copy_that_resolve_loads(mirror, cache, monkeypatch):
