@@ -25,7 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--camera", type=Path, required=True, help="camera file to check")
     parser.add_argument(
-        "--frame", type=int, default=0, help="video/camera: index of the frame to use (default 0)"
+        "--frame", type=int, default=None,
+        help="video/camera: index of the frame to use (default 0)",
     )
     parser.add_argument(
         "-o", "--output", type=image_path, default=Path("check.png"),
@@ -40,10 +41,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def _frame(source: str, index: int):
-    if index < 0:
+def _frame(source: str, index: int | None):
+    if index is not None and index < 0:
         raise ValueError(f"--frame must be >= 0, got {index}")
     if source.isdigit() or is_video(Path(source)):
+        index = index or 0
         count = 0
         for _, frame in iter_video_frames(source, every=1, limit=None):
             if count == index:
@@ -52,6 +54,9 @@ def _frame(source: str, index: int):
         raise ImageInputError(
             f"video {source}: has no frame {index} (--frame); it has {count} frames, 0..{count - 1}"
         )
+    if index is not None:
+        raise ValueError(f"--frame picks a frame of a video or camera; {source} is one image: "
+                         "leave it out")  # fmt: skip
     return read_image(source)
 
 

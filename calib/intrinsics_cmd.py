@@ -22,6 +22,7 @@ from follow.cli_args import non_negative_float, positive_float, refuse_unwritabl
 
 log = logging.getLogger(__name__)
 
+DEFAULT_EVERY = 5  # a video's frames used: every 5th (the next ones show the same view)
 # A new camera file needs some pose; this one is a placeholder until `ground` measures it.
 PLACEHOLDER_HEIGHT_M = 1.0
 
@@ -37,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="camera file to write; an existing one keeps its pose (default camera.yaml)",
     )  # fmt: skip
     parser.add_argument(
-        "--every", type=int, default=5, help="video: use every N-th frame (default 5)"
+        "--every", type=int, default=None, help="video: use every N-th frame (default 5)"
     )
     parser.add_argument(
         "--max-views", type=int, default=60,
@@ -105,6 +106,10 @@ def _pose_to_keep(output: Path) -> CameraPose | None:
 
 
 def main(args: argparse.Namespace) -> dict:
+    if args.every is not None and video_source(args.inputs) is None:
+        raise ValueError("--every picks frames of a video or camera; image files are each "
+                         "one view: leave it out")  # fmt: skip
+    args.every = DEFAULT_EVERY if args.every is None else args.every
     if args.every < 1 or args.max_views < intr.MIN_VIEWS:
         raise ValueError(
             f"--every must be >= 1 and --max-views >= {intr.MIN_VIEWS}, "

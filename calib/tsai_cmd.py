@@ -15,6 +15,7 @@ from follow.cli_args import positive_float
 # A converted camera further than this from the Tsai model anywhere in the image is not
 # written: OpenCV's k1, k2, k3 cannot follow that lens (PETS 2009 view 1: 0.0015 px).
 MAX_DISCREPANCY_PX = 1.0
+DEFAULT_ANNOTATION_FPS = 7.0  # PETS 2009 S2.L1's
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,11 +34,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "speed and stature it implies through the converted camera, as a sanity check",
     )  # fmt: skip
     parser.add_argument(
-        "--fps", type=positive_float, default=7.0, help="frame rate of the annotation (default 7)"
+        "--fps", type=positive_float, default=None,
+        help="with --boxes: frame rate of the annotation (default 7)",
     )
 
 
 def main(args: argparse.Namespace) -> dict:
+    if args.fps is not None and args.boxes is None:
+        raise ValueError("--fps is the frame rate of the --boxes annotation: give --boxes too, "
+                         "or leave it out")  # fmt: skip
+    args.fps = DEFAULT_ANNOTATION_FPS if args.fps is None else args.fps
     refuse_overwriting_inputs({"Tsai file": args.tsai_xml, "--boxes": args.boxes},
                               {"-o": args.output})  # fmt: skip
     tsai = TsaiCamera.from_xml(args.tsai_xml)

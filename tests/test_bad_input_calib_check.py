@@ -89,3 +89,20 @@ def test_a_damaged_frame_of_a_video_is_skipped_not_taken_for_its_end(tmp_path, c
     assert "1 damaged frame(s) skipped" in caplog.text
     argv = ["check", str(video), "--camera", str(_camera(tmp_path)), "-o", str(tmp_path / "c.png")]
     assert cli.main([*argv, "--frame", "28"]) == 0  # the 29th frame that decodes
+
+
+def test_options_for_videos_only_are_refused_with_an_image(tmp_path, capsys):
+    """`--frame` with an image, `--every` with image files: they used to be ignored."""
+    import cv2
+    import numpy as np
+
+    image = tmp_path / "floor.png"
+    cv2.imwrite(str(image), np.full((48, 64, 3), 120, np.uint8))
+    argv = ["check", str(image), "--camera", str(_camera(tmp_path)), "-o", str(tmp_path / "c.png")]
+    assert cli.main([*argv, "--frame", "5"]) == 2
+    assert "--frame picks a frame of a video or camera" in capsys.readouterr().err
+    assert not (tmp_path / "c.png").exists()
+    argv = ["intrinsics", str(image), "--pattern", "9x6", "--square-size-m", "0.03",
+            "--every", "3", "-o", str(tmp_path / "cam.yaml")]  # fmt: skip
+    assert cli.main(argv) == 2
+    assert "--every picks frames of a video or camera" in capsys.readouterr().err

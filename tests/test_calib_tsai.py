@@ -199,6 +199,9 @@ def test_a_bad_box_file_or_frame_rate_leaves_the_camera_file_alone(tmp_path, cap
             cli.main([*argv, "--boxes", str(boxes), "--fps", fps])
         assert "argument --fps" in capsys.readouterr().err
     assert out.read_text() == "the camera of yesterday"
+    assert cli.main([*argv, "--fps", "25"]) == 2  # a rate for boxes not given: refused
+    assert "--fps is the frame rate of the --boxes annotation" in capsys.readouterr().err
+    assert out.read_text() == "the camera of yesterday"
     assert cli.main([*argv, "--boxes", str(boxes)]) == 0
     assert CameraModel.load(out).image_size == (640, 480)
 
