@@ -95,6 +95,9 @@ def main(argv: list[str] | None = None) -> int:
         getattr(args, trailing).extend(extras)
     elif extras:  # named by the command they were given to, with its usage
         getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extras)}")
+    command_parser = getattr(args, "_parser", parser)
+    if empty := _empty_option(command_parser, args):
+        command_parser.error(f"argument {empty}: empty; give a value or leave the option out")
     sub = getattr(args, "subcommand", None)
     if sub is not None and _selected(argv) != (args.command, sub):
         # an option's value came before the command's name (`follow bench --frames 5 pose`):
@@ -130,6 +133,16 @@ def main(argv: list[str] | None = None) -> int:
     if getattr(args, "json", False) and result is not None:
         print(json.dumps(_strict_json(result), allow_nan=False))
     return 0
+
+
+def _empty_option(parser: argparse.ArgumentParser, args) -> str | None:
+    """The first option given an empty text (`--config ""`): read as no value, it would
+    run on the defaults, the current folder or the configuration's own setting."""
+    for action in parser._actions:
+        value = getattr(args, action.dest, None) if action.option_strings else None
+        if isinstance(value, str) and not value.strip():
+            return "/".join(action.option_strings)
+    return None
 
 
 def _strict_json(value):

@@ -402,8 +402,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> dict | int:
     if args.source is not None and args.action != "fetch":
         raise ValueError(f"--from names where fetch downloads from; {args.action} takes none")
-    if args.source is not None and not args.source.strip():
-        raise ValueError("--from is empty: give a base URL or a local folder (a mirror)")
     if args.force and args.action not in ("fetch", "prepare"):
         raise ValueError(f"--force fetches or prepares again; {args.action} takes none")
     if args.action == "prepare" and args.names:

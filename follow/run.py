@@ -389,9 +389,6 @@ def base_connection(args, config: Config) -> Config:
     """The configuration with the base the command line asks for: `--mavlink` over the
     configuration's connection, `--no-base` none at all (a configuration that names the
     robot's base, checked on the view first, must not switch it to guided and drive)."""
-    if args.mavlink is not None and not args.mavlink.strip():
-        raise ValueError("--mavlink is empty: give a connection (e.g. udpin:0.0.0.0:14550), "
-                         "or --no-base to drive no base")  # fmt: skip
     if args.no_base and args.mavlink:
         raise ValueError("--no-base and --mavlink contradict each other: give one")
     if args.no_base:

@@ -90,5 +90,7 @@ def test_missing_ccf_weights_fall_back_to_the_channels(model_dirs, present):
 
 @pytest.mark.parametrize("option", ["--output", "--bag", "--identifier"])
 def test_an_empty_demo_option_is_refused_not_read_as_this_folder(option, capsys):
-    assert cli.main(["demo", option, "", "--seconds", "1", "--no-video"]) == 1
-    assert f"{option} is empty" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["demo", option, "", "--seconds", "1", "--no-video"])
+    assert exit_.value.code == 2
+    assert f"argument {option}: empty" in capsys.readouterr().err

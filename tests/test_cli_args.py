@@ -188,3 +188,20 @@ def test_an_output_folder_is_checked_for_writing_up_to_the_nearest_that_exists(t
     if not os.access(locked, os.W_OK):  # root writes anywhere: nothing to refuse then
         with pytest.raises(OSError, match="locked is not a folder that can be written in"):
             refuse_unwritable(locked / "sub" / "camera.yaml", "-o")
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [(["run", "x.avi", "--camera", "c.yaml", "--config", ""], "--config"),
+     (["eval", "tracking", "--config", "  "], "--config"),
+     (["bench", "--config", ""], "--config"),
+     (["models", "fetch", "--from", ""], "--from"),
+     (["demo", "--output", ""], "--output")],
+)  # fmt: skip
+def test_an_empty_option_is_refused_by_every_command(argv, option, capsys):
+    """An empty text was read as no value: the defaults, the current folder, or the
+    configuration's own setting ran instead of what the user seemed to ask for."""
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    assert f"argument {option}: empty" in capsys.readouterr().err

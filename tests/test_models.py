@@ -193,7 +193,6 @@ def test_fetching_everything_skips_models_without_a_download(cache, monkeypatch,
         (["models", "prepare", "--from", "/media/usb/models"], "--from"),
         (["models", "list", "--force"], "--force"),
         (["models", "verify", "--force"], "--force"),
-        (["models", "fetch", "ccf10", "--from", ""], "--from is empty"),
     ],
 )
 def test_what_an_action_does_not_take_is_refused_not_ignored(argv, named, cache, monkeypatch,

@@ -192,18 +192,22 @@ def test_a_replay_takes_the_runs_target_id_and_refuses_another_or_a_malformed_on
             replay_target_id({"target_id": bad}, "run.jsonl", None)
 
 
-@pytest.mark.parametrize(
-    "extra, message",
-    [(["--mavlink", ""], "--mavlink is empty"),
-     (["--mavlink", " "], "--mavlink is empty"),
-     (["--no-base", "--mavlink", "udpin:127.0.0.1:14550"], "--no-base and --mavlink contradict")],
-)  # fmt: skip
-def test_an_empty_or_contradicting_base_is_refused(tmp_path, capsys, extra, message):
-    """`--mavlink ""` used to run on the configuration's connection: the base driven by a
-    command line that looks as if it drives none."""
+@pytest.mark.parametrize("option", ["--mavlink", "--config", "--log"])
+def test_an_empty_option_is_refused_by_the_command_line(tmp_path, capsys, option):
+    """`--mavlink ""` used to run on the configuration's connection (the base driven by a
+    command line that looks as if it drives none), `--config ""` on the defaults."""
     video = _video(tmp_path / "a.avi")
-    err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)), *extra])
-    assert message in err
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["run", str(video), "--camera", str(_camera(tmp_path)), option, " "])
+    assert exit_.value.code == 2
+    assert f"argument {option}: empty" in capsys.readouterr().err
+
+
+def test_no_base_and_mavlink_together_are_refused(tmp_path, capsys):
+    video = _video(tmp_path / "a.avi")
+    err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)), "--no-base",
+                          "--mavlink", "udpin:127.0.0.1:14550"])  # fmt: skip
+    assert "--no-base and --mavlink contradict" in err
 
 
 def test_no_base_drives_no_base_though_the_configuration_names_one(tmp_path, monkeypatch,

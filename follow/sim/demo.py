@@ -381,10 +381,6 @@ def plot_top_down(trajectory: dict, path: Path) -> None:
 
 
 def main(args) -> dict:
-    for option, value in (("--output", args.output), ("--bag", args.bag),
-                          ("--identifier", args.identifier)):  # fmt: skip
-        if value is not None and not value.strip():  # "" would be this folder, or a default
-            raise ValueError(f"{option} is empty: give a name or leave the option out")
     if args.bag:  # before the demo's own log and video are opened (and emptied)
         from follow.bag_writer import check_bag_path
 
