@@ -40,7 +40,8 @@ def _corrupt(path):
 
 
 def _verify_all(capsys) -> tuple[int, str]:
-    code = models.main(argparse.Namespace(action="verify", names=[], json=False, source=None))
+    code = models.main(argparse.Namespace(action="verify", names=[], json=False, source=None,
+                                                force=False))
     return code, capsys.readouterr().out
 
 

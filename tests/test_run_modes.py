@@ -40,7 +40,7 @@ def _run_args(camera_path, source: str = "in.avi", json: bool = True) -> SimpleN
         max_frames=None, config=None, mavlink=None, replay=None, source=source,
         image_topic=None, odom_topic=None, camera_info_topic=None, skeletons_topic=None,
         realtime=False, camera=str(camera_path), output_video=None, log=None,
-        frames_dir=None, target_id=None, json=json, folder_fps=15.0,
+        frames_dir=None, target_id=None, json=json, folder_fps=15.0, no_base=False,
     )  # fmt: skip
 
 

@@ -176,7 +176,7 @@ def _args(tmp_path, **kw):
         camera_info_topic=None, skeletons_topic=None, camera=str(tmp_path / "cam.yaml"),
         config=None, mavlink=None, target_id=None, output_video=str(tmp_path / "out.mp4"),
         frames_dir=None, log=str(tmp_path / "run.jsonl"), realtime=True, max_frames=None,
-        replay=None, json=True, folder_fps=15.0,
+        replay=None, json=True, folder_fps=15.0, no_base=False,
     )  # fmt: skip
     for k, v in kw.items():
         setattr(args, k, v)
