@@ -69,7 +69,6 @@ def read_grey_frames(
     return out[:limit] if limit else out
 
 
-
 def refuse_overwriting_inputs(inputs: dict, outputs: dict) -> None:
     """Refuse, before anything is read or written, an output that is one of the inputs
     (a photo, a video, a Tsai file, a camera file read but not rewritten) or another

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import atexit
 import enum
+import functools
 import logging
 import math
 import threading
@@ -202,7 +203,10 @@ class MavlinkBase:
             self._state = LinkState.CLOSED
         atexit.unregister(self.close)
         if was_connected:
-            failure = self._send_zeros(self._send_closing_zero, pause_s=0.01)
+            failure = self._send_zeros(
+                functools.partial(self._send_setpoint, lock_timeout_s=CLOSE_SEND_WAIT_S),
+                pause_s=0.01,
+            )
             if failure is not None:  # a port gone: the threads must stop all the same
                 self.last_error = f"send failed while closing: {failure}"
                 log.error("MAVLink %s", self.last_error)
@@ -643,26 +647,21 @@ class MavlinkBase:
             time.sleep(pause_s)
         return failure
 
-    def _send_setpoint(self, cmd: VelocityCommand) -> None:
+    def _send_setpoint(self, cmd: VelocityCommand, lock_timeout_s: float = -1.0) -> None:
+        """One setpoint, after any write under way. `close` waits `lock_timeout_s` at most
+        (negative: no limit) and raises MavlinkError past it: a serial port that stopped
+        draining holds `_send_lock` for ever, and its threads must still be stopped and
+        the connection closed."""
         if self._target is None:
             return
-        with self._send_lock:
+        if not self._send_lock.acquire(timeout=lock_timeout_s):
+            raise MavlinkError(f"a write to the vehicle has not returned for "
+                               f"{lock_timeout_s:g} s: the setpoint could not be sent")  # fmt: skip
+        try:
             # A moving setpoint the sender took just before close() must not follow
             # close()'s zeros: closed is set before they are sent, under this lock.
             if self._state is LinkState.CLOSED and not cmd.is_stop:
                 return
-            self._write_setpoint(cmd)
-
-    def _send_closing_zero(self, cmd: VelocityCommand) -> None:
-        """A zero from `close`: behind a write under way, but not behind one that hangs
-        (a serial port that stopped draining holds `_send_lock` for ever; the threads must
-        still be stopped and the connection closed)."""
-        if self._target is None:
-            return
-        if not self._send_lock.acquire(timeout=CLOSE_SEND_WAIT_S):
-            raise MavlinkError(f"a write to the vehicle has not returned for "
-                               f"{CLOSE_SEND_WAIT_S:g} s: the zero could not be sent")  # fmt: skip
-        try:
             self._write_setpoint(cmd)
         finally:
             self._send_lock.release()

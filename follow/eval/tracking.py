@@ -10,7 +10,7 @@ from scipy.optimize import linear_sum_assignment
 from follow.cli_args import plot_path, positive_float
 from follow.config import Config
 from follow.eval.mot import GroundPlaneMot
-from follow.eval.perturb import add_perturb_arguments, plot_spread, print_suite, run_suite
+from follow.eval.perturb import SUITE, add_perturb_arguments, plot_spread, print_suite, run_suite
 from follow.eval.perturb import selected_variants as perturb_variants
 from follow.eval.pets_setup import (
     PETS_FPS,
@@ -137,11 +137,8 @@ def plot(results: dict, path: str) -> None:
 
 
 def evaluate(args, config: Config, setup: PetsSetup, variant=None) -> tuple[dict, list[int]]:
-    """Every method's figures on the sequence (seen through `variant`), and the frames."""
-    from follow.eval.perturb import SUITE
-
-    # the scored window is checked before the pose network runs over every frame
-    check_scored_frames(args, (variant or SUITE[0]).frame_range(setup.frame_count, args.frames))
+    """Every method's figures on the sequence (seen through `variant`), and the frames
+    (their scored window checked by the caller, before the pose network runs)."""
     setup, frames, skeletons = variant_inputs(args, config, setup, variant)
     hypotheses = run_methods(setup, frames, skeletons, config)
     results = score(setup, frames, hypotheses, args.match_threshold_m, args.score_from_frame,
@@ -166,6 +163,7 @@ def main(args) -> dict:
     variants = perturb_variants(args)
     if variants is not None:
         return main_perturbed(args, config, setup, variants)
+    check_scored_frames(args, SUITE[0].frame_range(setup.frame_count, args.frames))
     results, frames = evaluate(args, config, setup)
     n = len(frames)
     if args.plot:
