@@ -145,11 +145,14 @@ class TrackerConfig:
     gate_chi2_quantile: float = 0.99
     # A track takes no observation whose ground point (from its ankles) lies farther from
     # the track's predicted position than floor_gate_m + floor_gate_per_range x that
-    # point's range + 3 x the track's position std. The pixel gate alone is no bound for
-    # an unseen track near the camera: its sigma points, projected as if at
-    # min_projection_depth_m, spread over the whole image, and it took a person 8 m off.
+    # point's range + 3 x the track's position std, that last at most
+    # floor_gate_max_spread_m. The pixel gate alone is no bound for an unseen track near
+    # the camera: its sigma points, projected as if at min_projection_depth_m, spread over
+    # the whole image, and it took a person 8 m off. Nor is 3 x the std: an unseen
+    # track's grows to 1.4 m before it is retired, and the gate took a person 7 m off.
     floor_gate_m: float = 1.5
     floor_gate_per_range: float = 0.25
+    floor_gate_max_spread_m: float = 2.0
     # A detection whose ankles fit no track but whose neck fits a track left unseen
     # updates that track by the neck alone, instead of starting a second track: a person
     # half hidden behind a nearer one is often given the nearer one's feet.

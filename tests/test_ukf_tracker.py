@@ -479,27 +479,83 @@ def test_a_person_left_behind_the_camera_is_outside_the_view():
     assert tracks == []
 
 
-def test_an_unseen_track_near_the_camera_does_not_take_a_person_far_off():
-    # A camera 1.5 m up, pitched down: a person walks in to 1 m, their feet leave the
-    # view, then they are hidden for 0.7 s. Their track's sigma points, projected as if
-    # at min_projection_depth_m, spread over the whole image, and its pixel gate took
-    # the first person seen next, 8 m away: the track jumped 2 m toward them at once.
+def _walk_in_until_feet_leave_view(people_y_m=(0.0,)):
+    """A camera 1.5 m up, pitched down 17 degrees; people walk in side by side to about
+    1 m, where their feet leave the view. Returns the tracker, the time and the people's
+    positions."""
     camera = CameraModel.from_fov((640, 480), 70.0, CameraPose(height_m=1.5, pitch_rad=0.3))
     rng = np.random.default_rng(0)
     tracker, robot, t = PeopleTracker(camera), Odometry.origin(), 0.0
-    near = np.array([1.6, 0.0])
+    people = [np.array([1.6, y]) for y in people_y_m]
     for k in range(20):
         t += 1 / FPS
-        near = near + [-0.03, 0.0]
-        tracker.update([observe(camera, robot, near, 1.45, rng, ankle=k < 12)], t, robot)
+        people = [p + [-0.03, 0.0] for p in people]
+        tracker.update([observe(camera, robot, p, 1.45 + 0.05 * n, rng, ankle=k < 12)
+                        for n, p in enumerate(people)], t, robot)  # fmt: skip
+    return camera, tracker, t, people
+
+
+@pytest.mark.parametrize("hidden_s", [0.7, 1.4])
+def test_an_unseen_track_near_the_camera_does_not_take_a_person_far_off(hidden_s):
+    # A person walks in to 1 m, their feet leave the view, then they are hidden. Their
+    # track's sigma points, projected as if at min_projection_depth_m, spread over the
+    # whole image, and its pixel gate took the first person seen next, 8 m away: the
+    # track jumped 2 m toward them at once. After 1.4 s the floor gate, grown with the
+    # track's spread (1.4 m std), took them too, and the track jumped 3.6 m.
+    camera, tracker, t, (near,) = _walk_in_until_feet_leave_view()
     (first,) = tracker.tracks
-    for _ in range(int(0.7 * FPS)):
+    robot = Odometry.origin()
+    for _ in range(int(hidden_s * FPS)):
         t += 1 / FPS
         tracker.update([], t, robot)
     t += 1 / FPS
-    tracks = tracker.update([observe(camera, robot, (8.0, 1.0), 1.4, rng)], t, robot)
+    far_person = observe(camera, robot, (8.0, 1.0), 1.4, np.random.default_rng(1))
+    tracks = tracker.update([far_person], t, robot)
     by_id = {s.track_id: s for s in tracks}
     assert by_id[first.track_id].observation is None
     assert np.linalg.norm(by_id[first.track_id].position_m - near) < 0.5
     (far,) = [s for s in tracks if s.track_id != first.track_id]
     assert np.linalg.norm(far.position_m - [8.0, 1.0]) < 0.5
+
+
+def test_the_neck_fallback_hands_no_near_track_a_far_persons_neck():
+    """Two people near the camera are hidden; a whole person appears 8 m off. Their feet
+    lie in the ankle gate of one unseen near track (spread over the image), and the
+    neck fallback handed their neck to the other: it was pulled toward them for 0.7 s
+    before they had a track of their own. Feet outside a track's floor gate are not the
+    feet it expects."""
+    logging.disable(logging.WARNING)
+    try:
+        camera, tracker, t, _ = _walk_in_until_feet_leave_view((0.4, -0.4))
+        near = {s.track_id: s.position_m.copy() for s in tracker.tracks}
+        robot = Odometry.origin()
+        for _ in range(int(0.7 * FPS)):
+            t += 1 / FPS
+            tracker.update([], t, robot)
+        for _ in range(5):
+            t += 1 / FPS
+            tracks = tracker.update([observe(camera, robot, (8.0, 1.0), 1.4)], t, robot)
+            for s in tracks:
+                if s.track_id in near:
+                    assert s.observation is None
+                    assert np.linalg.norm(s.position_m - near[s.track_id]) < 0.6
+        (far,) = [s for s in tracks if s.track_id not in near]
+        assert np.linalg.norm(far.position_m - [8.0, 1.0]) < 0.5
+    finally:
+        logging.disable(logging.NOTSET)
+
+
+def test_a_person_too_far_to_track_does_not_keep_a_nearer_one_from_a_track():
+    """A person 60 m off, listed first, in the image column of one 4 m off: their track
+    would be retired as too uncertain in the update that started it, but its gate, wide
+    as its spread, held the near person's observation, who was skipped as its duplicate,
+    frame after frame, and never tracked."""
+    camera = CameraModel.from_fov((640, 360), 70.0, CameraPose(height_m=0.6, pitch_rad=0.02))
+    robot = Odometry.origin()
+    far, near = observe(camera, robot, (60.0, 4.5), 1.5), observe(camera, robot, (4.0, 0.3), 1.45)
+    tracker = PeopleTracker(camera)
+    for k in range(10):
+        tracks = tracker.update([far, near], k / FPS, robot)
+    (only,) = tracks
+    assert only.confirmed and np.linalg.norm(only.position_m - (4.0, 0.3)) < 0.3
+    assert only.track_id == 1  # no id was spent on the person too far off

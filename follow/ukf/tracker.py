@@ -200,8 +200,9 @@ class PeopleTracker:
         depths = [self._depth_m(t.filter.mean, robot) for t in self._tracks]
         no_noise = np.zeros((4, 4))
         expected = [t.filter.expected_measurement(model, no_noise, True) for t in self._tracks]
-        pairs, in_some_gate = self._associate(obs, expected, depths, self._floor_gate(obs, robot))
-        used = pairs + self._associate_necks(obs, expected, depths, pairs, in_some_gate)
+        floor_ok = self._floor_gate(obs, robot)
+        pairs, in_some_gate = self._associate(obs, expected, depths, floor_ok)
+        used = pairs + self._associate_necks(obs, expected, depths, pairs, in_some_gate, floor_ok)
 
         associated: dict[int, Observation] = {}
         claimed = set()
@@ -270,7 +271,9 @@ class PeopleTracker:
     def _floor_gate(self, obs: list[Observation], robot: Odometry) -> np.ndarray:
         """(observations, tracks): False where an observation's ground point (from its
         ankles) lies too far from a track's predicted position for that track to take
-        it (`floor_gate_m`, `floor_gate_per_range`, 3 x the track's position std). The
+        it (`floor_gate_m`, `floor_gate_per_range`, 3 x the track's position std up to
+        `floor_gate_max_spread_m`: an unseen track's std grows to over a metre before it
+        is retired, and a gate that grew with it took a person 7 m off). The
         pixel gate is no bound for an unseen track near the camera: its sigma points,
         projected as if at `min_projection_depth_m`, spread over the whole image. A
         neck-only observation is not gated here: its ground point depends on the height
@@ -288,7 +291,8 @@ class PeopleTracker:
             if not np.isfinite(ground).all():
                 continue
             range_m = math.hypot(ground[0], ground[1])
-            limit = cfg.floor_gate_m + cfg.floor_gate_per_range * range_m + 3.0 * spreads
+            limit = (cfg.floor_gate_m + cfg.floor_gate_per_range * range_m
+                     + np.minimum(3.0 * spreads, cfg.floor_gate_max_spread_m))  # fmt: skip
             distance = np.linalg.norm(positions - base_to_odom(ground[:2], robot), axis=1)
             ok[i] = distance <= limit
         return ok
@@ -334,7 +338,7 @@ class PeopleTracker:
             cost[~allowed] = np.inf
         return global_nearest_neighbour(cost), np.isfinite(cost).any(axis=1)
 
-    def _associate_necks(self, obs, expected, depths_m, pairs, in_some_gate):
+    def _associate_necks(self, obs, expected, depths_m, pairs, in_some_gate, floor_ok):
         """(observation, track) pairs by the neck alone, for a person whose feet were
         given to someone else (`neck_fallback_association`). A person half hidden behind
         a nearer one is often handed the nearer one's feet by the skeleton assembly: the
@@ -343,7 +347,10 @@ class PeopleTracker:
         its ankle in the ankle gate of another track that was given no feet of its own
         this frame) is paired with a track left without an observation whose neck gate
         holds its neck. A whole person of their own (a stranger stepping in front of a
-        hidden target) has feet no footless track expects, and starts a track as before."""
+        hidden target) has feet no footless track expects, and starts a track as before;
+        so does one whose feet stand outside the floor gate (`floor_ok`, observations x
+        tracks) of every footless track whose ankle gate holds them: an unseen track near
+        the camera has an ankle gate over the whole image."""
         if not self.config.neck_fallback_association:
             return []
         taken = {j for _, j in pairs}
@@ -358,7 +365,7 @@ class PeopleTracker:
         out = []
         for a, b in found:
             i, j = rows[a], cols[b]
-            owners = [k for k in footless if k != j]
+            owners = [k for k in footless if k != j and floor_ok[i, k]]
             if self._feet_expected_by(obs[i], owners, expected, depths_m):
                 out.append((i, j))
         return out
@@ -392,6 +399,14 @@ class PeopleTracker:
             )
             return None
         xyh, P3 = init
+        range_m = math.hypot(xyh[0], xyh[1])
+        std_m = math.sqrt(max(np.linalg.eigvalsh(P3[:2, :2])[-1], 0.0))
+        if std_m > cfg.max_position_std_m + cfg.max_position_std_per_range * range_m:
+            # `_retire` would delete it in this very update; started, its gate (wide as
+            # its spread) would keep a nearer person in the same image column from
+            # starting a track, frame after frame.
+            log.debug("no track for a person %.1f m off: position std %.1f m", range_m, std_m)
+            return None
         mean = np.zeros(5)
         mean[:2] = base_to_odom(xyh[:2], robot)
         mean[4] = xyh[2]
