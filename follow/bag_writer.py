@@ -1,7 +1,8 @@
 """Writing robot bags (images, odometry, camera info) with `rosbags`, no ROS needed.
 
-The format follows the path: `.bag` is ROS 1, `.mcap` one MCAP file, anything else a
-ROS 2 bag directory (MCAP storage). Used by the demo's `--bag` and by tests that turn
+The format follows the path: `.bag` is ROS 1, `.mcap` one MCAP file, a name without a
+suffix or ending in a date's digits (runs/2024.05.01) a ROS 2 bag directory (MCAP
+storage); any other suffix is refused. Used by the demo's `--bag` and by tests that turn
 a video into the bag a robot would have recorded.
 """
 
@@ -28,10 +29,17 @@ def check_bag_path(path: str | Path) -> None:
     if path.exists():
         raise FileExistsError(f"bag {path} exists already; not overwriting it")
     suffix = path.suffix
-    if suffix not in WRITTEN_BAG_SUFFIXES and suffix[1:].isalpha():  # run.txt, run.db3;
-        # a folder named with a date (runs/2024.05.01) is a ROS 2 bag folder
+    if suffix not in WRITTEN_BAG_SUFFIXES and not _names_a_bag_folder(suffix):
         raise ValueError(f"bag {path}: name a .mcap or .bag file, or a folder (a ROS 2 "
-                         f"bag), not a {suffix} file")  # fmt: skip
+                         f"bag, named without a suffix or with a date: runs/2024.05.01), "
+                         f"not a {suffix} file")  # fmt: skip
+
+
+def _names_a_bag_folder(suffix: str) -> bool:
+    """No suffix, or digits alone (a date: runs/2024.05.01). Any other (run.txt, run.db3,
+    run.mp4) would name a ROS 2 bag folder as a file of another kind."""
+    digits = suffix[1:]
+    return not suffix or (digits.isascii() and digits.isdigit())
 
 
 class BagWriter:

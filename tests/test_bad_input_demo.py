@@ -47,6 +47,23 @@ def test_a_bag_it_could_not_write_is_refused_before_the_earlier_log_is_touched(t
     assert earlier.read_text() == '{"log_version":1}\n{"frame":0}\n'
 
 
+@pytest.mark.parametrize("suffix", [".toml", ".camera.yaml"])
+def test_a_file_the_demo_writes_beside_its_bag_is_never_overwritten(tmp_path, capsys, suffix):
+    """The demo wrote its configuration and camera file beside the bag over whatever was
+    there; it is refused, by name, before the earlier log is touched."""
+    out = tmp_path / "demo"
+    out.mkdir()
+    earlier = out / "demo.jsonl"
+    earlier.write_text('{"log_version":1}\n')
+    beside = tmp_path / f"robot.mcap{suffix}"
+    beside.write_text("# kept\n")
+    err = _error(capsys, ["demo", "--seconds", "2", "--no-video", "--output", str(out),
+                          "--bag", str(tmp_path / "robot.mcap")])  # fmt: skip
+    assert f"{beside} exists already" in err
+    assert beside.read_text() == "# kept\n" and earlier.read_text() == '{"log_version":1}\n'
+    assert not (tmp_path / "robot.mcap").exists()
+
+
 def test_run_demo_checks_its_length_too(tmp_path):
     with pytest.raises(ValueError, match="--seconds"):
         run_demo(seconds=0.0, identifier="channels", output=tmp_path / "demo")

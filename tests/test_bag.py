@@ -438,6 +438,15 @@ def test_a_bag_named_with_another_suffix_or_in_no_folder_is_refused_by_name(tmp_
     assert (tmp_path / "2024.05.01" / "metadata.yaml").is_file()
 
 
+@pytest.mark.parametrize("name", ["run.db3", "run.mp4", "run.v2"])
+def test_a_bag_named_with_a_suffix_of_digits_and_letters_is_refused_too(tmp_path, name):
+    """Only letters were refused: `--bag run.db3` wrote a ROS 2 bag folder (MCAP inside)
+    under the name of an SQLite bag file; only a dated folder's digits pass."""
+    with pytest.raises(ValueError, match=rf"{name}: name a \.mcap or \.bag file"):
+        BagWriter(tmp_path / name)
+    assert not list(tmp_path.iterdir())
+
+
 def test_a_skeletons_topic_holding_other_json_is_named_as_such(tmp_path, small_frames):
     path = tmp_path / "other.mcap"
     with BagWriter(path) as bag:

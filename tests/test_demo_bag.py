@@ -84,3 +84,50 @@ def test_a_demo_that_fails_before_it_runs_leaves_no_bag(tmp_path, monkeypatch):
             run_demo(seconds=1.0, seed=0, identifier="channels", write_video=False,
                      bag_path=tmp_path / name)  # fmt: skip
         assert not (tmp_path / name).exists()
+
+
+def _small_camera():
+    from follow.camera import CameraModel, CameraPose
+
+    return CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0))
+
+
+def test_the_files_beside_a_demo_bag_are_named_after_its_whole_name(tmp_path):
+    """`with_suffix` named them robot.toml and robot.camera.yaml beside robot.mcap (the
+    robot's own files, replaced), and gave two dated bag folders the same pair."""
+    from follow.sim.demo_bag import DemoBag
+
+    robot_toml, robot_camera = tmp_path / "robot.toml", tmp_path / "robot.camera.yaml"
+    robot_toml.write_text("# the robot's own config\n")
+    robot_camera.write_text("# the robot's measured calibration\n")
+    bag = DemoBag(tmp_path / "robot.mcap", _small_camera(), "channels", 1)
+    bag.close()
+    assert robot_toml.read_text() == "# the robot's own config\n"
+    assert robot_camera.read_text() == "# the robot's measured calibration\n"
+    camera_file, config_file = companion_paths(tmp_path / "robot.mcap")
+    assert (camera_file.name, config_file.name) == ("robot.mcap.camera.yaml", "robot.mcap.toml")
+    assert 'identifier = "channels"' in config_file.read_text()
+    assert set(companion_paths("runs/2024.05.01")).isdisjoint(companion_paths("runs/2024.05.02"))
+
+
+def test_a_file_beside_the_bag_that_exists_is_refused_by_name_and_kept(tmp_path):
+    import pytest
+
+    from follow.sim.demo_bag import DemoBag
+
+    camera_file, config_file = companion_paths(tmp_path / "demo.mcap")
+    config_file.write_text("# mine\n")
+    with pytest.raises(FileExistsError, match=rf"{config_file.name} exists already"):
+        DemoBag(tmp_path / "demo.mcap", _small_camera(), "channels", 1)
+    assert config_file.read_text() == "# mine\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [config_file.name]  # nothing else
+
+
+def test_an_aborted_demo_bag_takes_the_files_beside_it_along(tmp_path):
+    """Left behind, they would name a bag that does not exist, and refuse the next try."""
+    from follow.sim.demo_bag import DemoBag
+
+    bag = DemoBag(tmp_path / "demo.mcap", _small_camera(), "channels", 1)
+    assert all(p.is_file() for p in companion_paths(tmp_path / "demo.mcap"))
+    bag.abort()
+    assert not list(tmp_path.iterdir())

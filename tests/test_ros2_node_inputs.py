@@ -186,6 +186,21 @@ def test_images_without_a_stamp_are_refused_by_name(capfd):
         assert node._detect_in(_image(node.now_s(), 320, 240)) is not None
 
 
+def test_an_image_too_small_is_dropped_by_name_and_fixes_no_camera(capfd):
+    """A 4x3 image fixed the camera perceived with before Frame refused it: every image of
+    the real camera after it was refused as 'the camera changed', until a restart."""
+    with _images_only_node() as node:
+        now = node.now_s()
+        capfd.readouterr()
+        assert node._detect_in(_image(now - 0.2, 4, 3)) is None
+        warning = [line for line in capfd.readouterr().err.splitlines() if "dropped" in line]
+        assert len(warning) == 1 and "WARN" in warning[0], warning
+        assert "image dropped: frame image: too small (4x3)" in warning[0]
+        assert node._camera_key is None and node._last_stamp is None
+        assert node._detect_in(_image(now - 0.1, 320, 240)) is not None
+        assert node.perception.tracker.camera.image_size == (320, 240)
+
+
 def test_a_topic_that_delivers_nothing_is_named_on_the_console(capfd):
     """A typo in ros.image_topic left the node silent: its diagnostics said it, the
     console did not."""
@@ -267,7 +282,7 @@ def test_a_target_unseen_longer_than_the_target_timeout_is_not_published_for_nav
                                frame.stamp_s - unseen_s)  # fmt: skip
             result = FrameResult(0, frame.stamp_s, Odometry.origin(frame.stamp_s), [], [track],
                                  TargetEstimate(TargetStatus.TRACKING, 3, {3: 0.9}, frame.stamp_s))  # fmt: skip
-            node._publish(result, frame.image, True, msg.header)
+            node._publish(result, frame.image, True, msg.header, node._choices)
             assert len(published) == 1, f"unseen for {unseen_s} s"
     finally:
         node.shutdown()
@@ -467,3 +482,162 @@ def test_stop_following_sends_zero_while_a_frame_holds_the_perception_lock(monke
     assert zeroed and still_held, "no zero on cmd_vel until the perception lock was free"
     assert after.linear.x == 0.0 and after.angular.z == 0.0 and node.gate.blocked >= 1
     assert response and response[0].success and node.following is False
+
+
+def _result_at(node, stamp_s, status, target_id, people):
+    """A FrameResult at `stamp_s` of confirmed, seen tracks {id: (x, y)} (odom, robot at
+    the origin) and the identifier's `status` and target."""
+    from follow import pipeline
+    from follow.types import Observation, Odometry, TargetEstimate, TrackState
+
+    seen = Observation(np.array([160.0, 100.0]), np.array([160.0, 200.0]))
+    tracks = [TrackState(i, np.array([x, y, 0.0, 0.0, 1.5]), np.eye(5) * 0.01, True, stamp_s,
+                         observation=seen) for i, (x, y) in people.items()]  # fmt: skip
+    return pipeline.FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], tracks,
+                                TargetEstimate(status, target_id, {}, stamp_s))  # fmt: skip
+
+
+def _conclude_as(node, result) -> None:
+    """`_conclude` of a frame whose tracking and identification give `result`."""
+    from follow.types import Frame
+
+    node.perception.conclude = lambda *args, **kwargs: result
+    frame = Frame(np.zeros((240, 320, 3), np.uint8), result.stamp_s)
+    node._conclude(frame, result.robot, None, _header(result.stamp_s, "camera"))
+
+
+@contextlib.contextmanager
+def _searching_node(monkeypatch):
+    """A cmd_vel node whose controller searches for a lost target for 3 s, its control
+    loop ticked by the test, perception built, following person 3 (left) with person 7
+    (right) in view; yields (node, people, twists)."""
+    from follow import pipeline
+    from follow.types import TargetStatus
+
+    monkeypatch.setattr(pipeline.ControlLoop, "_run", lambda loop: loop._stop.wait())  # tick here
+    config = Config().replace("identify", identifier="channels")
+    config = config.replace("ros", publish_cmd_vel=True, camera_info_topic="")
+    node = FollowNode(config.replace("control", search_duration_s=3.0), CAMERA,
+                      detect=lambda f: [])  # fmt: skip
+    twists: list = []
+    node.pub_cmd_vel.publish = twists.append
+    people = {3: (3.0, 1.2), 7: (3.0, -1.2)}
+    try:
+        now = node.now_s()
+        node._on_odometry(_odometry(now))
+        assert node._detect_in(_image(now - 0.05, 320, 240)) is not None  # perception built
+        node._on_odometry(_odometry(node.now_s()))  # fresh again: building it takes time
+        _conclude_as(node, _result_at(node, node.now_s(), TargetStatus.TRACKING, 3, people))
+        assert node.control.tick().yaw_rate_radps > 0  # turning left, toward person 3
+        yield node, people, twists
+    finally:
+        node.shutdown()
+        node.destroy_node()
+
+
+def test_a_target_selected_is_awaited_without_searching_for_the_one_before(monkeypatch):
+    """The controller kept the deselected person's last bearing: with a lost-target search
+    configured, the base turned toward them as soon as a frame was concluded with the new
+    choice, before the identifier tracked anyone. Zero until the new target is tracked."""
+    from std_msgs.msg import Int32
+
+    from follow.types import TargetStatus
+
+    with _searching_node(monkeypatch) as (node, people, twists):
+        node._on_select_target(Int32(data=7))
+        for _ in range(3):  # frames with the new choice, the identifier learning it
+            node._on_odometry(_odometry(node.now_s()))
+            _conclude_as(node, _result_at(node, node.now_s(), TargetStatus.INITIAL_TRAINING,
+                                          None, people))  # fmt: skip
+            command = node.control.tick()
+            assert command.is_stop and twists[-1].angular.z == 0.0, command
+        node._on_odometry(_odometry(node.now_s()))
+        _conclude_as(node, _result_at(node, node.now_s(), TargetStatus.TRACKING, 7, people))
+        assert node.control.tick().yaw_rate_radps < 0  # person 7, to the right
+
+
+def test_a_tick_computing_from_the_old_target_while_another_is_selected_leaves_no_search(
+    monkeypatch,
+):
+    """A tick that took the old result just before `~/select_target` updates the
+    controller with the old target after the selection: a reset made at the selection
+    alone would be undone, and the ticks after it search toward that target."""
+    from std_msgs.msg import Int32
+
+    from follow.types import TargetStatus
+
+    with _searching_node(monkeypatch) as (node, people, twists):
+        controller = node.control.controller
+        computing, release = threading.Event(), threading.Event()
+
+        def update(target, stamp_s):  # the old result taken, computed from after the choice
+            computing.set()
+            release.wait(5.0)
+            return type(controller).update(controller, target, stamp_s)
+
+        controller.update = update
+        ticking = threading.Thread(target=node.control.tick, daemon=True)
+        ticking.start()
+        try:
+            assert computing.wait(5.0)
+            node._on_select_target(Int32(data=7))
+        finally:
+            release.set()
+            ticking.join(5.0)
+            del controller.update  # its own again
+        assert not ticking.is_alive() and twists[-1].angular.z == 0.0  # the held tick's
+        node._on_odometry(_odometry(node.now_s()))
+        _conclude_as(node, _result_at(node, node.now_s(), TargetStatus.INITIAL_TRAINING,
+                                      None, people))  # fmt: skip
+        assert node.control.tick().is_stop and twists[-1].angular.z == 0.0
+
+
+@pytest.mark.parametrize("request_", ["stop_following", "select_target"])
+def test_no_target_is_published_for_nav2_after_a_stop_or_another_choice(request_):
+    """The target was published outside the lock, after the markers: a frame concluded
+    just before `~/stop_following` published its target after the service returned (Nav2
+    led on after the stop), and before `~/select_target` the person just deselected."""
+    from std_msgs.msg import Int32
+    from std_srvs.srv import Trigger
+
+    from follow.types import TargetStatus
+
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", odom_topic="", publish_cmd_vel=False,
+                                     camera_info_topic=""),
+                      CAMERA, detect=lambda frame: [])  # fmt: skip
+    published: list = []
+    node.pub_target.publish = published.append
+    markers, release = threading.Event(), threading.Event()
+    publish_markers = node.pub_markers.publish
+
+    def slow_markers(msg):  # the publishers before the target take time
+        markers.set()
+        release.wait(5.0)
+        publish_markers(msg)
+
+    node.pub_markers.publish = slow_markers
+    try:
+        assert node._detect_in(_image(node.now_s() - 0.05, 320, 240)) is not None
+        result = _result_at(node, node.now_s() - 0.01, TargetStatus.TRACKING, 3, {3: (3.0, 0.0)})
+        concluding = threading.Thread(target=_conclude_as, args=(node, result), daemon=True)
+        concluding.start()
+        try:
+            assert markers.wait(5.0)
+            if request_ == "stop_following":
+                node._on_stop_following(Trigger.Request(), Trigger.Response())
+            else:
+                node._on_select_target(Int32(data=7))
+        finally:
+            release.set()
+            concluding.join(5.0)
+        assert not concluding.is_alive() and published == []
+        markers.clear()
+        node.pub_markers.publish = publish_markers
+        if request_ == "select_target":  # a frame concluded with the new choice: published
+            _conclude_as(node, _result_at(node, node.now_s(), TargetStatus.TRACKING, 7,
+                                          {7: (3.0, 0.0)}))  # fmt: skip
+            assert len(published) == 1
+    finally:
+        node.shutdown()
+        node.destroy_node()

@@ -1,6 +1,7 @@
-"""The node's safety rules, without ROS: the `[ros]` limits checked at start-up, and its
+"""The node's safety rules, without ROS: the `[ros]` limits checked at start-up, its
 velocity output, a `Base` for the shared ControlLoop that publishes cmd_vel and refuses
-to move on stale odometry or while following is stopped.
+to move on stale odometry or while following is stopped, and its controller, which
+forgets the target an operator chose against.
 
 The ControlLoop already stops on stale images (its perception time-out) and the
 controller on a lost target; this gate adds the rules that only the node knows: no
@@ -19,7 +20,9 @@ import threading
 import time
 from collections.abc import Callable
 
-from follow.config import ConfigError, RosConfig
+from follow.config import ConfigError, ControlConfig, RosConfig
+from follow.control.controller import FollowingController
+from follow.control.target import TargetMotion
 from follow.freshness import is_ahead, is_fresh
 from follow.types import Odometry, VelocityCommand
 
@@ -106,6 +109,32 @@ class CmdVelGate:
 
     def close(self) -> None:
         self.send(VelocityCommand.stop(self.clock()))
+
+
+class ReselectableController(FollowingController):
+    """A FollowingController that an operator's new choice of target (`~/select_target`,
+    resuming after `~/stop_following` too) clears: its lost-target search would turn the
+    base toward the last bearing of the person just deselected. From `forget_target`
+    until `target_tracked` every update forgets the old target and commands zero, so a
+    tick that was computing from the old target while the choice was made leaves
+    nothing behind either (ticks run one after another)."""
+
+    def __init__(self, config: ControlConfig):
+        super().__init__(config)
+        self.awaiting_target = False
+
+    def forget_target(self) -> None:
+        self.awaiting_target = True
+
+    def target_tracked(self) -> None:
+        """A frame concluded with the new choice tracks its target: follow it."""
+        self.awaiting_target = False
+
+    def update(self, target: TargetMotion | None, stamp_s: float) -> VelocityCommand:
+        if self.awaiting_target:
+            self.reset()
+            target = None
+        return super().update(target, stamp_s)
 
 
 def check_ros_config(ros: RosConfig) -> None:

@@ -46,7 +46,7 @@ from follow.odometry_buffer import OdometryBuffer
 from follow.pipeline import ControlLoop, FrameResult, overlaps_stages
 from follow.repeated_image import RepeatedImages
 from follow.ros2 import messages
-from follow.ros2.gate import CmdVelGate, check_ros_config
+from follow.ros2.gate import CmdVelGate, ReselectableController, check_ros_config
 from follow.rosmsg import (
     camera_from_info,
     camera_info_key,
@@ -56,7 +56,7 @@ from follow.rosmsg import (
     stamp_s,
 )
 from follow.shutdown import SIGNALS, stop_within
-from follow.types import Frame, InvalidInput, Odometry, VelocityCommand
+from follow.types import Frame, InvalidInput, Odometry, TargetStatus, VelocityCommand
 
 log = logging.getLogger(__name__)
 
@@ -178,6 +178,7 @@ class FollowNode(Node):
         self._pending_target: int | None = None
         self._lock = threading.Lock()  # the identifier: perception thread vs requests
         self.following = True
+        self._choices = 0  # operator's choices (select, stop) so far, changed under _lock
         self.camera_info = None
         self.odometry = OdometryBuffer(ros.max_odometry_age_s) if ros.odom_topic else None
         self.frames = 0
@@ -201,11 +202,9 @@ class FollowNode(Node):
         self.gate: CmdVelGate | None = None
         self.control: ControlLoop | None = None
         if ros.publish_cmd_vel:
-            from follow.control.controller import FollowingController
-
             self.gate = CmdVelGate(self._publish_twist, self.now_s, ros.max_odometry_age_s)
             self.control = ControlLoop(
-                FollowingController(self.config.control), self.gate, self.results,
+                ReselectableController(self.config.control), self.gate, self.results,
                 self.config.control.control_rate_hz, ros.max_image_age_s, clock=self.now_s,
             )  # fmt: skip
         self.create_timer(ros.diagnostics_period_s, self._publish_diagnostics)
@@ -317,13 +316,17 @@ class FollowNode(Node):
         result tracks the target chosen before: it is dropped (the base stops) until a
         frame is concluded with the new choice, so the robot never drives on toward the
         person the operator just chose against, not even for a command being computed from
-        it at this moment."""
+        it at this moment; and the controller forgets that target until the new one is
+        tracked (no search turn toward where it was last seen)."""
         with self._lock:
             if self.control is not None:
+                # first: a tick that takes the emptied slot must not search for the old one
+                self.control.controller.forget_target()
                 self.control.clear_result()
             else:
                 self.results.put(None)
             self.following = True
+            self._choices += 1
             if self.gate is not None:
                 self.gate.following = True
             if self.perception is None:
@@ -343,6 +346,7 @@ class FollowNode(Node):
             self.gate.stop_following(self.now_s())
         with self._lock:
             self.following = False
+            self._choices += 1
         response.success = True
         response.message = "stopped following; publish a track id on ~/select_target to resume"
         return response
@@ -419,7 +423,7 @@ class FollowNode(Node):
     def _detect_in(self, msg):
         """(frame, robot pose, detections, the image's header) of an image message, or None
         for an image that is dropped (unstamped, out of order or stamped ahead of the
-        clock, unreadable, without odometry, or before the camera is known)."""
+        clock, unreadable or too small, without odometry, or before the camera is known)."""
         ros = self.config.ros
         stamp = stamp_s(msg.header)
         if stamp == 0.0:
@@ -446,11 +450,12 @@ class FollowNode(Node):
                     "stopped, until they are newer", throttle_duration_sec=5.0,
                 )  # fmt: skip
             return None
-        try:
-            image = image_from_msg(msg)
+        try:  # checked (too small?) before its size can fix the camera perceived with
+            frame = Frame(image_from_msg(msg), stamp)
         except InvalidInput as exc:
             self.get_logger().warning(f"image dropped: {exc}", throttle_duration_sec=5.0)
             return None
+        image = frame.image
         if self._repeats.is_repeat(image):  # a frozen driver stamping its last image anew
             self.stale_frames += 1
             self.get_logger().warning(
@@ -479,23 +484,26 @@ class FollowNode(Node):
         if perception is None:
             return None
         self._last_stamp = stamp
-        frame = Frame(image, stamp)
         return frame, robot, perception.detect_people(frame), msg.header
 
     def _conclude(self, frame: Frame, robot: Odometry, detections, image_header) -> None:
         with self._lock:  # a result concluded before a selection is not put after it
             result = self.perception.conclude(frame, robot, self.frames, detections)
-            following = self.following
+            following, choice = self.following, self._choices
+            if self.control is not None and result.target.status == TargetStatus.TRACKING:
+                self.control.controller.target_tracked()  # concluded with the newest choice
             self.results.put(result)
         self.frames += 1
         self._recent.append((time.monotonic(), result.timing_ms))
         if self.control is not None:
             self.control.notify()
-        self._publish(result, frame.image, following, image_header)
+        self._publish(result, frame.image, following, image_header, choice)
 
     # ------------------------------------------------------------------ outputs
-    def _publish(self, result: FrameResult, image, following: bool, image_header) -> None:
-        """Everything about one image, stamped with that image's own stamp."""
+    def _publish(self, result: FrameResult, image, following: bool, image_header,
+                 choice: int) -> None:  # fmt: skip
+        """Everything about one image, stamped with that image's own stamp; `choice`: the
+        operator's choices counted when it was concluded."""
         frame_id, stamp = self.config.ros.odom_frame, image_header.stamp
         self.pub_tracks.publish(messages.tracks_pose_array(result, frame_id, stamp))
         self.pub_markers.publish(messages.track_markers(result, frame_id, stamp))
@@ -503,8 +511,8 @@ class FollowNode(Node):
         self.pub_state.publish(messages.target_state(result, str(name), following))
         target = messages.target_pose(result, frame_id, stamp,
                                       self.config.control.target_timeout_s)  # fmt: skip
-        if target is not None and following:
-            self.pub_target.publish(target)
+        if target is not None:
+            self._publish_target(target, choice)
         if self.pub_image is not None:
             from follow.render import annotate
 
@@ -512,6 +520,14 @@ class FollowNode(Node):
             picture = annotate(image, result.skeletons, result.tracks, result.target, command)
             self.pub_image.publish(Image(header=messages.header(stamp, image_header.frame_id),
                                          **image_fields(picture)))  # fmt: skip
+
+    def _publish_target(self, target: PoseStamped, choice: int) -> None:
+        """Under the lock, and only while following with no choice made since the frame
+        was concluded: Nav2 would be led on after `~/stop_following` returned, or toward
+        the person just deselected on `~/select_target`."""
+        with self._lock:
+            if self.following and self._choices == choice:
+                self.pub_target.publish(target)
 
     def _publish_twist(self, command: VelocityCommand) -> None:
         self.pub_cmd_vel.publish(messages.twist(command))

@@ -382,9 +382,9 @@ def plot_top_down(trajectory: dict, path: Path) -> None:
 
 def main(args) -> dict:
     if args.bag:  # before the demo's own log and video are opened (and emptied)
-        from follow.bag_writer import check_bag_path
+        from follow.sim.demo_bag import check_demo_bag_path
 
-        check_bag_path(args.bag)
+        check_demo_bag_path(args.bag)
     summary = run_demo(args.seconds, args.seed, args.identifier, Path(args.output),
                        write_video=not args.no_video, bag_path=args.bag)  # fmt: skip
     if not args.json:
