@@ -117,10 +117,12 @@ class OrderedWorker:
         if self.error is not None:
             raise self.error
 
-    def close(self, timeout_s: float = 30.0) -> None:
+    def close(self, timeout_s: float = 30.0) -> bool:
         """Finish every submitted item within `timeout_s` (one deadline for queueing the
         end and for the thread to reach it: a callback stuck on a stalled disk must not
-        hang shutdown), then raise the callback's error if there was one."""
+        hang shutdown), then raise the callback's error if there was one. False when the
+        thread is still stuck in the callback: what it writes to (a file whose lock it
+        holds) must not be closed under it."""
         deadline = time.monotonic() + timeout_s
         while self._thread.is_alive() and time.monotonic() < deadline:
             try:
@@ -132,8 +134,10 @@ class OrderedWorker:
         if self._thread.is_alive():
             log.error("%s thread still busy %.0f s after close: the items left are lost",
                       self._thread.name, timeout_s)  # fmt: skip
+            return False
         if self.error is not None:
             raise self.error
+        return True
 
     def _run(self) -> None:
         while True:

@@ -41,7 +41,7 @@ from follow.freshness import is_ahead, is_fresh
 from follow.handoff import Handoff, OrderedWorker
 from follow.latency import LatencyRecorder
 from follow.odometry_buffer import pose_jumped
-from follow.shutdown import cleanup_begins, halt_on_signal
+from follow.shutdown import cleanup_begins, halt_on_signal, stop_within
 from follow.types import (
     Frame,
     Observation,
@@ -55,7 +55,8 @@ from follow.types import (
 
 log = logging.getLogger(__name__)
 
-STOP_JOIN_TIMEOUT_S = 5.0  # how long `ControlLoop.stop` waits for a tick under way
+STOP_JOIN_TIMEOUT_S = 5.0  # how long `ControlLoop.stop` waits for a tick, then the last zero
+CAPTURE_JOIN_TIMEOUT_S = 2.0  # how long a run's end waits for a read under way
 
 
 @dataclass(frozen=True)
@@ -185,6 +186,8 @@ class ControlLoop:
     from it leaves the loop.
     Ticks are timed on `time.monotonic`, whatever `clock` is, so a clock that steps back
     (a ROS clock after an NTP step) cannot put the loop to sleep on a moving command.
+    `on_failure` is called from the loop's thread when it fails (the runner ends the run:
+    without odometry no frame would get as far as looking at `error`).
     """
 
     def __init__(
@@ -206,6 +209,7 @@ class ControlLoop:
         self.perception_timeout_s = perception_timeout_s
         self.clock = clock
         self.on_command = on_command
+        self.on_failure: Callable[[], None] | None = None
         self.last_command: VelocityCommand | None = None
         self.watchdog_trips = 0
         self.error: BaseException | None = None
@@ -239,17 +243,31 @@ class ControlLoop:
 
     def stop(self) -> None:
         """Zero from now on: a tick still under way can only send zero after this. A
-        base that fails to take the last zero, or whose `send` is still hanging after
-        `STOP_JOIN_TIMEOUT_S` more, is logged and kept in `error` (if nothing failed
-        before), not raised and not waited on for ever: the caller's cleanup must go on."""
+        base that fails to take the last zero, or whose `send` (the last zero's, or one
+        still under way) has not returned `STOP_JOIN_TIMEOUT_S` after the tick's wait,
+        is logged and kept in `error` (if nothing failed before), not raised and not
+        waited on for ever: the caller's cleanup must go on. Safe from any thread, twice."""
         self._stop.set()
         self._wake.set()
         self._thread.join(timeout=STOP_JOIN_TIMEOUT_S)
-        busy = self._thread.is_alive()
-        if busy:
+        if self._thread.is_alive():
             log.error("control thread still busy %.0f s after stop: it can only send zero "
                       "commands from now on", STOP_JOIN_TIMEOUT_S)  # fmt: skip
-        self._send_last_stop(lock_timeout_s=STOP_JOIN_TIMEOUT_S if busy else -1.0)
+        self._send_last_stop_within(STOP_JOIN_TIMEOUT_S)
+
+    def _send_last_stop_within(self, wait_s: float) -> None:
+        """The last zero, sent on a helper thread: a base's `send` that never returns
+        (or another stop's, hanging with the lock) holds the caller `wait_s` at most."""
+
+        def send() -> None:
+            self._send_last_stop(lock_timeout_s=wait_s)
+
+        if stop_within(send, wait_s, name="control-stop"):
+            return
+        log.error("the base's send has not returned for %g s: giving up on the last zero",
+                  wait_s)  # fmt: skip
+        if self.error is None:
+            self.error = _send_hangs(wait_s)
 
     def _stop_stamp_s(self) -> float:
         """The last zero's stamp: the loop's clock, or, where that clock is what failed
@@ -353,7 +371,7 @@ class ControlLoop:
         A `send` still under way for `lock_timeout_s` (negative: no limit) raises
         TimeoutError: the base is hanging, and this command could only queue behind it."""
         if not self._send_lock.acquire(timeout=lock_timeout_s):
-            raise TimeoutError(f"the base's send has not returned for {lock_timeout_s:g} s")
+            raise _send_hangs(lock_timeout_s)
         try:
             if clears is not None and clears != self._clears and not command.is_stop:
                 command, overridden = VelocityCommand.stop(command.stamp_s), True
@@ -380,7 +398,13 @@ class ControlLoop:
         except BaseException as exc:  # the base must stop whatever went wrong
             self.error = exc
             log.exception("control loop failed: stopping the base")
+            if self.on_failure is not None:
+                self.on_failure()
             self._send_last_stop()
+
+
+def _send_hangs(wait_s: float) -> TimeoutError:
+    return TimeoutError(f"the base's send has not returned for {wait_s:g} s")
 
 
 def control_failure(error: BaseException) -> RuntimeError:
@@ -440,7 +464,10 @@ class ThreadedRunner:
     frame rate. With `overlap_stages` the pose network infers the next frame while the
     previous one is tracked and identified (two frames in flight at most). `on_result`
     (drawing, video, log) runs on its own thread, in frame order. An error in any of
-    these threads (a bad frame, a full disk) ends the run and is raised here.
+    these threads (a bad frame, a full disk, a failed control loop) ends the run and is
+    raised here. After the run, `capture_running` and `outputs_stuck` say whether the
+    source and `on_result`'s files are still in use by a thread that did not end: not to
+    be closed under it.
     """
 
     def __init__(
@@ -459,12 +486,21 @@ class ThreadedRunner:
         self.frames = LatestSlot()
         self.results = control.results
         self._stop = threading.Event()
+        control.on_failure = self._stop.set  # a dead control loop ends the run
         self.odometry = control.odometry
         self.captured = 0
         self.processed = 0
         self.skipped_without_odometry = 0
         self.capture_error: BaseException | None = None
         self.pose_error: BaseException | None = None
+        self.outputs_stuck = False
+        self._capture_thread: threading.Thread | None = None
+
+    @property
+    def capture_running(self) -> bool:
+        """The capture thread is still reading the source (a camera's read that hangs):
+        the source must not be released under it (OpenCV's capture is not thread-safe)."""
+        return self._capture_thread is not None and self._capture_thread.is_alive()
 
     def _capture(self, source: Iterable[Frame], pace_hz: float | None) -> None:
         start = self.clock()
@@ -482,7 +518,9 @@ class ThreadedRunner:
         finally:
             self.frames.close()
 
-    def _newest_frames(self, stall_timeout_s: float | None) -> Iterator[tuple[int, Frame, Odometry]]:
+    def _newest_frames(
+        self, stall_timeout_s: float | None
+    ) -> Iterator[tuple[int, Frame, Odometry]]:
         """Each newest captured frame with a known robot pose, until the source ends.
         With `stall_timeout_s`, a source that delivers nothing that long (a camera whose
         read hangs) raises SourceError: the base is already held at zero by the watchdog,
@@ -539,7 +577,7 @@ class ThreadedRunner:
     ) -> None:
         """Drive the base from `source` until it ends, `max_frames` are processed or an
         error; a live source that delivers nothing for `stall_timeout_s` is an error."""
-        capture = threading.Thread(
+        capture = self._capture_thread = threading.Thread(
             target=self._capture, args=(source, pace_hz), name="capture", daemon=True
         )
         capture.start()
@@ -564,14 +602,18 @@ class ThreadedRunner:
                 if max_frames is not None and self.processed >= max_frames:
                     break
         finally:
-            cleanup_begins()  # a signal now is recorded, not raised into this cleanup
+            late_interrupt = None
+            try:  # a signal now is recorded, not raised into this cleanup
+                cleanup_begins()
+            except KeyboardInterrupt as interrupt:  # landed before the flag was set
+                late_interrupt = interrupt  # raised once the cleanup is done
             unregister_halt()
             self._stop.set()
             self.control.stop()  # first: waiting for the pose thread must not drive on
             detected.close()
-            capture.join(timeout=2.0)
+            capture.join(timeout=CAPTURE_JOIN_TIMEOUT_S)
             if outputs is not None:
-                outputs.close()
+                self.outputs_stuck = not outputs.close()
             interrupted = isinstance(sys.exc_info()[1], KeyboardInterrupt)
             if interrupted and self.control.error is not None:
                 # a base that hung or refused the last zero may still be moving: that
@@ -582,6 +624,8 @@ class ThreadedRunner:
                 raise error
         if self.control.error is not None:  # failed after the last frame was looked at
             raise control_failure(self.control.error) from self.control.error
+        if late_interrupt is not None:  # the run had ended by itself when the signal came
+            raise late_interrupt
 
     @property
     def dropped_frames(self) -> int:

@@ -62,7 +62,8 @@ def add_arguments(p) -> None:
     p.add_argument("--frames-dir", help="write annotated frames (with a top-down view) here")
     p.add_argument("--log", help="write a JSON-lines log of every frame here")
     p.add_argument(
-        "--realtime", action="store_true",
+        "--realtime",
+        action="store_true",
         help="play a file as recorded (its frames' own times) with threads",
     )
     p.add_argument("--max-frames", type=int, help="stop after this many frames")
@@ -163,6 +164,7 @@ class Outputs:
         self._video_frames = 0  # written so far, repeats included
         self._video_raw_bytes = 0  # of raw frames written since the file last grew
         self._video_size_bytes = 0  # the file's size then
+        self._abandoned = False
         self.log = RunLogWriter(log_path, header) if log_path else None
 
     def write(self, frame: Frame, result: FrameResult, command: VelocityCommand | None) -> None:
@@ -225,9 +227,18 @@ class Outputs:
         self._video_frames += copies
         return copies
 
+    def abandon(self) -> None:
+        """The output thread is still stuck in `write` (a stalled disk), holding the
+        log's or the video's lock: `close` then leaves them to the process's exit rather
+        than wait on that lock for ever."""
+        self._abandoned = True
+
     def close(self) -> None:
         """Close the video and the log; a video that fails to close still lets the log
         close (flushed: the run's record is what tells what happened)."""
+        if self._abandoned:
+            self._warn_left_open()
+            return
         failing = sys.exc_info()[1] is not None  # closed on the way out of an error
         try:
             if self._writer is not None:
@@ -236,6 +247,15 @@ class Outputs:
         finally:
             if self.log is not None:
                 self.log.close()
+
+    def _warn_left_open(self) -> None:
+        left_open = [self.video_path] if self._writer is not None else []
+        if self.log is not None:
+            left_open.append(str(self.log.path))
+        if left_open:
+            log.warning("not closing %s: the output thread is still stuck writing (a "
+                        "stalled disk?); the end of the file may be lost",
+                        " and ".join(left_open))  # fmt: skip
 
     def _check_video_readable(self, raise_error: bool) -> None:
         """OSError when the closed video cannot be read back: OpenCV's writer reports no
@@ -266,6 +286,7 @@ class RunSummary:
         self.states: dict[str, int] = {}
         self.final_target_id: int | None = None
         self.capture_to_command_ms: dict | None = None  # threaded runs: median and p95
+        self.source_in_use = False  # a capture thread still reads it (a hung camera)
 
     def add_result(self, result: FrameResult) -> None:
         self.frames += 1
@@ -379,10 +400,22 @@ def main(args) -> dict:
     source = open_source(args.source, args.image_topic, args.odom_topic, args.camera_info_topic,
                          config.ros.max_odometry_age_s, args.skeletons_topic,
                          folder_fps=args.folder_fps)  # fmt: skip
+    summary = RunSummary()
     try:  # released on every path, a failure before the run included (a camera stays busy)
-        return _run_source(args, config, source)
+        return _run_source(args, config, source, summary)
     finally:
-        source.close()
+        close_source(source, args.source, summary.source_in_use)
+
+
+def close_source(source, name: str, in_use: bool) -> None:
+    """Release the source, unless the capture thread is still inside a read of it (a
+    camera that hangs): releasing it there frees what the read uses (OpenCV's capture is
+    not thread-safe); the process's exit releases it instead."""
+    if in_use:
+        log.warning("source %s: not released, a read of it has not returned; the "
+                    "process's exit releases it", name)  # fmt: skip
+        return
+    source.close()
 
 
 def base_connection(args, config: Config) -> Config:
@@ -409,7 +442,7 @@ def source_camera(camera_file, source, width: int, height: int) -> CameraModel:
     return camera_for_frames(camera, width, height)
 
 
-def _run_source(args, config: Config, source) -> dict:
+def _run_source(args, config: Config, source, summary: RunSummary) -> dict:
     """`main` on an opened source, which the caller closes."""
     bag_odometry = source.odometry_at if getattr(source, "odometry", None) is not None else None
     if bag_odometry and (args.realtime or config.mavlink.connection):
@@ -431,7 +464,6 @@ def _run_source(args, config: Config, source) -> dict:
               "image_size": [width, height], "target_id": args.target_id,
               "image_topic": args.image_topic, "odom_topic": args.odom_topic,
               "camera_info_topic": args.camera_info_topic}  # fmt: skip
-    summary = RunSummary()
     watch = TargetIdWatch(args.target_id, config.control.missing_target_warn_s)
     elapsed = None  # the frames' time: not the base's connection, nor the closing
     with ShutdownSignals() as signals:
@@ -521,6 +553,9 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
             summary.dropped_frames = runner.dropped_frames
             summary.frames_without_odometry = runner.skipped_without_odometry
             summary.capture_to_command_ms = runner.control.latency.summary_ms()
+            summary.source_in_use = runner.capture_running
+            if runner.outputs_stuck:
+                outputs.abandon()
         return
     controller = FollowingController(config.control, view=view)
     # NullBase: the camera is still, a fixed pose; a bag: its recorded pose at each image

@@ -12,7 +12,9 @@ CPU) the control thread would go on driving toward the last target until the cal
 returns. The signal is therefore also written to a pipe (`signal.set_wakeup_fd`) that a
 watcher thread reads at once: it runs the halts registered with `halt_on_signal` (the
 runner's control loop, which then sends only zero) before the main thread gets to the
-handler.
+handler. The watcher also counts the signals, one byte each, and handles the second
+itself: the handler would run only once the native call returns, and signals that came
+meanwhile reach it as one.
 """
 
 from __future__ import annotations
@@ -72,6 +74,9 @@ class ShutdownSignals:
         self._wakeup: tuple[int, int] | None = None  # (read, write) ends of the pipe
         self._previous_wakeup_fd = -1
         self._watcher: threading.Thread | None = None
+        self._watched = 0  # shutdown signals the watcher has read
+        self._exit_lock = threading.RLock()  # one emergency stop and exit (see `_exit`)
+        self._exiting = False
 
     def __enter__(self) -> ShutdownSignals:
         global _active
@@ -112,8 +117,7 @@ class ShutdownSignals:
         self._watcher.start()
 
     def _watch(self, read_fd: int) -> None:
-        """Halt at once on the first shutdown signal (not during cleanup, whose own
-        stop comes first; a second signal is the handler's emergency stop)."""
+        """Read each signal as it arrives, whatever the main thread is doing."""
         shutdown_signals = {int(sig) for sig in SIGNALS}
         while True:
             try:
@@ -122,13 +126,26 @@ class ShutdownSignals:
                 return
             if not data:
                 return  # the write end closed: the block is over
-            if self.cleaning_up or not shutdown_signals & set(data):
-                continue
-            for halt in list(self._halts):
-                try:
-                    halt()
-                except Exception as exc:  # the handler's own path still stops the base
-                    log.error("halting on a signal: %s", exc)
+            for signum in data:
+                if signum in shutdown_signals:
+                    self._watched_signal(signum)
+
+    def _watched_signal(self, signum: int) -> None:
+        """The first halts at once (not during cleanup, whose own stop comes first), on a
+        thread of its own (a halt waits on a hung base for seconds); the second stops the
+        base and exits, here, where the main thread's native call cannot hold it up."""
+        self._watched += 1
+        if self._watched > 1:
+            self._exit(signum)
+        elif not self.cleaning_up:
+            threading.Thread(target=self._halt, name="signal-halt", daemon=True).start()
+
+    def _halt(self) -> None:
+        for halt in list(self._halts):
+            try:
+                halt()
+            except Exception as exc:  # the handler's own path still stops the base
+                log.error("halting on a signal: %s", exc)
 
     def _handle(self, signum: int, frame) -> None:
         name = signal.Signals(signum).name
@@ -140,9 +157,21 @@ class ShutdownSignals:
         if self.reason is None:
             self.reason = name
             raise KeyboardInterrupt(name)
-        log.error("%s during shutdown: stopping the base and exiting now", name)
-        self._emergency_stop()
-        os._exit(128 + signum)
+        self._exit(signum)
+
+    def _exit(self, signum: int) -> None:
+        """Stop the base and exit, once: the watcher and the main thread's handler may
+        both see the second signal; the one that comes second waits here for the exit
+        rather than go on (the lock is re-entrant: a third signal's handler, in the main
+        thread while it stops the base, returns to it)."""
+        with self._exit_lock:
+            if self._exiting:
+                return
+            self._exiting = True
+            log.error("%s during shutdown: stopping the base and exiting now",
+                      signal.Signals(signum).name)  # fmt: skip
+            self._emergency_stop()
+            os._exit(128 + signum)
 
     def _emergency_stop(self) -> None:
         base = self.base
@@ -160,18 +189,21 @@ class ShutdownSignals:
         stop_within(stop)
 
 
-def stop_within(stop: Callable[[], None], wait_s: float = EMERGENCY_STOP_WAIT_S) -> None:
-    """Run `stop` (a zero command on a second signal) on a helper thread and wait for it
-    `wait_s` at most: the process exits next whatever the link does, and a send that
-    hangs must not keep it alive. An error is logged (closing already, or the link is
-    gone)."""
+def stop_within(
+    stop: Callable[[], None], wait_s: float = EMERGENCY_STOP_WAIT_S, name: str = "emergency-stop"
+) -> bool:
+    """Run `stop` (a zero command on a second signal, a control loop's last zero) on a
+    helper thread named `name` and wait for it `wait_s` at most: a send that hangs must
+    not keep the caller, nor the process, alive. An error is logged (closing already, or
+    the link is gone). Returns whether `stop` returned in time."""
 
     def guarded() -> None:
         try:
             stop()
         except Exception as exc:
-            log.error("emergency stop: %s", exc)
+            log.error("%s: %s", name.replace("-", " "), exc)
 
-    worker = threading.Thread(target=guarded, name="emergency-stop", daemon=True)
+    worker = threading.Thread(target=guarded, name=name, daemon=True)
     worker.start()
     worker.join(wait_s)
+    return not worker.is_alive()

@@ -244,3 +244,52 @@ def test_a_frame_taken_without_odometry_has_its_stop_logged_at_once():
     started = time.monotonic()
     assert loop.command_from(result, 5.0) is loop.last_command
     assert time.monotonic() - started < 1.0
+
+
+class _HangsOnceTold(NullBase):
+    """A base whose `send` stops returning once `hang` is set (a link that no longer
+    drains), until `release` is."""
+
+    def __init__(self):
+        super().__init__()
+        self.hang, self.release = threading.Event(), threading.Event()
+
+    def send(self, cmd):
+        if self.hang.is_set():
+            self.release.wait(10.0)
+        return super().send(cmd)
+
+
+def _idle_loop_on_hanging_base() -> tuple[_HangsOnceTold, ControlLoop]:
+    """A loop between two ticks (1 s apart): `stop` finds it idle, not busy."""
+    base = _HangsOnceTold()
+    loop = ControlLoop(FollowingController(ControlConfig()), base, LatestSlot(), rate_hz=1.0,
+                       perception_timeout_s=0.5).start()  # fmt: skip
+    deadline = time.monotonic() + 2.0
+    while not base.commands and time.monotonic() < deadline:
+        time.sleep(0.005)
+    base.hang.set()
+    return base, loop
+
+
+def _returns_within(call, timeout_s: float) -> bool:
+    caller = threading.Thread(target=call, daemon=True)
+    caller.start()
+    caller.join(timeout_s)
+    return not caller.is_alive()
+
+
+def test_stop_gives_up_on_a_last_zero_whose_send_hangs(monkeypatch):
+    """The loop was idle between ticks and the base's send hangs on the last zero: `stop`
+    returns after its wait with a TimeoutError in `error`, and so does a second `stop`
+    (the main thread's, after the signal watcher's hung in that send with the lock)."""
+    from follow import pipeline
+
+    monkeypatch.setattr(pipeline, "STOP_JOIN_TIMEOUT_S", 0.1)
+    base, loop = _idle_loop_on_hanging_base()
+    try:
+        assert _returns_within(loop.stop, 1.0), "stop() hangs in the base's send"
+        assert isinstance(loop.error, TimeoutError)
+        assert _returns_within(loop.stop, 1.0), "a second stop() waits on the send lock"
+    finally:
+        base.release.set()

@@ -387,8 +387,11 @@ def test_a_base_that_fails_to_send_still_lets_the_run_deliver_every_result(overl
     perception = _TimedPerception(0.01)
     runner = _runner(perception, overlap, base=_LinkGone())
     with pytest.raises(RuntimeError, match="control loop failed") as failure:
-        runner.run(_frames(40), pace_hz=50.0,
-                   on_result=lambda frame, result: delivered.append(result.frame_index))
+        runner.run(
+            _frames(40),
+            pace_hz=50.0,
+            on_result=lambda frame, result: delivered.append(result.frame_index),
+        )
     assert isinstance(failure.value.__cause__, OSError)
     assert runner.processed >= 1 and len(delivered) == runner.processed
     assert delivered == sorted(set(delivered))  # in order, each once
@@ -474,3 +477,102 @@ def test_a_shutdown_signal_stops_driving_while_the_pose_network_runs():
     assert max(c.stamp_s for c in moving) < sent[0] + 0.1  # nothing moving after the signal
     first_stop_after = min(c.stamp_s for c in base.commands if c.is_stop and c.stamp_s >= sent[0])
     assert first_stop_after - sent[0] < 0.2  # long before the 0.8 s inference ended
+
+
+def test_a_sigterm_while_the_base_hangs_ends_the_run_with_that_error(monkeypatch):
+    """SIGTERM, and the base's send hangs from then on: the signal watcher's stop hangs
+    in the send with its lock; the runner's own stop must still give up after its wait
+    and the run end with the hung base as its error, not wait on that lock for ever."""
+    import os
+    import signal
+
+    from follow import pipeline
+    from follow.shutdown import ShutdownSignals
+
+    monkeypatch.setattr(pipeline, "STOP_JOIN_TIMEOUT_S", 0.1)
+    hang, release = threading.Event(), threading.Event()
+
+    class _Hangs(NullBase):
+        def send(self, cmd):
+            if hang.is_set():
+                release.wait(10.0)
+            return super().send(cmd)
+
+    def hang_then_signal():
+        time.sleep(0.2)
+        hang.set()
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    runner = _runner(_TimedPerception(0.005), overlap=False, base=_Hangs())
+    threading.Thread(target=hang_then_signal, daemon=True).start()
+    start = time.monotonic()
+    try:
+        with ShutdownSignals():
+            runner.run(_frames(1000), pace_hz=50.0)
+    except BaseException as exc:  # a KeyboardInterrupt here would end pytest's session
+        ended = exc
+    finally:
+        release.set()
+    assert "control loop failed (TimeoutError" in str(ended), repr(ended)
+    assert time.monotonic() - start < 5.0
+
+
+@pytest.mark.parametrize("overlap", [False, True])
+def test_a_control_loop_that_dies_with_the_odometry_ends_the_run(overlap):
+    """A serial base is unplugged: its send raises (the control loop dies) and its
+    odometry stops (every frame is then skipped, none gets as far as the runner's look at
+    the control loop). The run must end at once with that failure, not go on without a
+    control loop until the camera ends."""
+    unplugged = threading.Event()
+
+    class _Serial(NullBase):
+        def send(self, cmd):
+            if unplugged.is_set():
+                raise OSError(5, "Input/output error")
+            return super().send(cmd)
+
+        def odometry(self):
+            return None if unplugged.is_set() else super().odometry()
+
+    def camera():  # 4 s of frames
+        for k, frame in enumerate(_frames(200)):
+            if k == 10:
+                unplugged.set()
+            yield frame
+
+    runner = _runner(_TimedPerception(0.005), overlap=overlap, base=_Serial())
+    with pytest.raises(RuntimeError, match="control loop failed .OSError") as failure:
+        runner.run(camera(), pace_hz=50.0)
+    assert isinstance(failure.value.__cause__, OSError)
+    assert runner.captured < 100, "the run went on without its control loop"
+
+
+def test_a_signal_just_before_the_cleanup_flag_still_lets_the_cleanup_run(monkeypatch):
+    """The source ends and SIGINT lands as the runner's cleanup begins, before its flag
+    is set: the KeyboardInterrupt must not skip the rest of the cleanup (the output
+    thread drains every frame, the threads end); it is raised once that is done."""
+    import signal
+
+    from follow import pipeline
+    from follow.shutdown import ShutdownSignals
+
+    real = pipeline.cleanup_begins
+
+    def signalled_then_flagged():
+        signal.raise_signal(signal.SIGINT)  # the handler runs here, before the flag
+        real()
+
+    monkeypatch.setattr(pipeline, "cleanup_begins", signalled_then_flagged)
+    written = []
+
+    def on_result(frame, result):  # a slow encoder: frames queue up
+        time.sleep(0.02)
+        written.append(result.frame_index)
+
+    threads_before = set(threading.enumerate())
+    runner = _runner(_TimedPerception(0.002), overlap=False)
+    with ShutdownSignals(), pytest.raises(KeyboardInterrupt):
+        runner.run(_frames(20), pace_hz=100.0, on_result=on_result)
+    assert runner.processed > 0 and len(written) == runner.processed
+    left = set(threading.enumerate()) - threads_before
+    assert not [t for t in left if t.name in ("capture", "outputs")]

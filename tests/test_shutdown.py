@@ -84,3 +84,45 @@ def test_no_halt_outside_the_block_or_during_cleanup():
         os.kill(os.getpid(), signal.SIGTERM)  # recorded, not raised: no halt either
         time.sleep(0.3)
     assert signals.reason == "SIGTERM" and halted == []
+
+
+def test_a_second_signal_during_a_long_native_call_stops_and_exits_at_once(monkeypatch):
+    """Two signals while the main thread is inside a native call: its handler would run
+    once they are over, and once for both; the watcher stops the base and exits on the
+    second at once."""
+    busy = _native_call(1.0)
+    exits, sent = [], []
+    monkeypatch.setattr(shutdown.os, "_exit", lambda code: exits.append((code, time.monotonic())))
+    base = NullBase()
+
+    def send_signals():
+        for _ in range(2):
+            time.sleep(0.1)
+            sent.append(time.monotonic())
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(KeyboardInterrupt):  # the handler's one run, for the first
+        with shutdown.ShutdownSignals() as signals:
+            signals.base = base
+            threading.Thread(target=send_signals).start()
+            busy()
+    assert len(sent) == 2 and exits, "the second signal did not exit"
+    assert exits[0][0] == 128 + signal.SIGTERM and exits[0][1] - sent[1] < 0.25
+    assert base.commands[-1].is_stop
+
+
+def test_a_second_signal_seen_by_the_watcher_and_the_handler_stops_and_exits_once(
+    monkeypatch,
+):
+    exits, stops = [], []
+    monkeypatch.setattr(shutdown.os, "_exit", exits.append)
+    base = NullBase()
+    base.emergency_stop = lambda: stops.append(threading.current_thread().name)
+    with shutdown.ShutdownSignals() as signals:
+        signals.base = base
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1.0)
+        os.kill(os.getpid(), signal.SIGTERM)  # the handler and the watcher both see it
+        time.sleep(0.3)
+    assert exits == [128 + signal.SIGTERM] and len(stops) == 1

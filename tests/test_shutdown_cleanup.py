@@ -4,6 +4,7 @@ raised into the cleanup, so every processed frame is logged, the video finalised
 failure still reported; and a second signal stops a MAVLink rover even when the
 interrupted code holds the base's lock."""
 
+import io
 import json
 import os
 import signal
@@ -27,6 +28,8 @@ from follow.types import Observation, Odometry, TargetEstimate, TargetStatus, Tr
 SEEN = Observation(np.array([32.0, 20.0]), np.array([32.0, 40.0]))  # the target in view
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
 # --------------------------------------------------------------------------- 1
 def test_ordered_worker_close_is_bounded_when_the_callback_hangs():
     """OrderedWorker.close(timeout_s) must return within about timeout_s even when the
@@ -99,8 +102,14 @@ def test_ctrl_c_ends_a_run_whose_output_thread_is_stuck():
     """`follow run`'s first Ctrl-C must end the process (base zeroed, outputs given up
     after their time-out); a stuck output callback makes it hang for ever."""
     env = dict(os.environ, PYTHONPATH=REPO)
-    proc = subprocess.Popen([sys.executable, "-c", HUNG_OUTPUT_SCRIPT], stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL, text=True, env=env, cwd=REPO)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HUNG_OUTPUT_SCRIPT],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=env,
+        cwd=REPO,
+    )
     try:
         first = []
         reader = threading.Thread(target=lambda: first.append(proc.stdout.readline()), daemon=True)
@@ -203,8 +212,9 @@ def test_sigterm_while_the_base_closes_does_not_escape_the_cleanup(tmp_path, mon
     except KeyboardInterrupt:
         summary = None
     frames = _video_frames(tmp_path / "out.mp4")
-    assert summary is not None, (f"KeyboardInterrupt escaped follow run's cleanup; "
-                                 f"{frames} video frames readable")
+    assert summary is not None, (
+        f"KeyboardInterrupt escaped follow run's cleanup; {frames} video frames readable"
+    )
     assert frames >= 25, f"video not finalised: {frames} frames readable"
 
 
@@ -250,8 +260,7 @@ def test_sigterm_while_outputs_drain_loses_no_logged_frame(tmp_path, monkeypatch
     assert logged == summary["frames"] > 0  # every processed frame
 
 
-def test_a_run_error_is_not_turned_into_a_clean_exit_by_a_signal_in_cleanup(tmp_path,
-                                                                           monkeypatch):
+def test_a_run_error_is_not_turned_into_a_clean_exit_by_a_signal_in_cleanup(tmp_path, monkeypatch):
     """An output error (disk full) ends the run; SIGTERM lands during the cleanup. The
     error must still be raised, not reported as a clean 'stopped_by: SIGTERM'."""
     monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
@@ -334,3 +343,124 @@ def test_second_signal_stops_the_rover_even_inside_a_base_lock(monkeypatch):
         finally:
             monkeypatch.undo()
             base.close()
+
+
+# --------------------------------------------------------------------------- 4
+class _StallingDisk(io.RawIOBase):
+    """A file whose disk stalls from its `stall_at`-th write: the write blocks, inside the
+    buffered file's lock, until `release` (or 10 s)."""
+
+    def __init__(self, stall_at: int):
+        self.stall_at, self.writes = stall_at, 0
+        self.stuck, self.release = threading.Event(), threading.Event()
+
+    def writable(self):
+        return True
+
+    def write(self, data):
+        self.writes += 1
+        if self.writes >= self.stall_at:
+            self.stuck.set()
+            self.release.wait(10.0)
+        return len(data)
+
+
+def test_ctrl_c_ends_follow_run_whose_log_is_on_a_stalled_disk(tmp_path, monkeypatch, caplog):
+    """The output thread is stuck writing the log (its file's lock held); after Ctrl-C
+    the runner gives up on it, and `follow run` must then not close the log under it
+    (a flush that waits on that lock for ever), but return, naming the log left open."""
+    disk = _StallingDisk(stall_at=3)
+
+    class _LogOnStalledDisk(run_module.RunLogWriter):
+        def __init__(self, path, header):
+            super().__init__(path, header)
+            self._fh.close()
+            self._fh = io.TextIOWrapper(io.BufferedWriter(disk))
+
+    monkeypatch.setattr(run_module, "RunLogWriter", _LogOnStalledDisk)
+    monkeypatch.setattr(OrderedWorker.close, "__defaults__", (0.3,))
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
+    monkeypatch.setattr(run_module, "open_base", lambda config: _Base())
+    released_by_test = []
+
+    def ctrl_c_then_release():
+        if disk.stuck.wait(5.0):
+            os.kill(os.getpid(), signal.SIGINT)
+        if not disk.release.wait(5.0):  # main() has not returned: let it
+            released_by_test.append(1)
+            disk.release.set()
+
+    threading.Thread(target=ctrl_c_then_release, daemon=True).start()
+    try:
+        summary = run_module.main(_args(tmp_path, output_video=None))
+    finally:
+        returned = not disk.release.is_set()
+        disk.release.set()
+    assert returned and not released_by_test, "follow run waited on the stuck log's lock"
+    assert summary["stopped_by"] == "SIGINT"
+    assert "not closing" in caplog.text and "run.jsonl" in caplog.text
+
+
+class _HangingCamera:
+    """A camera (cv2.VideoCapture) whose read hangs from the 8th frame until `unhang`;
+    it notes a `release` called while a read is under way."""
+
+    def __init__(self, *args, **kwargs):
+        self.frames, self.reading = 0, 0
+        self.unhang = threading.Event()
+        self.released_while_reading: list[bool] = []
+
+    def isOpened(self):
+        return True
+
+    def get(self, prop):
+        return 30.0 if prop == cv2.CAP_PROP_FPS else 0.0
+
+    def grab(self):
+        self.reading += 1
+        try:
+            if self.frames >= 8:
+                self.unhang.wait(10.0)
+            time.sleep(1 / 30)
+            self.frames += 1
+            return True
+        finally:
+            self.reading -= 1
+
+    def retrieve(self):
+        return True, np.random.default_rng(self.frames).integers(0, 255, (48, 64, 3), np.uint8)
+
+    def read(self):
+        return self.grab() and self.retrieve()
+
+    def release(self):
+        self.released_while_reading.append(self.reading > 0)
+
+
+def test_a_camera_whose_read_hangs_is_not_released_under_the_read(tmp_path, monkeypatch):
+    """A live camera's read hangs: the run ends on the stall limit while the capture
+    thread is still inside the read; the camera must not be released from the main
+    thread meanwhile (OpenCV's capture is not thread-safe), but left to the exit."""
+    from follow import pipeline
+    from follow.capture import SourceError
+
+    cameras = []
+
+    def open_camera(*args):
+        cameras.append(_HangingCamera())
+        return cameras[-1]
+
+    monkeypatch.setattr(cv2, "VideoCapture", open_camera)
+    monkeypatch.setattr(pipeline, "CAPTURE_JOIN_TIMEOUT_S", 0.1)
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
+    monkeypatch.setattr(run_module, "open_base", lambda config: _Base())
+    (tmp_path / "stall.toml").write_text("[control]\ncamera_stall_timeout_s = 0.3\n")
+    args = _args(tmp_path, source="0", realtime=False, output_video=None, log=None,
+                 config=str(tmp_path / "stall.toml"))  # fmt: skip
+    try:
+        with pytest.raises(SourceError, match="no frame for 0.3 s"):
+            run_module.main(args)
+    finally:
+        for camera in cameras:
+            camera.unhang.set()
+    assert cameras and True not in cameras[0].released_while_reading
