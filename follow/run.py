@@ -687,11 +687,17 @@ def replay(args, config: Config) -> dict:
             record = next(records, None)
     finally:
         source.close()
-    for _ in records:  # the source ended first: the rest of the log is still checked
-        pass
+    # The source ended first: the rest of the log is still checked, and counted, so that
+    # a replay of part of the run (a cut video) does not pass for the whole of it.
+    first_left = None if record is None else record.frame_index
+    left = (record is not None) + sum(1 for _ in records)
     if total == 0:
         raise ValueError(f"log {args.replay}: no frame of it found in {args.source}")
-    summary = {"frames": total, "target_agreement": round(agree / total, 4)}
+    if left:
+        log.warning("--replay %s: %d logged frames, from frame %d on, lie past the end of %s: "
+                    "not replayed", args.replay, left, first_left, args.source)  # fmt: skip
+    summary = {"frames": total, "target_agreement": round(agree / total, 4), "not_replayed": left}
     if not args.json:
-        print(f"replayed {total} frames: the same target in {100 * agree / total:.1f} %")
+        print(f"replayed {total} frames: the same target in {100 * agree / total:.1f} %"
+              + (f"; {left} logged frames past the source's end not replayed" if left else ""))
     return summary

@@ -54,7 +54,7 @@ def test_follow_run_replays_the_demo_bag_to_the_same_targets(tmp_path, capsys):
              "--replay", str(tmp_path / "replay.jsonl"), "--json"]  # fmt: skip
     assert cli.main(again) == 0
     replayed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert replayed == {"frames": len(replay), "target_agreement": 1.0}
+    assert replayed == {"frames": len(replay), "target_agreement": 1.0, "not_replayed": 0}
 
     # The ground truth in the bag: the followed track lies on the true target.
     with AnyReader([bag]) as reader:

@@ -41,8 +41,21 @@ def test_a_replay_reads_each_record_of_its_log_as_its_frame_is_reached(
     monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Recorder())
     assert cli.main(argv) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert summary == {"frames": 4, "target_agreement": 1.0}
+    assert summary == {"frames": 4, "target_agreement": 1.0, "not_replayed": 0}
     assert events == [(step, k) for k in (0, 2, 3, 6) for step in ("read", "replayed")]
+
+
+def test_a_replay_against_a_shorter_source_says_how_much_of_the_log_it_left(
+    tmp_path, capsys, monkeypatch, caplog
+):
+    """A log of 10 frames against 3 (a cut video): full agreement over 3 frames used to
+    read as a replay of the whole run."""
+    argv = _logged_run(tmp_path, 3, {}, range(10))
+    _configs_replayed_with(monkeypatch)
+    assert cli.main(argv) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary == {"frames": 3, "target_agreement": 1.0, "not_replayed": 7}
+    assert "7 logged frames, from frame 3 on, lie past the end of" in caplog.text
 
 
 def _logged_run(tmp_path, frames: int, header: dict, logged=(0,)) -> list[str]:
