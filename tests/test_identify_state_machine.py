@@ -315,19 +315,23 @@ def test_a_stranger_alone_in_view_is_not_taken_for_the_target():
     assert ests[-1].status == TargetStatus.TRACKING and ests[-1].target_id == 20
 
 
-def test_without_recoloured_negatives_a_lone_stranger_is_taken():
-    """The failure the recoloured negatives prevent: learnt from positives alone, the
-    classifier names a stranger alone in view as the target (with the part-colour rule
-    off, which would turn this stranger away too)."""
+def test_without_recoloured_negatives_a_lone_stranger_is_not_taken():
+    """Learnt from positives alone (no recoloured negatives, nobody else in view), every
+    weak classifier votes for the target, and the classifier scored a stranger alone in
+    view +1 and named them the target (with the part-colour rule off, which would turn
+    this stranger away too). A classifier that never saw the other class is not trained:
+    it scores nobody, and vouches for no one."""
     cfg = dataclasses.replace(CFG, min_negatives_per_update=0, reid_part_colour_distance=1.0)
     identifier = TargetIdentifier(
         cfg, ChannelFeatureExtractor((cfg.crop_width_px, cfg.crop_height_px))
     )
     rng = np.random.default_rng(3)
     run(identifier, [Person(1, 2.0, 320, RED, trousers=(30, 30, 30))], 20, rng)
+    assert not identifier.model.classifier.is_trained
     run(identifier, [], 5, rng, t0=2.0)
     named = run(identifier, [Person(10, 2.0, 320, BLUE, trousers=(200, 180, 150))], 15, rng, t0=3.0)
-    assert named[-1].target_id == 10
+    assert {e.target_id for e in named} == {None}
+    assert named[-1].confidences[10] < cfg.reid_confidence
 
 
 def test_a_track_seen_in_too_few_frames_is_not_made_the_target():

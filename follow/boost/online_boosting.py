@@ -359,7 +359,10 @@ class OnlineBoostingClassifier:
     # ---------------------------------------------------------------------- prediction
     @property
     def is_trained(self) -> bool:
-        return bool(self.alpha.sum() > 0.0)
+        """Some selector has a weight and both classes were seen: learnt from positives
+        alone, every weak classifier votes for the target (the other class, never seen,
+        loses), and anyone, an all-black crop too, would score +1."""
+        return bool(self.alpha.sum() > 0.0) and min(self.banks.size(0), self.banks.size(1)) > 0
 
     def confidence(self, maps: Sequence[FeatureMaps]) -> np.ndarray:
         """Confidence in [-1, 1] that each sample is the target (0 before any training):
