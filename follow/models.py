@@ -219,6 +219,9 @@ def resolve(name: str, verify: bool = True) -> Path:
     if root is not None:
         if verify:
             for f in spec.files:
+                if not (root / f.relpath).is_file():  # a folder in its place
+                    raise ModelError(f"model '{name}': {root / f.relpath} is a folder, not a "
+                                     "file; refusing to load it")  # fmt: skip
                 actual = sha256_of(root / f.relpath)
                 if actual != f.sha256:
                     raise ModelError(

@@ -227,6 +227,16 @@ def test_verify_reports_a_folder_in_place_of_a_model_file_and_goes_on(mirror, ca
     assert by_path["conv_t2"]["ok"]
 
 
+def test_loading_a_model_with_a_folder_in_place_of_a_file_names_them(mirror, cache,
+                                                                      monkeypatch):  # fmt: skip
+    """It raised a bare IsADirectoryError from the hashing."""
+    (mirror / "ccf/ccf10/conv_t1").unlink()
+    (mirror / "ccf/ccf10/conv_t1").mkdir()
+    monkeypatch.setenv("FOLLOW_MODEL_DIR", str(mirror))
+    with pytest.raises(models.ModelError, match=r"model 'ccf10': .*conv_t1 is a folder, not a file"):
+        models.resolve("ccf10")
+
+
 def test_fetch_names_a_folder_in_place_of_a_cached_file_and_fetches_the_others(mirror, cache,
                                                                                capsys):  # fmt: skip
     """It ended the whole batch with a bare errno, the other models never fetched."""

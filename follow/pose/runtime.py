@@ -72,18 +72,25 @@ def with_frame_input(model_path: Path) -> bytes:
     return model.SerializeToString()
 
 
-def check_pose_signature(model_path: Path, input_shape: list, output_shapes: list[list]) -> None:
+def check_pose_signature(model_path: Path, input_shape: list, output_shapes: list[list],
+                         reshapes: bool = False) -> None:  # fmt: skip
     """Refuse, when it is loaded, a network that cannot be the pose network: one BGR
     image in (rank 4, 3 channels where the file fixes them), heatmaps and PAFs out (19
-    and 38 channels where fixed). Another network named by `[pose] model_file` (the re-id
-    one) otherwise fails on the first frame inside the runtime, naming neither. Shapes
-    as the runtimes give them: a dimension that is not an int is free."""
+    and 38 channels where fixed), and, for a runtime that cannot reshape it (`reshapes`
+    False: onnxruntime), an image size left free. Another network named by `[pose]
+    model_file` (the re-id one), or one made with a fixed size, otherwise fails on the
+    first frame inside the runtime, naming neither. Shapes as the runtimes give them: a
+    dimension that is not an int is free."""
     def fixed(dim) -> int | None:
         return dim if isinstance(dim, int) and dim > 0 else None
 
     problem = None
     if len(input_shape) != 4 or fixed(input_shape[1]) not in (None, 3):
         problem = f"its input is {list(input_shape)}, not an image [1, 3, H, W]"
+    elif not reshapes and (fixed(input_shape[2]) or fixed(input_shape[3])):
+        problem = (f"its input fixes the image size ({list(input_shape)}), which the "
+                   "network is fed at each camera's own size (made with "
+                   "tools/ir_to_onnx.py --static? convert it again without)")  # fmt: skip
     elif len(output_shapes) < 2:
         problem = f"it has {len(output_shapes)} output(s), not heatmaps and PAFs"
     else:
@@ -187,7 +194,8 @@ class OpenVinoBackend:
         self._core = openvino_core()
         self._model = self._core.read_model(str(model_path))
         check_pose_signature(model_path, _openvino_shape(self._model.inputs[0]),
-                             [_openvino_shape(o) for o in self._model.outputs])  # fmt: skip
+                             [_openvino_shape(o) for o in self._model.outputs],
+                             reshapes=True)  # fmt: skip
         if frame_input:
             from openvino.preprocess import PrePostProcessor
 
