@@ -245,6 +245,10 @@ def test_tracking_under_perturbation_reports_variants_mean_and_worst(small_pose,
     # Other frames, other people: the two runs see different ground truth.
     gt = [r["variants"][v]["ours"]["gt_objects"] for v in ("jpeg50", "offset50")]
     assert min(gt) > 25 and gt[0] != gt[1]
+    # counts are summarised as rates: the windows differ in length
+    v = r["variants"]["jpeg50"]["ours"]
+    assert v["misses_per_1000_gt"] == pytest.approx(1000 * v["misses"] / v["gt_objects"], abs=0.01)
+    assert "misses" not in r["worst"]["ours"] and "misses_per_1000_gt" in r["worst"]["ours"]
     assert (tmp_path / "t.png").stat().st_size > 10_000
 
 

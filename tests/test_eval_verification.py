@@ -33,6 +33,24 @@ def test_true_accepts_at_a_false_accept_rate_let_through_no_more_negatives_than_
     assert operating_figures(pos, neg)["tar_at_far_0.01"] == 0.5
 
 
+def test_a_crop_without_a_cue_ranks_lowest_and_breaks_no_figure():
+    """A NaN score (no embedding or part colours: it passes no bar) sorted as the highest:
+    one NaN negative made the bar NaN, TAR 0, and outranked every positive in the AUC."""
+    neg = np.append(np.linspace(-1.0, -0.1, 27), np.nan)
+    pos = np.array([0.2, 0.5, np.nan])
+    figures = operating_figures(pos, neg)
+    assert figures["tar_at_far_0.01"] == figures["tar_at_far_0.001"] == pytest.approx(2 / 3)
+    assert figures["auc"] == pytest.approx((2 * 28 + 0.5) / 84)  # the NaN pair ties
+
+
+def test_a_false_accept_rate_too_fine_for_the_negatives_is_reported_as_the_one_reached():
+    neg = np.linspace(-1.0, 0.0, 28)  # 28 negatives resolve nothing under 1/28
+    figures = operating_figures(np.array([0.5]), neg)
+    assert figures["realised_far_at_far_0.01"] == figures["realised_far_at_far_0.001"] == 0.0
+    neg = np.linspace(-1.0, 0.0, 1000, endpoint=False)
+    assert operating_figures(np.array([0.5]), neg)["realised_far_at_far_0.01"] == 0.01
+
+
 def test_cuhk03_reader_groups_views_by_camera(data_path):
     people = load_cuhk03(data_path("cuhk03_val"), limit=3)
     assert [p.identity for p in people] == sorted(p.identity for p in people)

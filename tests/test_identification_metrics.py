@@ -1,3 +1,6 @@
+from types import SimpleNamespace
+
+import numpy as np
 import pytest
 
 from follow.eval.identification_metrics import OutcomeTally, classify
@@ -201,3 +204,27 @@ def test_a_target_is_selected_again_only_when_its_track_ended_before_it_was_lear
         assert _pick(picker, fresh, people, (4,), box, status) is None
     # Track 23 was selected and ended untrained: select the target's new track.
     assert _pick(picker, fresh, people, (4,), box) == 26
+
+
+def test_a_target_never_selected_is_reported_unscored_not_dropped_in_silence():
+    """Target 1 is visible throughout but no track is ever picked out as theirs (the
+    detector missed them); target 2 is. Target 1's empty row read CT 0 / WL 0 and its
+    time left the pooled figures without a word."""
+    from follow.config import Config
+    from follow.eval.identification import Annotated, evaluate, summarise_targets
+    from follow.eval.pets import GtBox
+    from follow.types import Observation, TrackState
+
+    setup = SimpleNamespace(sequence=SimpleNamespace(
+        frames=lambda idx: ((i, np.zeros((360, 480, 3), np.uint8)) for i in idx)))  # fmt: skip
+    boxes = {1: GtBox(1, 100, 100, 40, 100), 2: GtBox(2, 300, 100, 40, 100)}
+    where = {1: np.array([0.0, 0.0]), 2: np.array([5.0, 0.0])}
+    gt = [{i: Annotated(where[i], 0.0, boxes[i]) for i in (1, 2)} for _ in range(20)]
+    neck_in_box_2 = Observation(np.array([300.0, 60.0]))
+    track = TrackState(7, np.array([5.0, 0, 0, 0, 1.5]), np.eye(5), True, 0.0,
+                       observation=neck_in_box_2)  # fmt: skip
+    per_target = evaluate(setup, list(range(20)), [[track]] * 20, gt, [1, 2], "channels",
+                          Config(), 1.0, 0.5)  # fmt: skip
+    summary = summarise_targets(per_target)
+    assert summary["unscored_targets"] == [1]
+    assert list(summary["per_target"]) == ["2"] and summary["seconds"]["wl"] == 0.0

@@ -77,10 +77,20 @@ def load_crops(folder: Path) -> list[CropSet]:
     ]
 
 
+def ranked_scores(scores) -> np.ndarray:
+    """Scores as floats for ranking, NaN (a crop without a cue: it passes no bar) as the
+    lowest: sorted as the highest, one NaN negative made every bar NaN (TAR 0) and
+    outranked every positive in the AUC."""
+    out = np.asarray(scores, dtype=float).copy()
+    out[np.isnan(out)] = -np.inf
+    return out
+
+
 def roc_auc(positive_scores: np.ndarray, negative_scores: np.ndarray) -> float:
-    """Probability that a positive scores above a negative (ties count one half)."""
-    p = np.asarray(positive_scores, dtype=float)[:, None]
-    n = np.asarray(negative_scores, dtype=float)[None, :]
+    """Probability that a positive scores above a negative (ties count one half; a NaN
+    score ranks lowest)."""
+    p = ranked_scores(positive_scores)[:, None]
+    n = ranked_scores(negative_scores)[None, :]
     if p.size == 0 or n.size == 0:
         raise ValueError("ROC AUC needs at least one positive and one negative score")
     return float((p > n).mean() + 0.5 * (p == n).mean())

@@ -4,8 +4,9 @@ Each ground-truth person visible for at least `--min-visible-s` becomes the targ
 turn: once one confirmed track, the same for a second, can be picked out as theirs, as
 a user clicking on them would (its detected neck in their box and in no one else's, its
 position within the match distance), that track is selected and the identifier learns
-from there on. Every
-later frame is then CT, CL, WT or WL (see `identification_metrics`). A person is
+from there on. That frame (the identifier names the track it is told) and every
+later one is then CT, CL, WT or WL (see `identification_metrics`); a target never
+selected is reported as unscored. A person is
 visible when annotated and not more than half hidden behind someone nearer the camera;
 a named track is the target when its position lies within the match distance of the
 target's annotated position.
@@ -22,6 +23,7 @@ Each person is then one target, under the id they are first annotated with.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 from typing import NamedTuple
 
@@ -47,6 +49,8 @@ from follow.eval.pets_setup import (
     variant_inputs,
 )
 from follow.types import TargetStatus
+
+log = logging.getLogger(__name__)
 
 IDENTIFIERS = ("ccf10", "ccf10+reid", "reid")
 
@@ -136,7 +140,7 @@ def _nearest(candidates, position_m, max_distance_m: float):
 def evaluate(setup: PetsSetup, frames: list[int], tracks_per_frame, gt_per_frame, target_ids,
              identifier_name: str, config: Config, match_m: float, max_hidden: float,
              whole_sequence: bool = False):  # fmt: skip
-    """Per target: the OutcomeTally over the frames after it was selected, up to its last
+    """Per target: the OutcomeTally over the frames from its selection on, up to its last
     annotated frame (to the end with `whole_sequence`)."""
     from follow.identify.factory import build_identifier
 
@@ -430,26 +434,37 @@ def evaluate_variant(args, config: Config, setup: PetsSetup, variant=None):
                               config, args.match_distance_m, args.max_hidden_fraction,
                               whole_sequence=args.whole_sequence)  # fmt: skip
         per_identifier[name] = per_target
-        total = OutcomeTally()
-        for tally in per_target.values():
-            total.merge(tally)
-        result[name] = {
-            **{k: round(v, 4) for k, v in total.fractions().items()},
-            "seconds": {k: round(v, 1) for k, v in total.seconds.items()},
-            **(
-                {
-                    "wt_undecided": round(total.wt_undecided_fraction(), 4),
-                    "wt_undecided_s": round(total.wt_undecided_s, 1),
-                }
-                if args.whole_sequence
-                else {}
-            ),  # fmt: skip
-            "per_target": {
-                str(t): {k: round(v, 4) for k, v in tally.fractions().items()}
-                for t, tally in per_target.items()
-            },  # fmt: skip
-        }
+        result[name] = summarise_targets(per_target, args.whole_sequence)
+        if result[name]["unscored_targets"]:
+            log.warning("%s: targets %s were never selected (no track picked out as theirs "
+                        "for %.0f s): their time is in no figure", name,
+                        result[name]["unscored_targets"], PICK_STEADY_S)  # fmt: skip
     return result, per_identifier, targets, n
+
+
+def summarise_targets(per_target: dict, whole_sequence: bool = False) -> dict:
+    """One identifier's figures over its targets' pooled time, each target's own, and the
+    targets never selected (their rows are empty, and their time is in no figure)."""
+    total = OutcomeTally()
+    for tally in per_target.values():
+        total.merge(tally)
+    return {
+        **{k: round(v, 4) for k, v in total.fractions().items()},
+        "seconds": {k: round(v, 1) for k, v in total.seconds.items()},
+        **(
+            {
+                "wt_undecided": round(total.wt_undecided_fraction(), 4),
+                "wt_undecided_s": round(total.wt_undecided_s, 1),
+            }
+            if whole_sequence
+            else {}
+        ),  # fmt: skip
+        "per_target": {
+            str(t): {k: round(v, 4) for k, v in tally.fractions().items()}
+            for t, tally in per_target.items() if tally.total_s > 0
+        },  # fmt: skip
+        "unscored_targets": [t for t, tally in per_target.items() if tally.total_s == 0],
+    }
 
 
 def main_perturbed(args, config: Config, setup: PetsSetup, variants) -> dict:
