@@ -648,3 +648,187 @@ def test_a_receive_error_other_than_an_os_error_does_not_end_the_receiver(
         ), f"no odometry after the receive error: state {base.state}"
         assert base._receiver.is_alive() and base.state is LinkState.ACTIVE
         assert "MAVLink receive failed (retrying): AttributeError" in caplog.text
+
+
+# -- connecting, arming, transport --------------------------------------------------------
+
+
+def _answer_commands(vehicle, answer):
+    """The vehicle's COMMAND_LONG handling replaced by `answer(msg)`: the MAV_RESULT to
+    acknowledge with, or None for an ACK lost on the way; the rest as before."""
+    rover, handle = vehicle.rover, vehicle.rover.handle
+
+    def handle_commands(msg):
+        if msg.get_type() != "COMMAND_LONG":
+            return handle(msg)
+        rover.commands.append(msg.command)
+        result = answer(msg)
+        if result is not None:
+            rover.mav.command_ack_send(msg.command, result)
+
+    rover.handle = handle_commands
+
+
+def test_a_vehicle_refusing_guided_is_not_left_armed():
+    """ArduPilot refuses GUIDED without a position estimate: arming came first, and the
+    failed connect left the vehicle armed in the pilot's mode."""
+    v = UdpRover(armed=False)
+    try:
+        _answer_commands(v, lambda msg: mavlink.MAV_RESULT_FAILED
+                         if msg.command == mavlink.MAV_CMD_DO_SET_MODE
+                         else mavlink.MAV_RESULT_ACCEPTED)  # fmt: skip
+        with pytest.raises(MavlinkError, match="refused mode change"):
+            MavlinkBase(MavlinkConfig(connection=v.connection, arm=True, **FAST))
+        assert mavlink.MAV_CMD_COMPONENT_ARM_DISARM not in v.rover.commands
+        assert not v.rover.armed
+    finally:
+        v.close()
+
+
+def test_a_connect_failing_after_arming_disarms_the_vehicle(caplog):
+    """The vehicle arms but its ACK is lost: connecting fails, and the vehicle, armed by
+    us, is told to disarm before the driver lets go of it."""
+    v = UdpRover(armed=False)
+    rover = v.rover
+    try:
+
+        def arm_unanswered(msg):
+            if msg.command == mavlink.MAV_CMD_DO_SET_MODE:
+                rover.mode = int(msg.param2)
+            elif msg.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+                rover.armed = msg.param1 == 1
+                return None if rover.armed else mavlink.MAV_RESULT_ACCEPTED
+            return mavlink.MAV_RESULT_ACCEPTED
+
+        _answer_commands(v, arm_unanswered)
+        fast = dict(FAST, connect_timeout_s=0.6)
+        config = MavlinkConfig(connection=v.connection, arm=True, **fast)
+        with pytest.raises(MavlinkError, match=r"refused arm \(no acknowledgement\)"):
+            MavlinkBase(config)
+        assert not rover.armed and "disarmed it again" in caplog.text
+    finally:
+        v.close()
+
+
+def test_lost_acknowledgements_before_the_mode_change_do_not_fail_it(caplog):
+    """An ArduPilot-like vehicle reports its new mode in its next 1 Hz heartbeat, and
+    never acknowledges SET_MESSAGE_INTERVAL: the retries used up the one connect deadline,
+    and the mode change, made, was reported failed. A missing interval ACK is a warning."""
+    v = UdpRover(rate_hz=30.0)
+    rover = v.rover
+    next_heartbeat_s = [0.0]
+
+    def tick():  # telemetry at 30 Hz, heartbeats at 1 Hz only
+        rover.telemetry()
+        if v.peer is not None and time.monotonic() >= next_heartbeat_s[0]:
+            next_heartbeat_s[0] = time.monotonic() + 1.0
+            rover.heartbeat()
+
+    def answer(msg):
+        if msg.command == mavlink.MAV_CMD_DO_SET_MODE:
+            rover.mode = int(msg.param2)
+        if msg.command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return mavlink.MAV_RESULT_ACCEPTED
+        return None
+
+    rover.tick = tick
+    _answer_commands(v, answer)
+    try:
+        fast = dict(FAST, connect_timeout_s=0.6, heartbeat_timeout_s=3.0)
+        config = MavlinkConfig(connection=v.connection, **fast)
+        with MavlinkBase(config) as base:
+            assert base.state is LinkState.ACTIVE and rover.mode == GUIDED
+        assert "message interval for id 32 not accepted (result None)" in caplog.text
+    finally:
+        v.close()
+
+
+def test_a_disarm_while_driving_is_reported(vehicle, caplog):
+    with MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST)) as base:
+        base.send(VelocityCommand(1.0, 0.0, time.monotonic()))
+        with caplog.at_level("WARNING", logger="follow.control.mavlink_base"):
+            vehicle.rover.armed = False  # the pilot, or a failsafe
+            assert wait_for(lambda: "vehicle disarmed" in caplog.text, 1.0)
+            assert base.status()["last_error"] == "vehicle disarmed" and not base.healthy()
+            assert base.send(VelocityCommand(1.0, 0.0, time.monotonic())).is_stop
+            vehicle.rover.armed = True
+            assert wait_for(lambda: "vehicle armed" in caplog.text, 1.0)
+        assert base.healthy()
+
+
+class _RouteGone:
+    """A UDP socket whose sends fail while `gone` is set (the route to the vehicle gone:
+    ENETUNREACH); receiving goes on."""
+
+    def __init__(self, sock):
+        self.sock, self.gone = sock, False
+
+    def __getattr__(self, name):
+        return getattr(self.sock, name)
+
+    def sendto(self, *args):
+        if self.gone:
+            raise OSError(101, "Network is unreachable")
+        return self.sock.sendto(*args)
+
+
+def test_udp_write_failures_are_reported(vehicle, caplog):
+    """pymavlink's UDP write drops OSError: the sender logged nothing, emergency_stop()
+    raised nothing and close() logged nothing while no setpoint reached the vehicle."""
+    base = MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST))
+    base._conn.port = port = _RouteGone(base._conn.port)
+    base.send(VelocityCommand(1.0, 0.0, time.monotonic()))
+    port.gone = True
+    assert wait_for(lambda: "MAVLink send failed: [Errno 101]" in caplog.text, 1.0)
+    with pytest.raises(MavlinkError, match="emergency stop: .*unreachable"):
+        base.emergency_stop()
+    base.close()
+    assert "send failed while closing: [Errno 101]" in caplog.text
+
+
+def test_serial_write_failures_raise():
+    """pymavlink's serial write returns -1 when the port fails (a USB adapter pulled)."""
+    from pymavlink import mavutil
+
+    class Unplugged:
+        def write(self, data):
+            raise OSError(5, "Input/output error")
+
+    conn = object.__new__(mavutil.mavserial)  # its write method, without a device
+    conn.port, conn.device = Unplugged(), "/dev/tty0"
+    conn.portdead, conn.autoreconnect = True, False
+    base = object.__new__(MavlinkBase)
+    base._conn = conn
+    base._install_transport()
+    with pytest.raises(OSError, match=r"write to /dev/tty0 failed \(-1 of 3 bytes\)"):
+        conn.write(b"abc")
+
+
+def test_udpin_sends_to_the_vehicle_only():
+    """pymavlink's udpin sends to every address that ever sent to its port, kept for
+    ever (a ground station restarted on new ports, a scan): setpoints went to them all."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    v = UdpRover()
+    v.peer = ("127.0.0.1", port)  # the vehicle sends to our udpin port (SITL's --out)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    stranger.settimeout(0.5)
+    gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    try:
+        with MavlinkBase(MavlinkConfig(connection=f"udpin:127.0.0.1:{port}", **FAST)) as base:
+            hb = gcs.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            stranger.sendto(hb.pack(gcs), ("127.0.0.1", port))
+            n0 = len(v.rover.setpoints)
+            drive_s = time.monotonic() + 0.5
+            while time.monotonic() < drive_s:
+                base.send(VelocityCommand(0.5, 0.0, time.monotonic()))
+                time.sleep(0.05)
+            assert len(v.rover.setpoints) - n0 >= 5 and base.state is LinkState.ACTIVE
+            with pytest.raises(TimeoutError):
+                stranger.recvfrom(65536)  # nothing for the stranger
+    finally:
+        stranger.close()
+        v.close()

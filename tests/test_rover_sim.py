@@ -211,3 +211,40 @@ def test_the_true_pose_is_stamped_at_the_instant_it_describes():
     assert len({p.stamp_s for p in samples}) >= 3  # several steps
     for pose in samples:  # straight along x at 1 m/s
         assert pose.x_m - first.x_m == pytest.approx(pose.stamp_s - first.stamp_s, abs=1e-9)
+
+
+def test_a_non_finite_setpoint_is_ignored_not_driven_past_the_speed_limit():
+    """min(nan, limit) is nan: a NaN speed accelerated the simulated vehicle for ever. A
+    NaN in a field the type_mask ignores is what some senders fill unused fields with."""
+    with SimRover(mode=mf.ROVER_MODE_GUIDED) as rover:
+        c = Companion(rover)
+        mask = mf.TYPE_MASK_VELOCITY_YAW_RATE
+        for bad in (dict(vx=math.nan), dict(vx=1.0, yaw_rate=math.inf), dict(vy=math.nan)):
+            c.setpoint(mavlink.MAV_FRAME_BODY_OFFSET_NED, mask, **bad)
+        assert wait_for(lambda: rover.setpoints_ignored == 3, 1.0)
+        time.sleep(0.2)
+        assert rover.setpoints_accepted == 0 and rover.true_velocity() == (0.0, 0.0)
+        c.setpoint(mavlink.MAV_FRAME_BODY_OFFSET_NED, mask, vx=0.5, yaw=math.nan)
+        assert wait_for(lambda: rover.setpoints_accepted == 1, 1.0)
+        c.close()
+
+
+def test_a_command_with_a_non_finite_parameter_is_denied(rover, companion):
+    nan_mode = companion.command(mavlink.MAV_CMD_DO_SET_MODE, 1, math.nan)
+    assert nan_mode == mavlink.MAV_RESULT_DENIED and rover.mode == mf.ROVER_MODE_MANUAL
+    assert companion.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, math.nan) == (
+        mavlink.MAV_RESULT_DENIED
+    )
+    assert rover.armed and rover._thread.is_alive()
+
+
+def test_a_message_the_simulator_cannot_handle_is_logged(rover, companion, monkeypatch, caplog):
+    def broken(msg):
+        raise ValueError("injected")
+
+    monkeypatch.setattr(rover, "_command", broken)
+    companion.conn.mav.command_long_send(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, 4, 0, 0, 0, 0, 0)
+    assert wait_for(lambda: "sim rover: COMMAND_LONG not handled" in caplog.text, 1.0)
+    monkeypatch.undo()
+    guided = companion.command(mavlink.MAV_CMD_DO_SET_MODE, 1, mf.ROVER_MODE_GUIDED)
+    assert guided == mavlink.MAV_RESULT_ACCEPTED  # the vehicle still answers

@@ -16,6 +16,7 @@ import enum
 import functools
 import logging
 import math
+import socket
 import threading
 import time
 from collections import deque
@@ -53,6 +54,10 @@ ROVER_TYPES = frozenset({mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_TYPE_SURFACE
 AUTOPILOTS = {"ardupilot": mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, "px4": mavlink.MAV_AUTOPILOT_PX4}
 _ERROR_LOG_S = 5.0  # a failing link is logged at most this often (each direction)
 _ACK_RETRIES = 3
+# How long a heartbeat may take to show what an accepted command changed (mode, arming),
+# at the least: ArduPilot reports it in its next 1 Hz heartbeat, or the one after if one
+# is lost.
+HEARTBEAT_CONFIRM_S = 2.5
 
 
 class LinkState(str, enum.Enum):
@@ -77,6 +82,15 @@ def check_mavlink_config(config: MavlinkConfig) -> None:
         raise ConfigError("[mavlink] connection is empty (e.g. 'udpin:0.0.0.0:14550')")
     if errors := section_errors("mavlink", config):
         raise ConfigError("; ".join(errors))
+
+
+def _datagram_sender(data: bytes) -> tuple[int, int] | None:
+    """(system, component) of the first MAVLink message in a datagram, from its header."""
+    if len(data) > 6 and data[0] == mavlink.PROTOCOL_MARKER_V2:
+        return data[5], data[6]
+    if len(data) > 4 and data[0] == mavlink.PROTOCOL_MARKER_V1:
+        return data[3], data[4]
+    return None
 
 
 def _message_type(msg) -> str:
@@ -124,6 +138,9 @@ class MavlinkBase:
         self._receive_error_logged_s = -math.inf
         self._send_error_logged_s = -math.inf
         self._send_unlogged = 0  # failed sender ticks not reported yet
+        self._arm_sent = False  # we asked the vehicle to arm (a failed connect disarms it)
+        # UDP: (system, component) -> the address it last sent a datagram from
+        self._udp_senders: dict[tuple[int, int], tuple[str, int]] = {}
         try:
             # autoreconnect: a TCP peer or USB serial adapter that goes and comes back
             # (a router or SITL restart, a loose cable) is reopened by pymavlink instead
@@ -138,6 +155,7 @@ class MavlinkBase:
             # such device, a malformed string ("udpin:0.0.0.0" without a port), a port
             # beyond 65535 (the socket's OverflowError)
             raise MavlinkError(f"MAVLink connection {config.connection!r}: {exc}") from exc
+        self._install_transport()
         self._receiver = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
         self._sender = threading.Thread(target=self._send_loop, name="mavlink-tx", daemon=True)
         self._receiver.start()
@@ -146,7 +164,10 @@ class MavlinkBase:
         try:
             self._connect()
         except BaseException:
-            self.close()
+            try:
+                self._disarm_after_failed_connect()
+            finally:  # a second Ctrl-C must not keep the threads going
+                self.close()
             raise
 
     # -- Base protocol ----------------------------------------------------------------
@@ -299,12 +320,6 @@ class MavlinkBase:
         if self._px4:
             self._prestream = True  # OFFBOARD needs setpoints flowing before the switch
             time.sleep(1.0)
-        if cfg.arm and not self.armed:
-            self._require(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, "arm", 1)
-        elif not self.armed:
-            log.warning(
-                "vehicle is disarmed and arm=false: it will not move until the pilot arms it"
-            )
         custom_mode = (
             mf.px4_custom_mode(mf.PX4_MAIN_MODE_OFFBOARD) if self._px4 else mf.ROVER_MODE_GUIDED
         )
@@ -314,15 +329,27 @@ class MavlinkBase:
             else (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, mf.ROVER_MODE_GUIDED)
         )
         self._require(mavlink.MAV_CMD_DO_SET_MODE, "mode change", *params)
+        self._await_heartbeat(
+            self._in_our_mode_locked,
+            lambda: (
+                f"mode change acknowledged but the heartbeat still reports mode "
+                f"{self._heartbeat.custom_mode}, not {custom_mode}"
+            ),
+        )
+        # Armed only once in our mode: a vehicle that refuses the mode (ArduPilot without a
+        # position estimate) is left as it was, not armed in the pilot's mode.
+        if cfg.arm and not self.armed:
+            self._arm_sent = True
+            self._require(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, "arm", 1)
+            self._await_heartbeat(
+                self._armed_locked,
+                lambda: "arming acknowledged but the heartbeat still reports the vehicle disarmed",
+            )
+        elif not self.armed:
+            log.warning(
+                "vehicle is disarmed and arm=false: it will not move until the pilot arms it"
+            )
         with self._lock:
-            while not self._in_our_mode_locked():
-                remaining = deadline - self._clock()
-                if remaining <= 0:
-                    raise MavlinkError(
-                        f"mode change acknowledged but the heartbeat still reports mode "
-                        f"{self._heartbeat.custom_mode}, not {custom_mode}"
-                    )
-                self._changed.wait(timeout=remaining)
             self._engaged = True
             self._prestream = False
             self._state = LinkState.ACTIVE
@@ -351,6 +378,36 @@ class MavlinkBase:
                     return
                 self._changed.wait(timeout=remaining)
 
+    def _await_heartbeat(self, done: Callable[[], bool], failure: Callable[[], str]) -> None:
+        """Wait until the vehicle's heartbeat shows what an accepted command asked for
+        (`done`, called under the lock), or raise MavlinkError(`failure()`). The wait has
+        its own deadline, `connect_timeout_s` but at least HEARTBEAT_CONFIRM_S: lost ACKs
+        before the command (retried) must not use it up and fail a change that was made."""
+        wait_s = max(self.config.connect_timeout_s, HEARTBEAT_CONFIRM_S)
+        deadline = time.monotonic() + wait_s  # real time, like `_wait_for_odometry`
+        with self._lock:
+            while not done():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    raise MavlinkError(failure())
+                self._changed.wait(timeout=remaining)
+
+    def _disarm_after_failed_connect(self) -> None:
+        """A connect that fails after asking the vehicle to arm (its ACK or heartbeat
+        lost, an interrupt) disarms it: nothing is going to command it."""
+        if not self._arm_sent:
+            return
+        try:
+            result = self._command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+        except MavlinkError as exc:
+            result = exc
+        if result == mavlink.MAV_RESULT_ACCEPTED:
+            log.warning("connecting failed after asking the vehicle to arm: disarmed it again")
+        else:
+            reason = "no acknowledgement" if result is None else result
+            log.error("connecting failed after asking the vehicle to arm, and disarming it "
+                      "failed (%s): it may still be armed", reason)  # fmt: skip
+
     def _require(self, command: int, what: str, *params: float) -> None:
         result = self._command_long(command, *params)
         if result != mavlink.MAV_RESULT_ACCEPTED:
@@ -365,8 +422,11 @@ class MavlinkBase:
         per_try_s = self.config.connect_timeout_s / _ACK_RETRIES
         for attempt in range(_ACK_RETRIES):
             sent_s = self._clock()
-            with self._send_lock:
-                self._conn.mav.command_long_send(*self._target, command, attempt, *params)
+            try:
+                with self._send_lock:
+                    self._conn.mav.command_long_send(*self._target, command, attempt, *params)
+            except OSError as exc:
+                raise MavlinkError(f"sending command {command} failed: {exc}") from exc
             deadline = sent_s + per_try_s
             with self._lock:
                 while True:
@@ -379,6 +439,57 @@ class MavlinkBase:
                         break
                     self._changed.wait(timeout=remaining)
         return None
+
+    # -- transport ------------------------------------------------------------------------
+
+    def _install_transport(self) -> None:
+        """Writes that raise on failure, so that the sender's log, close()'s log and
+        emergency_stop()'s MavlinkError hear of it: pymavlink's UDP write drops OSError and
+        its serial write returns -1. And a `udpin` link that sends to the vehicle only:
+        pymavlink's sends to every address that ever sent it a datagram, kept for ever."""
+        conn = self._conn
+        if isinstance(conn, mavutil.mavudp):
+            conn.recv, conn.write = self._udp_recv, self._udp_write
+        elif isinstance(conn, mavutil.mavserial):
+            serial_write = conn.write
+
+            def checked_write(buf) -> None:
+                written = serial_write(buf)
+                if written is not None and written < len(buf):
+                    raise OSError(f"write to {conn.device} failed "
+                                  f"({written} of {len(buf)} bytes)")  # fmt: skip
+
+            conn.write = checked_write
+
+    def _udp_recv(self, n=None) -> bytes:
+        """One datagram (b"" when none waits), noting the address of the sender of its first
+        message (at most one per system and component id)."""
+        try:
+            data, address = self._conn.port.recvfrom(mavutil.UDP_MAX_PACKET_LEN)
+        except (BlockingIOError, ConnectionRefusedError):
+            return b""
+        sender = _datagram_sender(data)
+        if sender is not None:
+            self._udp_senders[sender] = address
+        return data
+
+    def _udp_write(self, buf) -> None:
+        """One datagram, raising what the socket raises. `udpin` sends only to the address
+        the vehicle sends from (nothing before it is heard), `udpbcast` there
+        once it is heard, `udpout` to the address configured."""
+        conn, target = self._conn, self._target
+        vehicle = None if target is None else self._udp_senders.get(tuple(target))
+        if conn.udp_server or (conn.broadcast and vehicle is not None):
+            if vehicle is None:
+                return
+            address = vehicle
+        else:
+            host, port = conn.destination_addr
+            if host != conn.resolved_destination_addr:  # a host name, resolved once
+                conn.destination_addr = (socket.gethostbyname(host), port)
+                conn.resolved_destination_addr = conn.destination_addr[0]
+            address = conn.destination_addr
+        conn.port.sendto(buf, address)
 
     # -- receiving ------------------------------------------------------------------------
 
@@ -444,8 +555,9 @@ class MavlinkBase:
                     self._target = (msg.get_srcSystem(), msg.get_srcComponent())
                 if (msg.get_srcSystem(), msg.get_srcComponent()) != self._target:
                     return
+                was_armed = self._armed_locked()
                 self._heartbeat, self._heartbeat_at_s = msg, now
-                self._on_heartbeat_locked()
+                self._on_heartbeat_locked(was_armed)
             elif self._target is None or (msg.get_srcSystem(), msg.get_srcComponent()) != self._target:
                 return  # another vehicle, or another component of ours (a gimbal's ATTITUDE)
             elif kind == "COMMAND_ACK":
@@ -532,12 +644,20 @@ class MavlinkBase:
             self._boot_offset_proven = True
         return boot_s + self._boot_offset_s
 
-    def _on_heartbeat_locked(self) -> None:
+    def _on_heartbeat_locked(self, was_armed: bool) -> None:
         if self._state is LinkState.LINK_LOST:
             self._state = LinkState.ACTIVE if self._engaged else LinkState.CONNECTING
             log.warning("vehicle heartbeat back: link restored")
         if not self._engaged:
             return
+        # A disarm (the pilot, a failsafe) zeroes what send() passes on: said, not silent.
+        armed = self._armed_locked()
+        if was_armed and not armed:
+            self.last_error = "vehicle disarmed"
+            log.warning("%s: only zero setpoints go out until it is armed again",
+                        self.last_error)  # fmt: skip
+        elif armed and not was_armed:
+            log.warning("vehicle armed: commands go out to it again")
         in_mode = self._in_our_mode_locked()
         if self._state is LinkState.ACTIVE and not in_mode:
             self._state = LinkState.MODE_OVERRIDDEN

@@ -239,7 +239,10 @@ class SimRover:
                 log.debug("sim rover: bad packet: %s", exc)
                 continue
             for msg in messages:
-                self._handle(msg, now)
+                try:
+                    self._handle(msg, now)
+                except Exception:  # one bad message must not end the vehicle's thread
+                    log.exception("sim rover: %s not handled", msg.get_type())
 
     def _send(self, msg, now: float) -> None:
         if self._peer is None:
@@ -285,6 +288,9 @@ class SimRover:
                 self.setpoints_ignored += 1
 
     def _command(self, msg) -> int:
+        # The commands simulated read param1 to param3 (int(nan) raises).
+        if not all(math.isfinite(p) for p in (msg.param1, msg.param2, msg.param3)):
+            return mavlink.MAV_RESULT_DENIED
         if msg.command == mavlink.MAV_CMD_DO_SET_MODE:
             if not int(msg.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
                 return mavlink.MAV_RESULT_UNSUPPORTED
@@ -334,6 +340,8 @@ class SimRover:
         (direction and length) and ignores yaw and yaw rate."""
         if self.mode != self.commanded_mode or msg.coordinate_frame not in _PX4_FRAMES:
             return False
+        if not _used_fields_finite(msg):
+            return False
         if not msg.type_mask & mf.MASK_POSITION_IGNORE or msg.type_mask & mf.MASK_VELOCITY_IGNORE:
             return False  # only velocity setpoints are simulated
         speed = min(math.hypot(msg.vx, msg.vy), self.limits.max_speed_mps)
@@ -347,6 +355,8 @@ class SimRover:
         """ArduPilot Rover's GUIDED handling of SET_POSITION_TARGET_LOCAL_NED (velocity,
         heading and turn-rate targets; position targets are counted but not simulated)."""
         if self.mode != mf.ROVER_MODE_GUIDED or msg.coordinate_frame not in _ACCEPTED_FRAMES:
+            return False
+        if not _used_fields_finite(msg):
             return False
         mask = msg.type_mask
         pos_ignore = bool(mask & mf.MASK_POSITION_IGNORE)
@@ -436,6 +446,22 @@ class SimRover:
         return mavlink.MAVLink_local_position_ned_message(
             boot_ms, self._north, self._east, 0.0, v_north, v_east, 0.0
         )
+
+
+def _used_fields_finite(msg) -> bool:
+    """Whether the velocity, yaw and yaw rate a setpoint's type_mask uses are finite: a
+    NaN speed passes min() with the speed limit and accelerates the vehicle for ever."""
+    used = {
+        mf.MASK_VELOCITY_IGNORE: (msg.vx, msg.vy),
+        mf.MASK_YAW_IGNORE: (msg.yaw,),
+        mf.MASK_YAW_RATE_IGNORE: (msg.yaw_rate,),
+    }
+    return all(
+        math.isfinite(value)
+        for ignore, values in used.items()
+        if not msg.type_mask & ignore
+        for value in values
+    )
 
 
 def _towards(current: float, wanted: float, max_step: float) -> float:
