@@ -96,6 +96,21 @@ def test_memory_stays_flat_over_a_synthetic_run():
     assert result["growth_mib"] < 4.0, result
 
 
+@pytest.mark.parametrize("warmup, message", [
+    ("0", "argument --warmup-frames: expected an integer >= 1"),
+    ("10", "--warmup-frames 10 must be below --frames 10"),
+])
+def test_bench_memory_names_a_warm_up_it_cannot_measure_after(warmup, message, capsys):
+    """It said `warm-up (0) must be between 0 and frames (10)`, naming no option."""
+    from follow import cli
+
+    try:
+        code = cli.main(["bench", "memory", "--frames", "10", "--warmup-frames", warmup])
+    except SystemExit as exit_:  # argparse's own refusal
+        code = exit_.code
+    assert code != 0 and message in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("fails", ["no frames", "camera file"])
 def test_the_source_is_released_when_the_run_fails_before_it_starts(tmp_path, monkeypatch, fails):
     """A camera opened for a run that then fails (an empty source, an unreadable camera

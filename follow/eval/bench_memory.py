@@ -95,12 +95,15 @@ def measure(frames: int, warmup_frames: int, seed: int = 0, progress: bool = Fal
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=positive_int, default=20_000, help="synthetic frames to run")
-    parser.add_argument("--warmup-frames", type=int, default=2_000,
+    parser.add_argument("--warmup-frames", type=positive_int, default=2_000,
                         help="frames before the first reading")  # fmt: skip
     parser.add_argument("--seed", type=non_negative_int, default=0)
 
 
 def main(args: argparse.Namespace) -> dict:
+    if args.warmup_frames >= args.frames:
+        raise ValueError(f"--warmup-frames {args.warmup_frames} must be below --frames "
+                         f"{args.frames}: the reading after the warm-up needs frames to follow")  # fmt: skip
     result = measure(args.frames, args.warmup_frames, args.seed, progress=True)
     if not args.json:
         print(f"{result['frames']} frames: RSS {result['rss_after_warmup_mib']:.1f} MiB after "
