@@ -249,7 +249,8 @@ class ControlLoop:
         waited on for ever: the caller's cleanup must go on. Safe from any thread, twice."""
         self._stop.set()
         self._wake.set()
-        self._thread.join(timeout=STOP_JOIN_TIMEOUT_S)
+        if self._thread.ident is not None:  # started (a signal may stop it before that)
+            self._thread.join(timeout=STOP_JOIN_TIMEOUT_S)
         if self._thread.is_alive():
             log.error("control thread still busy %.0f s after stop: it can only send zero "
                       "commands from now on", STOP_JOIN_TIMEOUT_S)  # fmt: skip
@@ -580,16 +581,17 @@ class ThreadedRunner:
         capture = self._capture_thread = threading.Thread(
             target=self._capture, args=(source, pace_hz), name="capture", daemon=True
         )
-        capture.start()
-        self.control.start()
-        # a shutdown signal stops driving at once, not when the pose network returns
-        unregister_halt = halt_on_signal(self.control.stop)
-        outputs = OrderedWorker(on_result) if on_result is not None else None
-        if self.overlap_stages:
-            detected = self._detected_ahead(stall_timeout_s)
-        else:
-            detected = self._detected_in_turn(stall_timeout_s)
-        try:
+        unregister_halt = outputs = detected = None
+        try:  # threads started in here: a signal landing between two starts is cleaned up
+            capture.start()
+            self.control.start()
+            # a shutdown signal stops driving at once, not when the pose network returns
+            unregister_halt = halt_on_signal(self.control.stop)
+            outputs = OrderedWorker(on_result) if on_result is not None else None
+            if self.overlap_stages:
+                detected = self._detected_ahead(stall_timeout_s)
+            else:
+                detected = self._detected_in_turn(stall_timeout_s)
             for index, frame, robot, detections in detected:
                 result = self.perception.conclude(frame, robot, index, detections)
                 self.results.put(result)
@@ -607,11 +609,14 @@ class ThreadedRunner:
                 cleanup_begins()
             except KeyboardInterrupt as interrupt:  # landed before the flag was set
                 late_interrupt = interrupt  # raised once the cleanup is done
-            unregister_halt()
+            if unregister_halt is not None:
+                unregister_halt()
             self._stop.set()
             self.control.stop()  # first: waiting for the pose thread must not drive on
-            detected.close()
-            capture.join(timeout=CAPTURE_JOIN_TIMEOUT_S)
+            if detected is not None:
+                detected.close()
+            if capture.ident is not None:  # started
+                capture.join(timeout=CAPTURE_JOIN_TIMEOUT_S)
             if outputs is not None:
                 self.outputs_stuck = not outputs.close()
             interrupted = isinstance(sys.exc_info()[1], KeyboardInterrupt)

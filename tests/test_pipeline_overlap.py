@@ -547,6 +547,29 @@ def test_a_control_loop_that_dies_with_the_odometry_ends_the_run(overlap):
     assert runner.captured < 100, "the run went on without its control loop"
 
 
+def test_a_signal_as_the_runners_threads_start_still_stops_them(monkeypatch):
+    """SIGINT between the capture thread's start and the control loop's: the
+    KeyboardInterrupt came before the runner's `try`, its cleanup never ran, and the
+    control loop and the capture thread were left running."""
+    from follow.pipeline import ControlLoop
+
+    real_start = ControlLoop.start
+
+    def started_then_interrupted(loop):
+        real_start(loop)
+        raise KeyboardInterrupt("SIGINT")
+
+    monkeypatch.setattr(ControlLoop, "start", started_then_interrupted)
+    threads_before = set(threading.enumerate())
+    runner = _runner(_TimedPerception(0.002), overlap=False)
+    with pytest.raises(KeyboardInterrupt):
+        runner.run(_frames(2000), pace_hz=100.0)
+    time.sleep(0.1)
+    left = set(threading.enumerate()) - threads_before
+    assert not [t for t in left if t.is_alive() and t.name in ("capture", "control")], left
+    assert runner.control.last_command is not None and runner.control.last_command.is_stop
+
+
 def test_a_signal_just_before_the_cleanup_flag_still_lets_the_cleanup_run(monkeypatch):
     """The source ends and SIGINT lands as the runner's cleanup begins, before its flag
     is set: the KeyboardInterrupt must not skip the rest of the cleanup (the output
