@@ -153,6 +153,9 @@ class TrackerConfig:
     floor_gate_m: float = 1.5
     floor_gate_per_range: float = 0.25
     floor_gate_max_spread_m: float = 2.0
+    # A neck alone (no ankle) updates only a track whose position std is within this plus
+    # max_position_std_per_range x its range: a neck gives a bearing, not a range.
+    neck_only_max_position_std_m: float = 0.5
     # A detection whose ankles fit no track but whose neck fits a track left unseen
     # updates that track by the neck alone, instead of starting a second track: a person
     # half hidden behind a nearer one is often given the nearer one's feet.

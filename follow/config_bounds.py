@@ -138,6 +138,7 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "floor_gate_m": positive(100.0),
         "floor_gate_per_range": closed(0.0, 10.0),
         "floor_gate_max_spread_m": closed(0.0, 100.0),
+        "neck_only_max_position_std_m": positive(100.0),
         "min_updates_to_confirm": closed(1, 100),
         "max_position_std_m": positive(10.0),
         "max_position_std_per_range": closed(0.0, 1.0),

@@ -518,6 +518,28 @@ def test_an_unseen_track_near_the_camera_does_not_take_a_person_far_off(hidden_s
     assert np.linalg.norm(far.position_m - [8.0, 1.0]) < 0.5
 
 
+def test_a_near_track_that_lost_its_place_takes_no_far_persons_neck_alone():
+    """A neck alone gives a bearing, not a range, with the camera near neck height: a
+    track near the camera, unseen for 0.7 s, took the neck-only detections of a person
+    8 m off and was drawn 3 m toward them over 3 s, observed all along."""
+    logging.disable(logging.WARNING)
+    try:
+        camera, tracker, t, (near,) = _walk_in_until_feet_leave_view()
+        (first,) = tracker.tracks
+        robot = Odometry.origin()
+        for _ in range(int(0.7 * FPS)):
+            t += 1 / FPS
+            tracker.update([], t, robot)
+        for _ in range(int(FPS)):
+            t += 1 / FPS
+            far_neck = observe(camera, robot, (8.0, 1.0), 1.4, ankle=False)
+            for s in tracker.update([far_neck], t, robot):
+                assert s.observation is None
+                assert np.linalg.norm(s.position_m - near) < 0.6
+    finally:
+        logging.disable(logging.NOTSET)
+
+
 def test_the_neck_fallback_hands_no_near_track_a_far_persons_neck():
     """Two people near the camera are hidden; a whole person appears 8 m off. Their feet
     lie in the ankle gate of one unseen near track (spread over the image), and the

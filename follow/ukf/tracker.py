@@ -201,8 +201,13 @@ class PeopleTracker:
         no_noise = np.zeros((4, 4))
         expected = [t.filter.expected_measurement(model, no_noise, True) for t in self._tracks]
         floor_ok = self._floor_gate(obs, robot)
+        placed = self._placed_for_a_neck(robot)
+        for i, o in enumerate(obs):
+            if not o.has_ankle:
+                floor_ok[i] &= placed
         pairs, in_some_gate = self._associate(obs, expected, depths, floor_ok)
-        used = pairs + self._associate_necks(obs, expected, depths, pairs, in_some_gate, floor_ok)
+        used = pairs + self._associate_necks(obs, expected, depths, pairs, in_some_gate,
+                                             floor_ok, placed)  # fmt: skip
 
         associated: dict[int, Observation] = {}
         claimed = set()
@@ -297,6 +302,20 @@ class PeopleTracker:
             ok[i] = distance <= limit
         return ok
 
+    def _placed_for_a_neck(self, robot: Odometry) -> np.ndarray:
+        """Per track: whether its position is known well enough for a neck alone to
+        update it (its std within `neck_only_max_position_std_m` +
+        `max_position_std_per_range` x its range). A neck gives a bearing, and a range only
+        where the camera looks down on it steeply: a track unseen long enough to have lost
+        its place would be drawn along the bearing toward whoever shows a neck there."""
+        cfg = self.config
+        if not self._tracks:
+            return np.ones(0, dtype=bool)
+        positions = np.array([t.filter.mean[:2] for t in self._tracks])
+        ranges = np.hypot(positions[:, 0] - robot.x_m, positions[:, 1] - robot.y_m)
+        spreads = np.array([_position_std_m(t) for t in self._tracks])
+        return spreads <= cfg.neck_only_max_position_std_m + cfg.max_position_std_per_range * ranges
+
     def _associate(
         self,
         obs: list[Observation],
@@ -338,7 +357,7 @@ class PeopleTracker:
             cost[~allowed] = np.inf
         return global_nearest_neighbour(cost), np.isfinite(cost).any(axis=1)
 
-    def _associate_necks(self, obs, expected, depths_m, pairs, in_some_gate, floor_ok):
+    def _associate_necks(self, obs, expected, depths_m, pairs, in_some_gate, floor_ok, placed):
         """(observation, track) pairs by the neck alone, for a person whose feet were
         given to someone else (`neck_fallback_association`). A person half hidden behind
         a nearer one is often handed the nearer one's feet by the skeleton assembly: the
@@ -357,7 +376,8 @@ class PeopleTracker:
         footed = {j for i, j in pairs if obs[i].has_ankle}
         footless = [j for j in range(len(expected)) if j not in footed]
         rows = [i for i, o in enumerate(obs) if o.has_ankle and not in_some_gate[i]]
-        cols = [j for j in range(len(expected)) if j not in taken and expected[j] is not None]
+        cols = [j for j in range(len(expected))
+                if j not in taken and expected[j] is not None and placed[j]]  # fmt: skip
         if not rows or not cols or len(footless) < 2:
             return []
         necks = [Observation(obs[i].neck_px) for i in rows]
