@@ -17,7 +17,15 @@ from calib.cmd_common import (
     refuse_videos_among_images,
     video_source,
 )
-from follow.camera import PLACEHOLDER_POSE_NOTE, CameraFileError, CameraModel, CameraPose
+from follow.camera import (
+    PLACEHOLDER_POSE_NOTE,
+    CameraFileError,
+    CameraModel,
+    CameraPose,
+    has_placeholder_pose,
+    is_placeholder_note,
+    read_calibration_notes,
+)
 from follow.cli_args import non_negative_float, positive_float, refuse_unwritable
 
 log = logging.getLogger(__name__)
@@ -25,6 +33,8 @@ log = logging.getLogger(__name__)
 DEFAULT_EVERY = 5  # a video's frames used: every 5th (the next ones show the same view)
 # A new camera file needs some pose; this one is a placeholder until `ground` measures it.
 PLACEHOLDER_HEIGHT_M = 1.0
+# The note on a measured pose kept under new intrinsics: `follow` takes it as unmeasured.
+STALE_POSE_NOTE = "placeholder: measured through earlier intrinsics; re-run `follow-calib ground`"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -90,19 +100,38 @@ def view_labels(paths: list[Path]) -> list[str]:
     return [p.name if names.count(p.name) == 1 else str(p) for p in paths]
 
 
-def _pose_to_keep(output: Path) -> CameraPose | None:
-    """The pose of an existing camera file at `output` (only the intrinsics change), or
-    None for a new file. A file that exists but cannot be read is refused before the
-    calibration runs: writing over it would lose a measured pose."""
+def _camera_to_keep(output: Path) -> CameraModel | None:
+    """The existing camera file at `output`, whose pose is kept (only the intrinsics
+    change), or None for a new file. A file that exists but cannot be read is refused
+    before the calibration runs: writing over it would lose a measured pose."""
     if not output.exists():
         return None
     try:
-        return CameraModel.load(output).pose
+        return CameraModel.load(output)
     except CameraFileError as exc:
         raise ValueError(
             f"{exc}; -o {output} exists but cannot be read, and writing the intrinsics over "
             "it would lose its pose: mend it, move it away, or give another -o"
         ) from exc
+
+
+def _stale_pose_warning(output: Path, old: CameraModel, new: CameraModel) -> str | None:
+    """A warning where `old`'s pose was measured by a tool through intrinsics that `new`
+    replaces (`ground` solves it through K and the distortion: with new ones it is off),
+    else None. A pose without a note was set by hand, and is no less right now."""
+    note = read_calibration_notes(output).get("pose")
+    same = (
+        np.array_equal(old.K, new.K)
+        and np.array_equal(old.dist, new.dist)
+        and old.image_size == new.image_size
+    )
+    if note is None or is_placeholder_note(note) or same:
+        return None
+    return (
+        f"{output}: its pose ({note}) was measured through the earlier camera matrix and "
+        "distortion: it is kept, marked a placeholder (no base is driven on it); re-run "
+        "`follow-calib ground`"
+    )
 
 
 def main(args: argparse.Namespace) -> dict:
@@ -118,7 +147,7 @@ def main(args: argparse.Namespace) -> dict:
     refuse_overwriting_inputs({"input": list(args.inputs)}, {"-o": args.output})
     paths = _image_files(args.inputs)
     camera_index = paths is None and video_source(args.inputs).isdigit()
-    kept_pose = _pose_to_keep(args.output)
+    old = _camera_to_keep(args.output)
     refuse_unwritable(args.output, "-o")
     unreadable: list[tuple[str, str]] = []
     try:
@@ -147,11 +176,15 @@ def main(args: argparse.Namespace) -> dict:
         "intrinsics_views": result.views_used,
         "intrinsics_coverage": round(result.coverage_fraction, 3),
     }
-    pose_kept = kept_pose is not None
-    pose = kept_pose if pose_kept else CameraPose(PLACEHOLDER_HEIGHT_M)
+    pose_kept = old is not None
+    pose = old.pose if pose_kept else CameraPose(PLACEHOLDER_HEIGHT_M)
+    model = CameraModel(result.K, result.dist, result.image_size, pose)
+    warnings = list(result.warnings)
     if not pose_kept:
         notes["pose"] = PLACEHOLDER_POSE_NOTE  # `follow run` drives no base on it
-    model = CameraModel(result.K, result.dist, result.image_size, pose)
+    elif stale := _stale_pose_warning(args.output, old, model):
+        warnings.append(stale)
+        notes["pose"] = STALE_POSE_NOTE
     write_camera_file(args.output, model, notes)
     out = {
         "camera_file": str(args.output),
@@ -168,10 +201,12 @@ def main(args: argparse.Namespace) -> dict:
         "coverage_fraction": result.coverage_fraction,
         "uncovered_regions": result.uncovered_regions,
         "pose_kept": pose_kept,
-        "warnings": result.warnings,
+        "pose_placeholder": has_placeholder_pose(args.output),
+        "warnings": warnings,
     }
     if not args.json:
-        print(f"wrote {args.output}" + ("" if pose_kept else " (pose is a placeholder)"))
+        placeholder = " (pose is a placeholder)" if out["pose_placeholder"] else ""
+        print(f"wrote {args.output}{placeholder}")
         print(f"  image       {result.image_size[0]} x {result.image_size[1]} px")
         print(f"  focal       fx {result.K[0, 0]:.2f}  fy {result.K[1, 1]:.2f} px")
         print(f"  principal   {result.K[0, 2]:.2f}, {result.K[1, 2]:.2f} px")
@@ -187,6 +222,6 @@ def main(args: argparse.Namespace) -> dict:
             print("  rejected:")
             for name, reason in unreadable + result.rejected:
                 print(f"    {name:<32} {reason}")
-        for warning in result.warnings:
+        for warning in warnings:
             print(f"  warning: {warning}")
     return out

@@ -56,7 +56,7 @@ def _max_valid_radius(camera: CameraModel) -> float:
     )
     rays = camera.pixel_rays_base(border) @ camera.rotation_base_from_cam  # camera frame
     radius = np.hypot(rays[:, 0], rays[:, 1]) / rays[:, 2]
-    return float(radius.max() * VALID_RADIUS_MARGIN)
+    return float(np.nanmax(radius) * VALID_RADIUS_MARGIN)  # NaN: a pixel with no ray
 
 
 def _polyline_segments(camera: CameraModel, points_base: np.ndarray) -> list[np.ndarray]:

@@ -152,6 +152,8 @@ class CameraPose:
                     f"camera pose {name} = {value!r} is not a possible mounting: "
                     f"allowed {lo:.4g} .. {hi:.4g}"
                 )
+            # Plain floats: YAML and JSON cannot write numpy's (a pose solved with numpy).
+            object.__setattr__(self, name, float(value))
 
     def rotation_base_from_cam(self) -> np.ndarray:
         # Positive pitch = nose down = rotation about +y_base by +pitch.
@@ -168,7 +170,21 @@ def _radial_factor(d: np.ndarray, r2: np.ndarray) -> np.ndarray:
     return (1 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1 + r2 * (k4 + r2 * (k5 + r2 * k6)))
 
 
+def _tangential_shift(d: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple:
+    """OpenCV's tangential distortion (dx, dy) at normalised (x, y) (d: 8 coeffs)."""
+    p1, p2 = d[2], d[3]
+    r2 = x * x + y * y
+    return 2 * p1 * x * y + p2 * (r2 + 2 * x * x), p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+
+
+# A pixel whose ray projects back farther than this from it has no ray (NaN): undistortion
+# iterates, and can settle on a wrong point (tens of pixels off). Half a pixel keeps every
+# ray that lands in its own pixel: those next to a lens's fold, where the iteration is
+# slow, land up to 0.05 px off.
+RAY_ROUND_TRIP_PX = 0.5
+
 FOLD_SEARCH_RADIUS = 10.0  # normalised radius (84 deg off axis) searched for a fold
+FOLD_BAND = 0.9  # from this share of a radial fold's radius out to it, its slope is ~0
 
 
 def _radial_fold_r2(dist: np.ndarray) -> float:
@@ -234,15 +250,38 @@ def _only_numbers(value) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
-def _check_principal_point(K: np.ndarray, width: int, height: int) -> None:
-    """Refuse a principal point outside the image: the matrix was calibrated for frames of
-    another size (1920x1080 in a file for 640x360), and every ground point would be off."""
+# How far a camera's principal point may lie from the image centre, as a share of the
+# width and of the height. Lens and sensor are centred to a few per cent: of the cameras
+# the project ships or tests, the Tsai-imported PETS 2009 view is farthest off (7.7 % of
+# the width, 0.9 % of the height); the demo's lies at the centre, calibrated ones within
+# 1 %. A matrix for frames twice (or half) the size puts it 25 % or more off: 20 % tells
+# the two apart with room either side. (One for 1.25x the size, 10 % off, cannot be told.)
+MAX_PRINCIPAL_POINT_OFFSET = 0.2
+
+
+def _check_principal_point(K: np.ndarray, width: int, height: int, centred: bool) -> None:
+    """Refuse a principal point outside the image, or, for a whole sensor's image
+    (`centred`: a camera file), far from its centre: the matrix was calibrated for frames
+    of another size (640x480 in a file for 1280x960), and every ground point would be
+    off. An image cropped to a region of interest (a ROS camera_info's `roi`) may have
+    it anywhere inside."""
     cx, cy = K[0, 2], K[1, 2]
-    if not (-0.5 <= cx <= width - 0.5 and -0.5 <= cy <= height - 0.5):
-        raise ValueError(
-            f"camera principal point ({cx:g}, {cy:g}) lies outside the {width}x{height} "
-            "image: a camera_matrix for another image size?"
-        )
+    off_x = abs(cx - (width - 1) / 2.0) / width
+    off_y = abs(cy - (height - 1) / 2.0) / height
+    inside = -0.5 <= cx <= width - 0.5 and -0.5 <= cy <= height - 0.5
+    if inside and (not centred or max(off_x, off_y) <= MAX_PRINCIPAL_POINT_OFFSET):
+        return
+    where = (
+        f"{100 * off_x:.0f} % of the width and {100 * off_y:.0f} % of the height off the "
+        f"centre of the {width}x{height} image (a camera's lies within "
+        f"{100 * MAX_PRINCIPAL_POINT_OFFSET:.0f} %)"
+        if inside
+        else f"outside the {width}x{height} image"
+    )
+    raise ValueError(
+        f"camera principal point ({cx:g}, {cy:g}) lies {where}: a camera_matrix for another "
+        "image size?"
+    )
 
 
 # Focal lengths no camera a robot follows people with can have: pixels taller or wider
@@ -299,6 +338,8 @@ class CameraModel:
     _R: np.ndarray = field(init=False, repr=False, compare=False)
     _t: np.ndarray = field(init=False, repr=False, compare=False)
     _fold_r2: float = field(init=False, repr=False, compare=False)
+    _coeffs: np.ndarray = field(init=False, repr=False, compare=False)  # dist, 8 zero-padded
+    _fold_scale: float = field(init=False, repr=False, compare=False)  # radial factor there
 
     def __post_init__(self):
         K = np.asarray(self.K, dtype=np.float64)
@@ -318,7 +359,7 @@ class CameraModel:
         w, h = (int(v) for v in self.image_size)
         if w <= 0 or h <= 0:
             raise ValueError(f"camera image_size must be positive, got {self.image_size}")
-        _check_principal_point(K, w, h)
+        _check_principal_point(K, w, h, centred=False)
         _check_focal_lengths(K, w, h)
         if not (self.pose.height_m > 0 and math.isfinite(self.pose.height_m)):
             raise ValueError(f"camera height_m must be positive, got {self.pose.height_m}")
@@ -328,7 +369,48 @@ class CameraModel:
         object.__setattr__(self, "_R", self.pose.rotation_base_from_cam())
         object.__setattr__(self, "_t", self.pose.position_base())
         object.__setattr__(self, "_fold_r2", _radial_fold_r2(dist))
+        object.__setattr__(self, "_coeffs", np.pad(dist, (0, 8 - dist.size)))
+        fold_finite = math.isfinite(self._fold_r2)
+        fold_scale = float(_radial_factor(self._coeffs, self._fold_r2)) if fold_finite else 1.0
+        object.__setattr__(self, "_fold_scale", fold_scale)
         _check_distortion_covers_image(K, dist, self._fold_r2, w, h)
+        self._check_distortion_does_not_fold()
+
+    def _check_distortion_does_not_fold(self) -> None:
+        """Refuse tangential distortion that folds the image over itself (p1 = 0.2 for
+        0.002): where the map's Jacobian determinant turns negative, two rays share a pixel
+        and back-projection takes either. Screened over the rays seen out to the image's
+        corners; the radial terms alone are screened by `_check_distortion_covers_image`,
+        and next to their own fold (kept past the nearest edge) any tangential term tips
+        the determinant: that band, FOLD_BAND of the fold's radius, is left out."""
+        d = self._coeffs
+        if not d[2:4].any():
+            return
+        w, h = self.image_size
+        corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
+        Kinv = np.linalg.inv(self.K)
+        corner_r = np.hypot(*(corners @ Kinv[:2, :2].T + Kinv[:2, 2]).T).max()
+        # The corners' undistorted radius through the radial terms (as `_distort_to_pixels`
+        # extends them: growing), with room for the tangential shift.
+        r = np.linspace(0.0, FOLD_SEARCH_RADIUS, 2001)
+        distorted_r = r * _radial_factor(d, np.minimum(r * r, self._fold_r2))
+        reach = min(1.5 * np.interp(corner_r, distorted_r, r), FOLD_SEARCH_RADIUS)
+        side = np.linspace(-reach, reach, 121)
+        x, y = np.meshgrid(side, side)
+        uv = self._distort_to_pixels(x, y)
+        du_dy, du_dx = np.gradient(uv[..., 0], side, side)
+        dv_dy, dv_dx = np.gradient(uv[..., 1], side, side)
+        det = du_dx * dv_dy - du_dy * dv_dx
+        r2 = x * x + y * y
+        near_fold = (r2 >= FOLD_BAND**2 * self._fold_r2) & (r2 <= self._fold_r2)
+        folded = self.in_image(uv.reshape(-1, 2)).reshape(x.shape) & ~near_fold & (det <= 0)
+        if folded.any():
+            u, v = uv[folded][np.argmin(det[folded])]
+            raise ValueError(
+                f"camera distortion {self.dist.tolist()} folds the image over itself (near "
+                f"pixel ({u:.0f}, {v:.0f})): tangential p1 {d[2]:g}, p2 {d[3]:g} are no "
+                "lens's (a typing error in distortion?)"
+            )
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -404,9 +486,7 @@ class CameraModel:
         return uv[0] if single else uv
 
     def _distort_to_pixels(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        d = np.zeros(8)
-        d[: self.dist.size] = self.dist
-        k1, k2, p1, p2, k3, k4, k5, k6 = d
+        d = self._coeffs
         if self.dist.size:
             r2 = x * x + y * y
             # Beyond the radius where the lens polynomial turns back, it would fold points
@@ -414,24 +494,48 @@ class CameraModel:
             # scale instead (outward, never back).
             radial = _radial_factor(d, np.minimum(r2, self._fold_r2))
             radial = np.where(radial > 0, radial, np.nan)
-            xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-            yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+            shift_x, shift_y = _tangential_shift(d, x, y)
+            xd, yd = x * radial + shift_x, y * radial + shift_y
         else:
             xd, yd = x, y
         K = self.K
         return np.stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=-1)
 
+    def _undistort(self, distorted: np.ndarray) -> np.ndarray:
+        """Undistorted normalised coordinates (N, 2) of distorted ones (N, 2)."""
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
+        norm = undistort_points(distorted.reshape(-1, 1, 2), np.eye(3), self.dist, criteria)
+        norm = norm.reshape(-1, 2)
+        if not math.isfinite(self._fold_r2):
+            return norm
+        # Past the fold `_distort_to_pixels` scales the radius by the fold's factor, where
+        # OpenCV follows the polynomial back: invert that scaling (the tangential shift,
+        # small beside it, by fixed-point iteration), and keep it where it lies past. Only
+        # points beyond 80 % of the fold's distorted radius are tried (image corners).
+        scale = self._fold_scale
+        fold_distorted_r2 = self._fold_r2 * scale**2
+        near = np.flatnonzero((distorted * distorted).sum(axis=1) > 0.8**2 * fold_distorted_r2)
+        past = distorted[near] / scale
+        for _ in range(30 if len(near) and self._coeffs[2:4].any() else 0):
+            shift = np.column_stack(_tangential_shift(self._coeffs, past[:, 0], past[:, 1]))
+            past = (distorted[near] - shift) / scale
+        beyond = (past * past).sum(axis=1) > self._fold_r2
+        norm[near[beyond]] = past[beyond]
+        return norm
+
     def pixel_rays_base(self, pixels: np.ndarray) -> np.ndarray:
-        """Unit viewing rays (N, 3) in `base` through undistorted pixels (N, 2)."""
+        """Unit viewing rays (N, 3) in `base` through image pixels (N, 2); NaN for a pixel
+        no ray projects onto (within RAY_ROUND_TRIP_PX) rather than a ray through
+        somewhere else."""
         px = np.atleast_2d(np.asarray(pixels, dtype=np.float64)).reshape(-1, 2)
         Kinv = np.linalg.inv(self.K)
         norm = px @ Kinv[:2, :2].T + Kinv[:2, 2]
         if self.dist.size:
             # K^-1 first, then undistort with the identity: OpenCV's undistortPoints would
             # ignore the skew K[0][1] that `_distort_to_pixels` applies.
-            criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
-            distorted = norm.reshape(-1, 1, 2)
-            norm = undistort_points(distorted, np.eye(3), self.dist, criteria).reshape(-1, 2)
+            norm = self._undistort(norm)
+            off_px = np.hypot(*(self._distort_to_pixels(norm[:, 0], norm[:, 1]) - px).T)
+            norm[~(off_px <= RAY_ROUND_TRIP_PX)] = np.nan
         rays_cam = np.column_stack([norm, np.ones(len(norm))])
         rays = rays_cam @ self._R.T
         return rays / np.linalg.norm(rays, axis=1, keepdims=True)
@@ -584,6 +688,7 @@ class CameraModel:
                   "x_m": 0.0, "y_m": 0.0}  # fmt: skip
         values = {k: number(pose_data, k, "pose.", default) for k, default in fields.items()}
         try:
+            _check_principal_point(K, width, height, centred=True)
             return cls(K, dist, (width, height), CameraPose(**values))
         except ValueError as exc:
             raise CameraFileError(f"{source}: {exc}") from None
@@ -651,7 +756,11 @@ def has_placeholder_pose(path: str | Path) -> bool:
     """Whether the camera file's notes say its pose is a placeholder, not measured (see
     `PLACEHOLDER_POSE_NOTE`). A file without notes (written by hand, imported, saved by
     `CameraModel.save`) has a pose someone chose: it is taken as measured."""
-    note = read_calibration_notes(path).get("pose")
+    return is_placeholder_note(read_calibration_notes(path).get("pose"))
+
+
+def is_placeholder_note(note) -> bool:
+    """Whether a `calibration` note (of the pose) says it is a placeholder, not measured."""
     return isinstance(note, str) and note.strip().lower().startswith("placeholder")
 
 

@@ -6,8 +6,15 @@ import numpy as np
 import pytest
 
 from calib import cli
+from calib.camera_file import write_camera_file
 from calib.chessboard import detect_chessboard
-from calib.intrinsics import CalibrationError, calibrate_intrinsics, check_tilts, coverage
+from calib.intrinsics import (
+    CalibrationError,
+    IntrinsicsResult,
+    calibrate_intrinsics,
+    check_tilts,
+    coverage,
+)
 from calib.synthetic import (
     BoardSpec,
     board_fully_visible,
@@ -15,7 +22,14 @@ from calib.synthetic import (
     render_board,
     rotation_from_euler_deg,
 )
-from follow.camera import CameraModel, CameraPose, has_placeholder_pose
+from follow.camera import (
+    CameraModel,
+    CameraPose,
+    PlaceholderPoseError,
+    check_pose_measured,
+    has_placeholder_pose,
+    read_calibration_notes,
+)
 
 BOARD = BoardSpec((9, 6), 0.03)
 TRUE_CAMERA = CameraModel.from_fov(
@@ -365,3 +379,54 @@ def test_a_file_that_cannot_be_read_is_skipped_like_a_corrupt_one(
         {"view": "locked.png", "reason": f"image {tmp_path / 'locked.png'}: cannot read "
                                          "(Permission denied)"}
     ]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "pose_note, new_focal_px, stale",
+    [
+        ("follow-calib ground", 420.0, True),
+        ("follow-calib import-tsai View_001.xml", 420.0, True),
+        ("follow-calib ground", None, False),  # the same intrinsics: still measured
+        (None, 420.0, False),  # set by hand: no K in it
+    ],
+)
+def test_a_pose_measured_through_earlier_intrinsics_is_marked_a_placeholder(
+    tmp_path, monkeypatch, capsys, pose_note, new_focal_px, stale
+):
+    """Re-running intrinsics kept a pose `ground` solved through the old K, and its note
+    `pose: follow-calib ground`, so follow drove a base on distances 15 % off."""
+    out = tmp_path / "cam.yaml"
+    notes = {"intrinsics": "follow-calib intrinsics"}
+    if pose_note is not None:
+        notes["pose"] = pose_note
+    measured = TRUE_CAMERA.with_pose(CameraPose(0.815, 0.236))
+    write_camera_file(out, measured, notes)
+    K = TRUE_CAMERA.K.copy()
+    if new_focal_px is not None:
+        K[0, 0] = K[1, 1] = new_focal_px
+    result = IntrinsicsResult(K, TRUE_CAMERA.dist, (640, 480), 0.15, {"a.png": 0.15}, [], 0.8, [])
+    monkeypatch.setattr("calib.intrinsics.calibrate_intrinsics", lambda *a, **k: result)
+    (tmp_path / "a.png").write_bytes(b"")
+    argv = ["intrinsics", str(tmp_path / "a.png"), "--pattern", "9x6", "--square-size-m",
+            "0.03", "-o", str(out)]  # fmt: skip
+    assert cli.main(argv + ["--json"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert CameraModel.load(out).pose == measured.pose  # kept, whatever its note
+    assert report["pose_kept"] and report["pose_placeholder"] is stale
+    assert has_placeholder_pose(out) is stale
+    warned = [w for w in report["warnings"] if "earlier camera matrix" in w]
+    if stale:
+        assert warned == [
+            f"{out}: its pose ({pose_note}) was measured through the earlier camera matrix and "
+            "distortion: it is kept, marked a placeholder (no base is driven on it); re-run "
+            "`follow-calib ground`"
+        ]
+        note = read_calibration_notes(out)["pose"]
+        assert note.startswith("placeholder") and "follow-calib ground" in note
+        with pytest.raises(PlaceholderPoseError):
+            check_pose_measured(out, True, print)
+        assert cli.main(argv) == 0  # and said without --json
+        assert "(pose is a placeholder)" in capsys.readouterr().out
+    else:
+        assert not warned
+        assert read_calibration_notes(out).get("pose") == pose_note

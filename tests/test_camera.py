@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from follow.camera import CameraFileError, CameraModel, CameraPose
+from follow.camera import CameraFileError, CameraModel, CameraPose, undistort_points
 
 
 def make_camera(pitch_deg=10.0, roll_deg=0.0, yaw_deg=0.0, dist=None, height_m=0.6):
@@ -239,3 +239,139 @@ def test_a_placeholder_pose_is_told_by_the_calibration_notes(tmp_path, calibrati
     assert not has_placeholder_pose(tmp_path / "missing.yaml")
     (tmp_path / "broken.yaml").write_text("calibration: [")
     assert not has_placeholder_pose(tmp_path / "broken.yaml")
+
+
+@pytest.mark.parametrize(
+    "calibrated_size, file_size, principal_px, off",
+    [
+        ((640, 480), (1280, 960), None, "25 % of the width and 25 % of the height"),
+        ((640, 480), (1920, 1440), None, "33 % of the width"),
+        ((1280, 960), (640, 480), (633.2, 470.8), "49 % of the width"),  # inside the image
+        ((1920, 1080), (640, 360), None, "outside the 640x360 image"),
+    ],
+)
+def test_a_camera_matrix_for_another_image_size_is_refused(
+    calibrated_size, file_size, principal_px, off
+):
+    """Only a principal point outside the image was refused: a 640x480 matrix in a file
+    for 1280x960 (its principal point a quarter of the way in) loaded, and placed a
+    person 3 m ahead at 0.8 m."""
+    data = CameraModel.from_fov(calibrated_size, 70.0, CameraPose(0.8)).to_dict()
+    data["image_width"], data["image_height"] = file_size
+    if principal_px is not None:
+        data["camera_matrix"][0][2], data["camera_matrix"][1][2] = principal_px
+    with pytest.raises(CameraFileError, match=f"principal point .* lies {off}.*: a camera_matrix "
+                       "for another image size"):  # fmt: skip
+        CameraModel.from_dict(data, source="cam.yaml")
+
+
+def test_the_cameras_the_project_ships_have_their_principal_point_in_bounds(data_path):
+    """The principal point bound keeps every camera in use: PETS's (Tsai import, 7.7 % of
+    the width off the centre), the demo's, and one 19 % off."""
+    from calib.tsai import TsaiCamera
+    from follow.camera import MAX_PRINCIPAL_POINT_OFFSET
+    from follow.sim.demo import DEMO_CAMERA
+
+    pets, _ = TsaiCamera.from_xml(data_path("pets2009_s2l1/View_001.xml")).to_camera_model()
+    assert abs(pets.K[0, 2] - 383.5) / 768 == pytest.approx(0.077, abs=0.001)
+    assert MAX_PRINCIPAL_POINT_OFFSET >= 2 * 0.077
+    for camera in (pets, DEMO_CAMERA.camera(), DEMO_CAMERA.detection_camera()):
+        CameraModel.from_dict(camera.to_dict())
+    data = CameraModel.from_fov((640, 480), 70.0, CameraPose(0.8)).to_dict()
+    data["camera_matrix"][0][2] = 319.5 + 0.19 * 640
+    data["camera_matrix"][1][2] = 239.5 - 0.19 * 480
+    CameraModel.from_dict(data)
+
+
+WIDE_LENS = np.array([-0.35, 0.15, 0.0, 0.0, -0.03])  # turns back inside the image's corners
+
+
+@pytest.mark.parametrize(
+    "fov_deg, dist",
+    [
+        (90.0, WIDE_LENS),
+        (90.0, WIDE_LENS + [0.0, 0.0, 0.003, -0.002, 0.0]),
+        (100.0, np.array([-0.32, 0.09, 0.0, 0.0, -0.009])),
+    ],
+)
+def test_pixels_past_the_lens_fold_round_trip_through_their_rays(fov_deg, dist):
+    """project() lets the radius grow on past the fold; back-projection followed the
+    polynomial instead, and gave corner pixels rays up to 118 px off (ground points 0.5 m
+    off) where it should invert that growth."""
+    camera = CameraModel.from_fov((640, 480), fov_deg, CameraPose(0.9, math.radians(10)),
+                                  dist=dist)  # fmt: skip
+    u, v = np.meshgrid(np.linspace(-0.5, 639.5, 81), np.linspace(-0.5, 479.5, 61))
+    pixels = np.column_stack([u.ravel(), v.ravel()])
+    rays = camera.pixel_rays_base(pixels)
+    assert np.isfinite(rays).all()
+    again = camera.project(camera.position_base + 2.0 * rays)
+    np.testing.assert_allclose(again, pixels, atol=0.1)
+    corners = np.array([[-0.5, -0.5], [639.5, -0.5], [-0.5, 479.5], [639.5, 479.5]])
+    np.testing.assert_allclose(camera.project(camera.position_base + camera.pixel_rays_base(
+        corners)), corners, atol=1e-3)  # fmt: skip
+    # Floor points seen in the lower corners come back to where they were.
+    floor = np.array([[0.55, 1.42, 0.0], [0.55, -1.42, 0.0], [1.06, -1.91, 0.0]])
+    seen = camera.in_image(camera.project(floor))
+    back = camera.back_project_to_ground(camera.project(floor[seen]))
+    np.testing.assert_allclose(back, floor[seen, :2], atol=0.01)
+    below = camera.is_below_horizon(camera.project(floor[seen]))
+    assert below.all()
+
+
+def test_a_pixel_whose_undistortion_goes_astray_has_no_ray(monkeypatch):
+    """Undistortion iterates and may settle on a point that does not project onto the
+    pixel: that pixel has no ray (NaN, no ground point), not a ray through elsewhere."""
+    camera = make_camera(dist=np.array([-0.2, 0.05, 0.001, -0.001, 0.0]))
+    pixels = np.array([[100.0, 300.0], [320.0, 300.0]])
+    good = camera.back_project_to_ground(pixels)
+    assert np.isfinite(good).all()
+
+    def astray(points, K, dist, criteria):
+        out = np.array(undistort_points(points, K, dist, criteria))
+        out[0] += 0.05  # 20 px off
+        return out
+
+    monkeypatch.setattr("follow.camera.undistort_points", astray)
+    assert np.isnan(camera.pixel_rays_base(pixels)[0]).all()
+    ground = camera.back_project_to_ground(pixels)
+    assert np.isnan(ground[0]).all()
+    np.testing.assert_allclose(ground[1], good[1])
+    assert camera.is_below_horizon(pixels).tolist() == [False, True]
+
+
+@pytest.mark.parametrize("p1, p2", [(0.2, 0.0), (0.0, 0.2), (0.5, 0.0), (0.1, -0.1)])
+def test_tangential_distortion_that_folds_the_image_is_refused(p1, p2):
+    """p1 = 0.2 (for 0.002) loaded, though the image folds over itself and rays came back
+    hundreds of pixels from their pixels."""
+    data = CameraModel.from_fov((640, 480), 75.0, CameraPose(0.8, 0.17)).to_dict()
+    data["distortion"] = [-0.18, 0.04, p1, p2, 0.0]
+    with pytest.raises(CameraFileError, match=rf"cam.yaml: camera distortion \[-0.18, 0.04, "
+                       rf"{p1}, {p2}, 0.0\] folds the image over itself .*tangential p1 {p1:g}, "
+                       rf"p2 {p2:g}"):  # fmt: skip
+        CameraModel.from_dict(data, source="cam.yaml")
+
+
+@pytest.mark.parametrize(
+    "fov_deg, dist",
+    [
+        (75.0, [-0.18, 0.04, 0.001, -0.0005, 0.0]),
+        (75.0, [-0.18, 0.04, 0.05, 0.0, 0.0]),  # strong, but no fold
+        (90.0, (WIDE_LENS + [0.0, 0.0, 0.005, 0.005, 0.0]).tolist()),  # folds past the edge
+        (75.0, [-0.2, 0.05, 0.001, -0.001, 0.0, 0.1, 0.01, 0.0]),
+    ],
+)
+def test_real_tangential_distortion_loads(fov_deg, dist):
+    data = CameraModel.from_fov((640, 480), fov_deg, CameraPose(0.8, 0.17)).to_dict()
+    data["distortion"] = dist
+    assert CameraModel.from_dict(data).dist.tolist() == dist
+
+
+@pytest.mark.parametrize("number", [np.float64, np.float32])
+@pytest.mark.parametrize("suffix", [".yaml", ".json"])
+def test_a_pose_of_numpy_numbers_can_be_saved(tmp_path, number, suffix):
+    """It was accepted, then YAML (and JSON, for float32) could not write it."""
+    pose = CameraPose(number(0.8), number(0.2), number(0.01), number(0.0), number(0.1))
+    assert all(type(getattr(pose, name)) is float for name in ("height_m", "pitch_rad", "y_m"))
+    camera = CameraModel.from_fov((640, 480), 70.0, pose)
+    camera.save(tmp_path / f"cam{suffix}")
+    assert CameraModel.load(tmp_path / f"cam{suffix}").pose == pose

@@ -96,6 +96,10 @@ def test_camera_info_of_a_cropped_image_gives_the_crop_s_intrinsics():
     info = Msg(**camera_info_fields(mounted), roi=full, binning_x=2, binning_y=2)
     camera = camera_for_frames(camera_from_info(info, mounted), 320, 240)
     np.testing.assert_allclose(camera.K[[0, 1], [0, 1]], mounted.K[[0, 1], [0, 1]] / 2)
+    # the sky cropped off: the principal point 30 % off the crop's centre, as it should be
+    sky = Msg(x_offset=0, y_offset=200, width=640, height=280, do_rectify=False)
+    camera = camera_from_info(Msg(**camera_info_fields(mounted), roi=sky), mounted)
+    assert camera.K[1, 2] == pytest.approx(mounted.K[1, 2] - 200)
     outside = Msg(x_offset=400, y_offset=0, width=320, height=240, do_rectify=False)
     with pytest.raises(InvalidInput, match="roi"):
         camera_from_info(Msg(**camera_info_fields(mounted), roi=outside), mounted)
