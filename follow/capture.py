@@ -4,7 +4,9 @@ backlog of stale images."""
 
 from __future__ import annotations
 
+import functools
 import logging
+import os
 import re
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -20,7 +22,7 @@ from follow.cli_args import (
     no_camera_at,
 )
 from follow.handoff import Mailbox
-from follow.repeated_image import RepeatedImages
+from follow.repeated_image import MAX_DRIVER_BUFFERS, RepeatedImages
 from follow.types import Frame, InvalidInput
 
 log = logging.getLogger(__name__)
@@ -28,6 +30,16 @@ log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 # An image folder's frame rate unless told (`follow run --folder-fps`): its frames' times.
 DEFAULT_FOLDER_FPS = 15.0
+# A video's or camera's frame rate where it reports none (0, not finite).
+FALLBACK_FPS = 15.0
+# A file's frame rate outside this range is a damaged or patched header, not a recording:
+# 1,000,000 fps would stamp frames 1 us apart, 0.001 fps 1000 s apart (a --realtime run
+# sleeping that long per frame). Such a file is stamped at FALLBACK_FPS instead.
+MIN_TRUSTED_FILE_FPS, MAX_TRUSTED_FILE_FPS = 1.0, 240.0
+# Frames in a row that cannot be used (a layout no conversion makes BGR) before the source
+# is refused: skipped for ever, a camera's would spin the CPU and never reach the stall
+# watchdog, which starts after the first frame.
+MAX_UNUSABLE_RUN = 10
 # A file's presentation time this close to index / fps is a frame on its frame rate's
 # grid (containers store times to the millisecond): it keeps index / fps exactly.
 FRAME_RATE_GRID_TOLERANCE_S = 1e-3
@@ -38,7 +50,7 @@ FRAME_RATE_GRID_TOLERANCE_S = 1e-3
 # sensor: it came from the queue. At most MAX_QUEUED_FRAMES are dropped so.
 QUEUE_PAUSE_PERIODS = 2.0
 QUEUED_READ_MAX_PERIOD_FRACTION = 0.25
-MAX_QUEUED_FRAMES = 8
+MAX_QUEUED_FRAMES = MAX_DRIVER_BUFFERS
 
 
 class SourceError(RuntimeError):
@@ -48,11 +60,13 @@ class SourceError(RuntimeError):
 class FrameSource:
     """Iterates frames from a video file, camera index or device, GStreamer pipeline or folder.
 
-    Frames that cannot be decoded are skipped with a warning; single-channel frames (a
-    GRAY8 pipeline, a mono camera) are used as grey BGR; a live camera whose reads
-    keep failing raises SourceError (a camera does not end: it was lost). Timestamps are
-    taken from a video file's presentation times (a variable frame rate kept; where the
-    file has none, from its frame rate), from the frame rate for folders (so replay is
+    Frames that cannot be decoded are skipped with a warning; grey (8- or 16-bit), BGRA
+    and HxWx1 frames are converted to 8-bit BGR; MAX_UNUSABLE_RUN frames in a row that
+    are still unusable, or a live camera whose reads keep failing, raise SourceError (a
+    camera does not end: it was lost). Timestamps are taken from a video file's
+    presentation times (a variable frame rate kept; where the file has none, from its
+    frame rate; a rate outside MIN..MAX_TRUSTED_FILE_FPS is not trusted, nor the times
+    derived from it: FALLBACK_FPS), from the frame rate for folders (so replay is
     reproducible) and from the monotonic clock for live cameras, whose frames queued in
     the driver during a pause in reading are dropped (they are as old as the pause).
     """
@@ -63,22 +77,26 @@ class FrameSource:
         self._folder: list[Path] | None = None
         self.frame_count: int | None = None
         self._cap: cv2.VideoCapture | None = None
+        self._rate_trusted = True
         if not str(spec).strip():
             raise SourceError("source is empty: give a video file, camera index, folder or bag")
         path = Path(spec)
-        if path.is_dir():
+        # os.path's checks: a pipeline's long caps make a name too long for Path's (OSError)
+        if os.path.isdir(spec):
             images = (p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
             self._folder = sorted(images, key=_frame_order)
             if not self._folder:
                 raise SourceError(f"source {spec}: folder holds no images ({IMAGE_SUFFIXES})")
             self.fps = folder_fps
             return
-        if spec.isdigit():
+        camera_index = spec.isascii() and spec.isdigit()  # not "²", which int() refuses
+        pipeline = "!" in spec and not os.path.exists(spec)  # an existing path is a file
+        if camera_index:
             if too_large := camera_index_too_large(spec):
                 raise SourceError(f"source {spec}: {too_large}; a file named so: ./{spec}")
             self._cap = cv2.VideoCapture(int(spec))
             self.live = True
-        elif "!" in spec:  # a GStreamer pipeline, e.g. a Jetson CSI camera
+        elif pipeline:  # GStreamer, e.g. a Jetson CSI camera
             self._cap = cv2.VideoCapture(spec, cv2.CAP_GSTREAMER)
             self.live = True
         else:
@@ -87,13 +105,31 @@ class FrameSource:
             self._cap = cv2.VideoCapture(str(path))
             self.live = path.is_char_device()  # a camera's node: /dev/video0, /dev/v4l/by-id/...
         if not self._cap.isOpened():
-            if self.live and spec.isdigit():
+            if self.live and camera_index:
                 raise SourceError(f"source {spec}: {no_camera_at(spec)}")
+            if pipeline:
+                raise SourceError(f"source {spec}: the GStreamer pipeline cannot be opened "
+                                  f"({_gstreamer_support()})")  # fmt: skip
             raise SourceError(f"source {spec}: cannot be opened by OpenCV")
-        fps = self._cap.get(cv2.CAP_PROP_FPS)
-        self.fps = fps if fps and np.isfinite(fps) and fps > 0 else 15.0
+        self.fps = self._frame_rate()
         count = self._cap.get(cv2.CAP_PROP_FRAME_COUNT) if not self.live else 0
         self.frame_count = int(count) if count and np.isfinite(count) and count > 0 else None
+
+    def _frame_rate(self) -> float:
+        """The capture's frame rate: FALLBACK_FPS where it reports none, or (a file) one
+        outside MIN..MAX_TRUSTED_FILE_FPS, whose stamps would be microseconds or hours
+        apart; the file's presentation times, derived from that rate, are not used then."""
+        fps = self._cap.get(cv2.CAP_PROP_FPS)
+        if not (fps and np.isfinite(fps) and fps > 0):
+            return FALLBACK_FPS
+        if not self.live and not MIN_TRUSTED_FILE_FPS <= fps <= MAX_TRUSTED_FILE_FPS:
+            log.warning("source %s: the file's frame rate, %g fps, is outside %g-%g fps (a "
+                        "damaged header?): not trusted, nor its frames' times; frames "
+                        "stamped at %g fps", self.spec, fps, MIN_TRUSTED_FILE_FPS,
+                        MAX_TRUSTED_FILE_FPS, FALLBACK_FPS)  # fmt: skip
+            self._rate_trusted = False
+            return FALLBACK_FPS
+        return fps
 
     def __iter__(self) -> Iterator[Frame]:
         if self._folder is not None:
@@ -123,9 +159,10 @@ class FrameSource:
         index = 0
         position = 0  # a file's frames read or found undecodable: their time
         start = time.monotonic()
-        clock = None if self.live else _FileClock(self.spec, self.fps)
+        clock = None if self.live else _FileClock(self.spec, self.fps, self._rate_trusted)
         failures = 0
-        grey_said = False
+        unusable = 0  # frames in a row that no conversion made usable
+        conversions_said = set()
         repeats = RepeatedImages()
         frozen_said = False
         returned_s = None  # when the last frame was handed over (a live camera's)
@@ -155,28 +192,38 @@ class FrameSource:
                             "s" if failures > 1 else "",
                             first if failures == 1 else f"{first}-{position - 1}")  # fmt: skip
             failures = 0
-            if self.live and repeats.is_repeat(image):  # a frozen driver: nothing new
-                if not frozen_said:  # (a freeze ends as a stall: camera_stall_timeout_s)
-                    log.warning("source %s: the camera delivered the same image again (a "
-                                "frozen driver?): repeated images are dropped", self.spec)
-                    frozen_said = True
-                continue
             if clock is None:
                 stamp = time.monotonic() - start
             else:  # the time the container gives the frame just read
                 stamp = clock.stamp(position, self._cap.get(cv2.CAP_PROP_POS_MSEC))
-            index += 1
             position += 1
-            if _single_channel(image):  # a GRAY8 pipeline, a mono camera: as a bag's mono8
-                if not grey_said:
-                    log.info("source %s: single-channel frames, used as grey BGR", self.spec)
-                    grey_said = True
-                image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+            read, (image, conversion) = image, _as_bgr(image)
+            if conversion and conversion not in conversions_said:
+                log.info("source %s: %s frames, used as 8-bit BGR", self.spec, conversion)
+                conversions_said.add(conversion)
             try:
                 frame = Frame(image, stamp)
             except InvalidInput as exc:  # the decoder gave something odd
+                index += 1
+                unusable += 1
+                if unusable >= MAX_UNUSABLE_RUN:
+                    raise SourceError(
+                        f"source {self.spec}: {unusable} frames in a row cannot be used, the "
+                        f"last a {_layout(read)} ({exc}); frames must be 8- or 16-bit grey, "
+                        "BGR or BGRA"
+                    ) from None
                 log.warning("skipping frame %d: %s", index, exc)
                 continue
+            unusable = 0
+            # compared as read: a 16-bit sensor's noise may lie in the low byte alone
+            if self.live and repeats.is_repeat(read):  # a frozen driver: nothing new
+                if not frozen_said:  # (a freeze ends as a stall: camera_stall_timeout_s)
+                    log.warning("source %s: the camera delivered the same image again (one "
+                                "of its last %d: a frozen driver?): repeated images are "
+                                "dropped", self.spec, MAX_DRIVER_BUFFERS)  # fmt: skip
+                    frozen_said = True
+                continue
+            index += 1
             returned_s = time.monotonic()
             yield frame
 
@@ -249,10 +296,10 @@ class _FileClock:
     finite. A decoder's constant delay in them (OpenCV reports an H.264 AVI's frames at
     the time of the packet two frames on) is taken out by the shift."""
 
-    def __init__(self, spec: str, fps: float):
+    def __init__(self, spec: str, fps: float, file_times: bool = True):
         self.spec = spec
         self.fps = fps
-        self.from_file = True
+        self.from_file = file_times  # False: the file's times are not trusted from the start
         self._stamped = 0  # frames stamped so far
         self._first: tuple[float, float] | None = None  # (file ms, stamp s) of the first
         self._last: tuple[int, float, float] | None = None  # (position, file ms, stamp s)
@@ -309,10 +356,52 @@ class _FileClock:
                 problem, self.fps)  # fmt: skip
 
 
-def _single_channel(image) -> bool:
-    """Whether OpenCV handed over a 2-D 8-bit frame (one channel) instead of HxWx3 BGR."""
-    return (isinstance(image, np.ndarray) and image.ndim == 2 and image.dtype == np.uint8
-            and image.size > 0)  # fmt: skip
+def _as_bgr(image) -> tuple[np.ndarray, str | None]:
+    """`image` as 8-bit BGR where OpenCV handed over another layout that cameras and
+    pipelines give (GRAY8 or a mono camera, as a bag's mono8; GRAY16_LE of a thermal or
+    depth camera, its high byte kept; BGRA; HxWx1), and what it was (None: left as it is,
+    for Frame to accept or refuse by name)."""
+    if not isinstance(image, np.ndarray) or image.size == 0:
+        return image, None
+    if image.dtype not in (np.uint8, np.uint16):
+        return image, None
+    was = []
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+        was.append("16-bit")
+    if image.ndim == 2:
+        image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+        was.append("single-channel")
+    elif image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+        was.append("BGRA")
+    return image, " ".join(was) or None
+
+
+def _layout(image) -> str:
+    """What a frame source handed over, for an error: `48x64x4 uint16 array`."""
+    if not isinstance(image, np.ndarray):
+        return type(image).__name__
+    return f"{'x'.join(map(str, image.shape))} {image.dtype} array"
+
+
+@functools.cache
+def _gstreamer_support() -> str:
+    """Whether this OpenCV build reads GStreamer pipelines (pip's opencv-python does not),
+    for the error of a pipeline that cannot be opened."""
+    listed = "not listed"
+    for line in cv2.getBuildInformation().splitlines():
+        name, _, value = line.strip().partition(":")
+        if name == "GStreamer":
+            listed = value.strip()
+    if listed.upper().startswith("YES"):
+        return f"this OpenCV has GStreamer, {listed}: check the pipeline with gst-launch-1.0"
+    return (
+        f"this OpenCV is built without GStreamer (cv2.getBuildInformation(): GStreamer "
+        f"{listed}; pip's opencv-python has none): use an OpenCV built with it"
+    )
 
 
 def _frame_order(path: Path) -> tuple:

@@ -23,7 +23,12 @@ import numpy as np
 
 from follow.bag import is_bag
 from follow.camera import CameraModel, check_pose_measured
-from follow.capture import DEFAULT_FOLDER_FPS, open_source, played_at_own_stamps
+from follow.capture import (
+    DEFAULT_FOLDER_FPS,
+    MAX_TRUSTED_FILE_FPS,
+    open_source,
+    played_at_own_stamps,
+)
 from follow.cli_args import non_negative_int, positive_float, refuse_overwriting
 from follow.config import Config
 from follow.person_in_view import log_person_in_view
@@ -131,6 +136,9 @@ def camera_for_frames(camera: CameraModel, width: int, height: int) -> CameraMod
 # millisecond of the frame's result; longer only when the loop is starved).
 COMMAND_WAIT_S = 0.25
 MAX_VIDEO_REPEAT_S = 2.0  # the longest one processed frame stands in the video
+# ... and at most this many copies of it, whatever the rate (a bag's, a camera's: 10^6 fps
+# would write millions of copies of one frame)
+MAX_VIDEO_COPIES = round(MAX_VIDEO_REPEAT_S * MAX_TRUSTED_FILE_FPS)
 VIDEO_FOURCCS = {".mp4": "mp4v", ".avi": "MJPG"}  # what --output-video writes, by its name
 # OpenCV's video writer reports no failed write: the file is checked to have grown once
 # this many bytes of raw frames went in since it last grew. The writers hold 256 kB
@@ -218,12 +226,17 @@ class Outputs:
         the video plays in the frames' own time: a threaded run processes only some of
         the camera's frames (each processed frame stands until the next), a
         variable-frame-rate file has gaps. At least once; at most `MAX_VIDEO_REPEAT_S`
-        of repeats for one frame (a stall is shown short, not encoded at length)."""
+        of repeats for one frame, never over `MAX_VIDEO_COPIES`: a stall is shown short,
+        the time left out dropped from the video's clock (not spilled onto the frames
+        after it, each of which would stand that long again until it was made up)."""
         if self._video_first_stamp_s is None:
             self._video_first_stamp_s = stamp_s
         due = round((stamp_s - self._video_first_stamp_s) * self.fps) + 1
-        most = max(1, round(MAX_VIDEO_REPEAT_S * self.fps))
-        copies = min(max(due - self._video_frames, 1), most)
+        most = min(max(1, round(MAX_VIDEO_REPEAT_S * self.fps)), MAX_VIDEO_COPIES)
+        behind = due - self._video_frames
+        copies = min(max(behind, 1), most)
+        if behind > most:
+            self._video_first_stamp_s += (behind - most) / self.fps
         self._video_frames += copies
         return copies
 

@@ -327,6 +327,13 @@ class _ScriptedCapture:
         self.read_count += 1
         return True, self.images[self.read_count - 1]
 
+    def grab(self):
+        self._grabbed = self.read()
+        return self._grabbed[0]
+
+    def retrieve(self):
+        return self._grabbed
+
     def release(self):
         pass
 
@@ -353,7 +360,7 @@ def test_a_single_channel_video_file_is_read_as_bgr_and_odd_frames_still_skipped
     images = [
         np.full((24, 32), 10, np.uint8),
         np.full((24, 32), 10, np.float32),  # not uint8: still refused
-        np.full((24, 32, 4), 10, np.uint8),  # four channels: still refused
+        np.full((24, 32, 2), 10, np.uint8),  # two channels: still refused
         np.full((4, 4), 10, np.uint8),  # too small: still refused, after conversion
         np.zeros((0, 0), np.uint8),  # empty: refused, not handed to cvtColor
         np.full((24, 32), 30, np.uint8),
@@ -364,6 +371,56 @@ def test_a_single_channel_video_file_is_read_as_bgr_and_odd_frames_still_skipped
         ((24, 32, 3), 10), ((24, 32, 3), 30)
     ]
     assert caplog.text.count("skipping frame") == 4
+
+
+@pytest.mark.parametrize(
+    "layout, image, grey",
+    [
+        ("GRAY16_LE", np.full((24, 32), 0x5A17, np.uint16), 0x5A),  # a thermal camera
+        ("BGR 16-bit", np.full((24, 32, 3), 0x7F00, np.uint16), 0x7F),
+        ("BGRA", np.full((24, 32, 4), 90, np.uint8), 90),
+        ("HxWx1", np.full((24, 32, 1), 60, np.uint8), 60),
+        ("HxWx1 16-bit", np.full((24, 32, 1), 0x3300, np.uint16), 0x33),
+    ],
+)
+def test_16_bit_bgra_and_hxwx1_frames_are_converted_to_8_bit_bgr_not_skipped(
+    monkeypatch, caplog, layout, image, grey
+):
+    # e.g. "... ! video/x-raw,format=GRAY16_LE ! appsink" (a thermal or depth camera): each
+    # frame skipped, a live source would read for ever and the run never start.
+    images = [image + i for i in range(3)]
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _ScriptedCapture(images))
+    frames = iter(FrameSource("v4l2src ! appsink"))
+    got = [next(frames) for _ in range(3)]
+    assert [f.image.shape for f in got] == [(24, 32, 3)] * 3, layout
+    assert int(got[0].image[5, 5, 2]) == grey
+    assert "skipping" not in caplog.text
+
+
+def test_a_live_source_whose_frames_are_all_unusable_is_an_error_naming_their_layout(
+    monkeypatch, caplog
+):
+    # Skipped one by one, a camera's would be read for ever before the stall watchdog (it
+    # starts at the first frame), the CPU spinning and the log flooded.
+    good = np.full((24, 32, 3), 10, np.uint8)
+    odd = np.zeros((24, 32, 2), np.uint8)
+    images = [odd] * 9 + [good] + [odd] * 9 + [good + 1] + [odd] * 100
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _ScriptedCapture(images))
+    frames = iter(FrameSource("v4l2src ! video/x-raw,format=GRAY8 ! appsink"))
+    assert [int(next(frames).image[0, 0, 0]) for _ in range(2)] == [10, 11]  # 9 in a row: skipped
+    with pytest.raises(SourceError, match=r"10 frames in a row cannot be used, the last a "
+                       r"24x32x2 uint8 array \(frame image: expected an HxWx3"):  # fmt: skip
+        next(frames)
+    assert caplog.text.count("skipping frame") == 9 + 9 + 9
+
+
+def test_a_file_whose_frames_are_all_unusable_is_refused_by_their_dtype(tmp_path, monkeypatch):
+    path = tmp_path / "float.avi"
+    path.write_bytes(b"")
+    images = [np.zeros((24, 32, 3), np.float32)] * 30
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _ScriptedCapture(images))
+    with pytest.raises(SourceError, match="the last a 24x32x3 float32 array .*dtype uint8"):
+        list(FrameSource(str(path)))
 
 
 def _write_vfr_mp4(path, times_ms):
@@ -549,3 +606,170 @@ def test_a_folder_rate_given_for_a_video_is_warned_of_not_ignored_in_silence(
     argv = ["run", str(video), "--camera", str(tmp_path / "cam.yaml"), "--folder-fps", "5"]
     assert main(argv) == 1
     assert "--folder-fps is an image folder's frame rate" in caplog.text
+
+
+def _avi_with_header_rate(path, rate: int, scale: int = 1, frames: int = 6):
+    """An MJPG AVI whose header says `rate / scale` fps (as a damaged or patched header)."""
+    import struct
+
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (64, 48))
+    for i in range(frames):
+        writer.write(np.full((48, 64, 3), 20 * i, np.uint8))
+    writer.release()
+    data = bytearray(path.read_bytes())
+    stream_header = data.find(b"strh")  # fcc, size, type, handler, flags, priority, initial
+    struct.pack_into("<II", data, stream_header + 28, scale, rate)  # dwScale, dwRate
+    main_header = data.find(b"avih")  # its first field: microseconds per frame
+    struct.pack_into("<I", data, main_header + 8, max(1, round(1e6 * scale / rate)))
+    path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.parametrize("rate, scale", [(1_000_000, 1), (90_000, 1), (1, 1000)])
+def test_a_file_frame_rate_outside_the_plausible_range_is_not_trusted(
+    tmp_path, caplog, rate, scale
+):
+    # 10^6 fps stamped frames 1 us apart (with --realtime --output-video, millions of
+    # copies of each frame); 0.001 fps, 1000 s apart (a realtime run sleeping that long).
+    path = _avi_with_header_rate(tmp_path / "v.avi", rate, scale)
+    source = FrameSource(str(path))
+    assert source.fps == 15.0
+    assert [f.stamp_s for f in source] == [i / 15.0 for i in range(6)]
+    assert f"frame rate, {rate / scale:g} fps, is outside 1-240 fps" in caplog.text
+
+
+@pytest.mark.parametrize("fps", [1.0, 240.0])
+def test_a_file_frame_rate_at_the_ends_of_the_plausible_range_is_kept(
+    tmp_path, monkeypatch, caplog, fps
+):
+    positions_ms = [i * 1000.0 / fps for i in range(4)]
+    source = FrameSource(_fake_file(tmp_path, monkeypatch, positions_ms, fps=fps))
+    assert source.fps == fps
+    assert [f.stamp_s for f in source] == [i / fps for i in range(4)]
+    assert "not trusted" not in caplog.text
+
+
+class _RingFrozenCamera:
+    """A live camera whose driver, after `fresh` images, hands back its ring of stale
+    buffers in turn (fresh - 1, fresh, fresh - 1, ...) for `frozen` reads, then new
+    images again."""
+
+    def __init__(self, fresh: int, frozen: int):
+        self.fresh, self.frozen, self.reads = fresh, frozen, 0
+
+    def isOpened(self):
+        return True
+
+    def get(self, prop):
+        return 30.0
+
+    def read(self):
+        self.reads += 1
+        if self.reads <= self.fresh:
+            value = self.reads
+        elif self.reads <= self.fresh + self.frozen:
+            value = self.fresh - 1 + self.reads % 2
+        else:
+            value = self.reads - self.frozen
+        return True, np.full((24, 32, 3), value, np.uint8)
+
+    def grab(self):
+        self._grabbed = self.read()
+        return True
+
+    def retrieve(self):
+        return self._grabbed
+
+    def release(self):
+        pass
+
+
+def test_a_frozen_driver_cycling_its_stale_buffers_delivers_nothing_new(monkeypatch, caplog):
+    """Buffers 3, 4, 3, 4, ... each differ from the one before: compared with the last
+    image only, all would pass as fresh and the stall watchdog never fire."""
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _RingFrozenCamera(4, frozen=20))
+    frames = iter(FrameSource("0"))
+    assert [int(next(frames).image[0, 0, 0]) for _ in range(6)] == [1, 2, 3, 4, 5, 6]
+    assert "the same image again" in caplog.text
+
+
+def test_a_real_cameras_noisy_frames_are_never_taken_for_repeats():
+    """A still scene: consecutive frames differ by sensor noise alone, a 16-bit sensor's
+    perhaps in the low byte only (which the 8-bit conversion drops)."""
+    from follow.repeated_image import RepeatedImages
+
+    rng = np.random.default_rng(0)
+    scene = rng.integers(0, 200, (48, 64, 3), dtype=np.uint8)
+    repeats = RepeatedImages()
+    for _ in range(300):
+        noisy = np.clip(scene + rng.normal(0.0, 1.0, scene.shape), 0, 255).astype(np.uint8)
+        assert not repeats.is_repeat(noisy)
+    thermal = np.full((24, 32), 0x4000, np.uint16)
+    for low_byte in range(1, 20):
+        assert not repeats.is_repeat(thermal + low_byte)
+
+
+def test_repeated_images_remember_a_driver_ring_and_no_more():
+    from follow.repeated_image import MAX_DRIVER_BUFFERS, RepeatedImages
+
+    repeats = RepeatedImages()
+    images = [np.full((8, 8, 3), i, np.uint8) for i in range(MAX_DRIVER_BUFFERS + 1)]
+    assert not any(repeats.is_repeat(image) for image in images)
+    assert repeats.is_repeat(images[1].copy())  # within the ring: a stale buffer
+    assert not repeats.is_repeat(images[0])  # older than any ring: a scene come back
+    assert not repeats.is_repeat(images[0].reshape(8, 24))  # same bytes, another shape
+
+
+def test_an_existing_file_whose_name_has_a_bang_is_read_as_a_file(tmp_path):
+    path = _video_with_frames(tmp_path / "take1!.avi", 3)
+    source = FrameSource(str(path))
+    assert not source.live and len(list(source)) == 3
+
+
+def _video_with_frames(path, frames: int):
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, (32, 24))
+    for i in range(frames):
+        writer.write(np.full((24, 32, 3), 40 * i, np.uint8))
+    writer.release()
+    return path
+
+
+@pytest.mark.parametrize("listed, says", [
+    ("NO", "built without GStreamer .*GStreamer NO; pip's opencv-python has none"),
+    ("YES (1.20.3)", "this OpenCV has GStreamer, YES \\(1.20.3\\): check the pipeline"),
+])  # fmt: skip
+def test_a_pipeline_that_cannot_be_opened_says_whether_opencv_has_gstreamer(
+    monkeypatch, listed, says
+):
+    import follow.capture as capture
+
+    class Closed:
+        def __init__(self, *args):
+            pass
+
+        def isOpened(self):
+            return False
+
+    build = f"General configuration\n  Video I/O:\n    GStreamer:                   {listed}\n"
+    monkeypatch.setattr(cv2, "VideoCapture", Closed)
+    monkeypatch.setattr(cv2, "getBuildInformation", lambda: build)
+    capture._gstreamer_support.cache_clear()
+    try:
+        with pytest.raises(SourceError, match=f"the GStreamer pipeline cannot be opened .*{says}"):
+            FrameSource("videotestsrc ! videoconvert ! appsink")
+    finally:
+        capture._gstreamer_support.cache_clear()
+
+
+def test_a_pipeline_too_long_for_a_file_name_is_still_a_pipeline(monkeypatch):
+    opened = []
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: opened.append(a) or _UnpluggedCamera(1))
+    properties = " ".join(f"property-{i}={i}" for i in range(30))  # before any "/"
+    FrameSource(f"v4l2src {properties} ! appsink")  # a name over 255 characters: no OSError
+    assert opened[0][1] == cv2.CAP_GSTREAMER
+
+
+def test_a_non_ascii_digit_is_no_camera_index(tmp_path):
+    # "²".isdigit() is True, but int("²") raises: named as a missing file, not a traceback
+    with pytest.raises(SourceError, match="source ²: no such file"):
+        FrameSource("²")

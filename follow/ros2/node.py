@@ -459,7 +459,7 @@ class FollowNode(Node):
         if self._repeats.is_repeat(image):  # a frozen driver stamping its last image anew
             self.stale_frames += 1
             self.get_logger().warning(
-                "image dropped: the same image as the last one (a frozen camera driver?)",
+                "image dropped: the same image as one of the last few (a frozen camera driver?)",
                 throttle_duration_sec=5.0,
             )
             return None
