@@ -143,6 +143,21 @@ def frame(tracks, stamp_s, confidences, similarities=None, boxes=None, robot=Non
     )  # fmt: skip
 
 
+def uncropped(seen, *track_ids):
+    """`seen` with these tracks observed but not described (too small, cut by the
+    image's edge): no box, appearance or confidence."""
+    for track_id in track_ids:
+        for described in (seen.rois, seen.boxes, seen.appearances, seen.confidences):
+            described.pop(track_id, None)
+    return seen
+
+
+def step(state, ctx, seen):
+    """`state.update` of a frame handed over as the identifier does: its gap noted first."""
+    ctx.note_frame(seen.stamp_s)
+    return state.update(ctx, seen)
+
+
 def context(config=CFG, reid=True, observed=None):
     ctx = IdentityContext(config, RecordingModel(reid))
     ctx.observed_frames = dict(observed or {})
@@ -209,7 +224,7 @@ def test_initial_training_becomes_tracking_after_the_configured_learnt_frames_in
     assert ctx.model.resets == resets + 1 and state.frames_learnt == 0  # dropped
     for k in range(CFG.initial_training_frames - 1):
         assert state.update(ctx, frame(tracks, 0.6 + 0.1 * k, {1: 0.0, 2: 0.0})) is state
-    nxt = state.update(ctx, frame(tracks, 2.0, {1: 0.0, 2: 0.0}))
+    nxt = state.update(ctx, frame(tracks, 0.8, {1: 0.0, 2: 0.0}))  # no gap: 0.1 s on
     assert isinstance(nxt, Tracking) and nxt.target_id == 1
     assert len(ctx.model.learnt) == 2 * CFG.initial_training_frames - 1  # (every call)
 
@@ -250,6 +265,38 @@ def test_initial_training_that_loses_its_target_chooses_again_in_the_same_frame(
     nxt = state.update(ctx, frame([person(2, 3.0), person(3, 1.5)], 0.1, {2: 0.0, 3: 0.0}))
     assert isinstance(nxt, InitialTraining) and nxt.target_id == 2  # 3 is new: not yet
     assert nxt.frames_learnt == 1 and ctx.last_target_s == 0.1
+
+
+@pytest.mark.parametrize(
+    ("unseen_s", "stall", "dropped"),
+    [
+        (CFG.identity_risk_unseen_s - 0.2, False, False),
+        (CFG.identity_risk_unseen_s + 0.2, False, True),
+        (CFG.identity_risk_unseen_s + 0.2, True, True),
+    ],
+)
+def test_initial_training_starts_again_after_its_target_went_unseen(unseen_s, stall, dropped):
+    """The tracker may have moved the target's track onto someone else while it coasted
+    unseen for `identity_risk_unseen_s`, or across a stall of perception as long: the
+    frames learnt before are dropped, and the frames in a row start again."""
+    ctx = context()
+    state, learnt_s = InitialTraining(1), 0.1 * (CFG.initial_training_frames - 2)
+    for k in range(CFG.initial_training_frames - 1):
+        state = step(state, ctx, frame([person(1, 2.0, last_seen_s=0.1 * k)], 0.1 * k, {1: 0.0}))
+    resets = ctx.model.resets
+    for k in range(1, 0 if stall else round(unseen_s / 0.1)):  # coasting on the prediction
+        hidden = person(1, 2.0, observed=False, last_seen_s=learnt_s)
+        assert step(state, ctx, frame([hidden], learnt_s + 0.1 * k, {})) is state
+    back_s = learnt_s + unseen_s
+    nxt = step(state, ctx, frame([person(1, 2.0, last_seen_s=back_s)], back_s, {1: 0.0}))
+    if not dropped:
+        assert isinstance(nxt, Tracking) and ctx.model.resets == resets
+        return
+    assert nxt is state and state.frames_learnt == 1 and ctx.model.resets == resets + 1
+    for k in range(1, CFG.initial_training_frames):
+        t = back_s + 0.1 * k
+        nxt = step(state, ctx, frame([person(1, 2.0, last_seen_s=t)], t, {1: 0.0}))
+    assert isinstance(nxt, Tracking)
 
 
 # --------------------------------------------------------------------------- tracking
@@ -407,6 +454,42 @@ def test_after_a_gap_the_target_is_not_learnt_while_a_new_track_looks_more_like_
     assert ctx.model.learnt == []
 
 
+def test_at_risk_the_target_leads_nobody_seen_without_a_crop():
+    """After a crossing the target must outscore everyone seen. A person seen without a
+    crop (cut by the image's edge, too small) was compared with nobody and may be the
+    target the tracker swapped away: the frame is not learnt, vouches for nothing and
+    marks nobody as seen beside the target."""
+
+    def run(crop_of_2):
+        ctx = tracked_context(stamp_s=10.0)
+        ctx.identity_risk_s = 10.0  # someone came near: the identity is at risk
+        tracks = [person(1, 2.0, last_seen_s=10.1), person(2, 4.0, last_seen_s=10.1)]
+        seen = frame(tracks, 10.1, {1: 0.6, 2: 0.1})
+        state = Tracking(1)
+        assert state.update(ctx, seen if crop_of_2 else uncropped(seen, 2)) is state
+        return ctx
+
+    led = run(crop_of_2=True)
+    assert len(led.model.learnt) == 1 and led.vouched_s == 10.1 and led.seen_beside_target(2)
+    unled = run(crop_of_2=False)
+    assert unled.model.learnt == [] and unled.vouched_s == 10.0
+    assert not unled.seen_beside_target(2)
+
+
+def test_only_people_scored_beside_the_confirmed_target_are_marked_as_seen_beside_it():
+    """A frame learnt while the identity is trusted marks the others it compared: one
+    seen without a crop was compared with nobody, and stays a candidate."""
+    trusted = tracked_context(stamp_s=10.0)
+    trusted.identity_risk_s = 10.0 - CFG.identity_trust_s - 1.0  # nobody near for a while
+    training = context()
+    t = 10.1
+    three = [person(1, 2.0, last_seen_s=t), person(2, 4.0, last_seen_s=t),
+             person(3, 6.0, last_seen_s=t)]  # fmt: skip
+    for ctx, state in ((trusted, Tracking(1)), (training, InitialTraining(1))):
+        assert state.update(ctx, uncropped(frame(three, t, {1: 0.6, 2: 0.1, 3: 0.1}), 3)) is state
+        assert len(ctx.model.learnt) == 1 and ctx.seen_apart == {2}
+
+
 def test_away_from_any_risk_the_target_is_learnt_whoever_else_scores_higher():
     ctx = tracked_context(stamp_s=10.0)
     ctx.identity_risk_s = 10.0 - CFG.identity_trust_s - 1.0  # nobody near for a while
@@ -520,7 +603,7 @@ def test_re_id_decides_only_for_people_seen_at_the_loss_and_against_everyone_see
     doubted = CFG.reid_confidence - 0.3
     high = CFG.reid_strict_similarity + 0.1
 
-    def run(at_loss, people, sims, uncropped=()):
+    def run(at_loss, people, sims, without_crop=()):
         ctx = tracked_context(stamp_s=10.0, config=decisive, observed={7: 5, 8: 5, 9: 5})
         state = Reidentification()
         seen_at_loss = [t.track_id for t in at_loss if t.observation is not None]
@@ -528,10 +611,7 @@ def test_re_id_decides_only_for_people_seen_at_the_loss_and_against_everyone_see
         for k in range(3 * CFG.reid_frames):
             f = frame(people, 10.1 + 0.1 * k, dict.fromkeys(sims, 0.0), sims,
                       classifier=dict.fromkeys(sims, doubted))  # fmt: skip
-            for track_id in uncropped:  # seen, but no crop to describe
-                for described in (f.rois, f.boxes, f.appearances, f.confidences):
-                    described.pop(track_id, None)
-            state = state.update(ctx, f)
+            state = state.update(ctx, uncropped(f, *without_crop))  # seen, no crop
         return state
 
     people, apart = [person(7, 2.5), person(8, 4.0)], {7: high, 8: high - 0.2}
@@ -542,7 +622,7 @@ def test_re_id_decides_only_for_people_seen_at_the_loss_and_against_everyone_see
     three = [*people, look_alike]
     sims = {7: high, 8: high - 0.2, 9: high - 0.05}
     assert isinstance(run(three, three, sims), Reidentification)  # embedded: within margin
-    assert isinstance(run(three, three, sims, uncropped=(9,)), Reidentification)
+    assert isinstance(run(three, three, sims, without_crop=(9,)), Reidentification)
     assert isinstance(run(three, three, {7: high, 8: high - 0.2, 9: high - 0.3}), Probation)
 
 
@@ -554,6 +634,71 @@ def test_a_failed_probation_hands_back_who_was_in_view_at_the_loss():
     taller = person(7, 2.5, neck_height_m=1.45 + 0.2)
     state = probation.update(ctx, frame([taller], 10.6, {7: 0.9}, {7: 0.9}))
     assert isinstance(state, Reidentification) and state.present_at_loss == {8}
+
+
+@pytest.mark.parametrize(
+    ("unseen_s", "stall", "decided"),
+    [
+        (CFG.identity_risk_unseen_s - 0.2, False, True),
+        (CFG.identity_risk_unseen_s + 0.3, False, True),  # an occlusion: the tracker's to end
+        (CFG.identity_risk_unseen_s + 0.3, True, False),
+    ],
+)
+def test_a_stall_since_the_loss_ends_every_tracks_being_present_at_it(
+    unseen_s, stall, decided
+):
+    """Across a stall of perception longer than `identity_risk_unseen_s` any track may
+    be carried onto anyone: re-id alone no longer decides for it, and each cue must
+    agree. A track that coasts through an occlusion keeps its place (the tracker retires
+    it after `max_unseen_s`)."""
+    decisive = dataclasses.replace(CFG, reid_decisive_margin=0.15)
+    doubted = CFG.reid_confidence - 0.3  # the classifier alone, under its bar
+    high = CFG.reid_strict_similarity + 0.1
+    ctx = tracked_context(stamp_s=10.0, config=decisive, observed={7: 5, 8: 5})
+    state, loss_s = Reidentification(), 10.05
+
+    def pair(t, seen_7=True):
+        return [person(7, 2.5, observed=seen_7, last_seen_s=t if seen_7 else loss_s),
+                person(8, 4.0, last_seen_s=t)]  # fmt: skip
+
+    state = step(state, ctx, frame(pair(loss_s), loss_s, {7: 0.0, 8: 0.0}))
+    for k in range(1, 0 if stall else round(unseen_s / 0.1)):  # 7 coasts on the prediction
+        t = loss_s + 0.1 * k
+        state = step(state, ctx, frame(pair(t, seen_7=False), t, {8: 0.0}))
+    for k in range(3 * CFG.reid_frames):  # 7 seen again: whoever the tracker gave it
+        t = loss_s + unseen_s + 0.1 * k
+        state = step(state, ctx, frame(pair(t), t, {7: 0.0, 8: 0.0}, {7: high, 8: high - 0.2},
+                                       classifier={7: doubted, 8: doubted}))  # fmt: skip
+    assert isinstance(state, Probation if decided else Reidentification)
+
+
+def test_probation_hands_back_only_those_still_present_at_the_loss():
+    """While the candidate is on probation, a stall longer than `identity_risk_unseen_s`
+    ends every track's being present at the loss (one coasting through an occlusion
+    keeps it): a failed probation hands back what re-identification would hold."""
+
+    def run(stall):
+        ctx = tracked_context(stamp_s=10.0, observed={7: 20, 8: 20, 9: 20})
+        probation, t = Probation(7, 10.5, present_at_loss={8, 9}), 10.5
+        ctx.note_frame(t)  # the frame it was named in
+
+        def three(t, seen_8=True, neck_height_m=1.45):
+            return [person(7, 2.5, neck_height_m=neck_height_m, last_seen_s=t),
+                    person(8, 4.0, observed=seen_8, last_seen_s=t if seen_8 else 10.5),
+                    person(9, 5.5, last_seen_s=t)]  # fmt: skip
+
+        scores = {7: 0.9, 8: -0.5, 9: -0.5}, {7: 0.9}
+        while t < 10.5 + CFG.identity_risk_unseen_s + 0.2:  # 8 coasts, else a stall
+            t += CFG.identity_risk_unseen_s + 0.2 if stall else 0.1
+            assert step(probation, ctx, frame(three(t, seen_8=stall), t, *scores)) is probation
+        t += 0.1
+        taller = frame(three(t, neck_height_m=1.65), t, *scores)
+        state = step(probation, ctx, taller)  # the stature fails: back to re-identification
+        assert isinstance(state, Reidentification)
+        return state.present_at_loss
+
+    assert run(stall=False) == {8, 9}
+    assert run(stall=True) == set()
 
 
 def test_the_evidence_needed_rises_the_longer_the_target_is_gone():
@@ -653,6 +798,19 @@ def test_reidentification_needs_a_lead_and_an_unbroken_streak():
     assert state.streaks == {5: 0, 6: 0}
     nxt = reid_frames(state, ctx, twins, 10.7, {5: 0.8, 6: 0.5}, sims)[-1]
     assert isinstance(nxt, Probation) and nxt.target_id == 5
+
+
+def test_reidentification_leads_nobody_seen_without_a_crop():
+    """A lead over the others seen is over every one of them: a person seen without a
+    crop (cut by the image's edge, too small) was compared with nobody, so the frame is
+    no lead, as re-id alone leaves it undecided."""
+    ctx = tracked_context(stamp_s=10.0, observed={7: 5, 8: 5})
+    pair = [person(7, 2.5), person(8, 3.5)]
+    scores = {7: 0.9, 8: 0.2}, {7: 0.9, 8: 0.5}
+    state = Reidentification()
+    for k in range(3 * CFG.reid_frames):
+        assert state.update(ctx, uncropped(frame(pair, 10.1 + 0.1 * k, *scores), 8)) is state
+    assert isinstance(reid_frames(state, ctx, pair, 10.8, *scores)[-1], Probation)
 
 
 @pytest.mark.parametrize("state", [Initial(), InitialTraining(3), Tracking(3), Reidentification()])
@@ -845,4 +1003,25 @@ def test_probation_ends_only_after_enough_frames_whose_stature_was_judged():
     for _ in range(CFG.min_target_observations):
         t += 0.1
         state = state.update(ctx, frame([person(7, 2.5)], t, {7: 0.9}, {7: 0.9}))
+    assert type(state) is Tracking and state.target_id == 7
+
+
+def test_probation_starts_its_time_and_count_again_after_a_gap_between_frames():
+    """A stall of perception may hand the candidate's track to someone else: the frames
+    and the time before it prove nothing, so one frame after it ends no probation."""
+    ctx = tracked_context(stamp_s=10.0, observed={7: 20})
+    state, t = Probation(7, since_s=10.5), 10.5
+    for _ in range(CFG.min_target_observations - 1):
+        t += 0.1
+        state = step(state, ctx, frame([person(7, 2.5, last_seen_s=t)], t, {7: 0.9}, {7: 0.9}))
+    t += CFG.reid_probation_s  # no frame meanwhile
+    assert step(state, ctx, frame([person(7, 2.5, last_seen_s=t)], t, {7: 0.9}, {7: 0.9})) is state
+    assert state.observed == 1 and state.since_s == t
+    stall_s = t
+    while t < stall_s + CFG.reid_probation_s - 0.05:
+        t += 0.1
+        state = step(state, ctx, frame([person(7, 2.5, last_seen_s=t)], t, {7: 0.9}, {7: 0.9}))
+        assert isinstance(state, Probation)
+    t += 0.1
+    state = step(state, ctx, frame([person(7, 2.5, last_seen_s=t)], t, {7: 0.9}, {7: 0.9}))
     assert type(state) is Tracking and state.target_id == 7

@@ -37,6 +37,14 @@ class FrameTracks:
     appearances: dict[int, Appearance] = field(default_factory=dict)
     confidences: dict[int, float] = field(default_factory=dict)  # empty until looked at
 
+    def unscored_beside(self, track_id: int) -> bool:
+        """Whether another track seen in the frame has no confidence (no crop: too small,
+        cut by the image's edge): nobody can be said to lead a person not compared."""
+        return any(
+            i != track_id and t.observation is not None and i not in self.confidences
+            for i, t in self.by_id.items()
+        )
+
 
 class IdentityContext:
     """The appearance model, the selected id, and what is known of the target's past."""
@@ -216,14 +224,12 @@ class IdentityContext:
     def note_seen_apart(self, target_id: int, frame: FrameTracks) -> None:
         """On a frame that confirmed the target's identity: two people seen at once are
         two people, where the tracker cannot be confusing them, so each other track seen
-        is never the target come back (`seen_apart`)."""
+        and scored is never the target come back (`seen_apart`). One seen without a crop
+        was compared with nobody: after a swap it may carry the target."""
         if frame.by_id[target_id].observation is None:
             return
         swappable = self.swappable(target_id, frame)
-        self.seen_apart |= {
-            i for i, t in frame.by_id.items()
-            if i != target_id and t.observation is not None and i not in swappable
-        }  # fmt: skip
+        self.seen_apart |= {i for i in frame.confidences if i != target_id} - swappable
 
     def swappable(self, target_id: int, frame: FrameTracks) -> set[int]:
         """The tracks the tracker could be confusing with the target this frame: within
@@ -280,8 +286,9 @@ class IdentityContext:
     def may_learn(self, target_id: int, frame: FrameTracks, confidence: float) -> bool:
         """Whether a frame that keeps the target is learnt: while its identity is at risk
         (`identity_trusted` false) only where no other track seen in the frame scores
-        higher (`learn_needs_lead_at_risk`: "with_reid", the default, beside a re-id
-        cue only; "always"; "never"). After a crossing or a gap the tracker may carry a
+        higher, nor goes unscored (`FrameTracks.unscored_beside`), under
+        `learn_needs_lead_at_risk` ("with_reid", the default, beside a re-id cue only;
+        "always"; "never"). After a crossing or a gap the tracker may carry a
         stranger on the target's track, the target on another (or on a new one);
         learning that frame teaches the model the stranger, and the next frames trust
         it. The boosted classifier alone scores others too unsteadily to be outscored
@@ -294,6 +301,8 @@ class IdentityContext:
         if self.identity_trusted(frame.stamp_s):
             return True
         self.look(frame)  # embeds those left out, and scores everyone again alike
+        if frame.unscored_beside(target_id):
+            return False
         confidence = frame.confidences.get(target_id, confidence)
         return all(c < confidence for i, c in frame.confidences.items() if i != target_id)
 

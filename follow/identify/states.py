@@ -72,7 +72,9 @@ class InitialTraining(State):
     learn the other person as the target from its first frames); someone coming near
     drops what was learnt before (the track may carry the other person after, and a model
     of two people takes either for the target) and learning starts again once they are
-    gone; losing its track before then starts over, from the frame it is lost in."""
+    gone; so does its track going unseen, or no frame coming, for longer than
+    `identity_risk_unseen_s` (the tracker may have moved the track onto someone else);
+    losing its track before then starts over, from the frame it is lost in."""
 
     status = TargetStatus.INITIAL_TRAINING
 
@@ -91,6 +93,13 @@ class InitialTraining(State):
                 log.info("target track %d lost during initial training", self.target_id)
             context.forget()
             return Initial().update(context, frame)
+        # Since the frame the target was last seen in, a stall of perception included.
+        unseen_s = frame.stamp_s - context.last_target_seen_s
+        if unseen_s > context.config.identity_risk_unseen_s and self.frames_learnt:
+            log.info("target track %d unseen for %.1f s: learning it starts again (%d "
+                     "frame(s) learnt before are dropped)", self.target_id, unseen_s,
+                     self.frames_learnt)  # fmt: skip
+            self._drop_learnt(context)
         context.look(frame, only=self.target_id)
         crowded = bool(context.swappable(self.target_id, frame))
         if crowded and not self.crowded:  # said once; again (someone at the limit) quietly
@@ -102,8 +111,7 @@ class InitialTraining(State):
                     "dropped)" if self.frames_learnt else "")  # fmt: skip
             self.waited = True
         if crowded and self.frames_learnt:
-            context.forget()  # the model, the stature and who was seen beside it
-            self.frames_learnt = 0
+            self._drop_learnt(context)
         self.crowded = crowded
         learnt = (
             self.target_id in frame.appearances
@@ -120,6 +128,11 @@ class InitialTraining(State):
                 log.info("target track %d learnt: tracking", self.target_id)
                 return Tracking(self.target_id)
         return self
+
+    def _drop_learnt(self, context: IdentityContext) -> None:
+        """Forget the frames learnt so far: the track may carry someone else now."""
+        context.forget()  # the model, the stature and who was seen beside it
+        self.frames_learnt = 0
 
 
 class Tracking(State):
@@ -208,20 +221,23 @@ class Reidentification(State):
     was lost in, of `_placed` and `_reid_decisive`; the evidence needed rises the longer
     the target is gone.
     A frame in which a track is unseen ends its run, and so does a gap between frames
-    longer than `identity_risk_unseen_s` for every track (`IdentityContext.note_frame`)."""
+    longer than `identity_risk_unseen_s` for every track (`IdentityContext.note_frame`);
+    such a gap also ends every track's being in view at the loss."""
 
     status = TargetStatus.REIDENTIFICATION
 
     def __init__(self, present_at_loss: set[int] | None = None):
         self.streaks: dict[int, int] = {}  # track id -> consecutive frames passed
         # The tracks seen in the frame the target was lost in (None: those of the first
-        # frame; a track coasting unseen then may be carried onto anyone later); a
-        # failed probation hands them back, so a newcomer never becomes one.
+        # frame; a track coasting unseen then may be carried onto anyone later), none
+        # after a stall (`_still_present`); a failed probation hands them back, so a
+        # newcomer never becomes one.
         self.present_at_loss = present_at_loss
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self.present_at_loss is None:
             self.present_at_loss = _seen(frame)
+        self.present_at_loss = _still_present(context, frame, self.present_at_loss)
         self.streaks = {k: v for k, v in self.streaks.items() if k in frame.by_id}
         if context.frame_gap_s > context.config.identity_risk_unseen_s:
             # No frame for as long (perception stalled): every track went unseen, and
@@ -339,9 +355,12 @@ class Reidentification(State):
     ) -> bool:
         """The rest, for a track placed where the classifier agrees: its fused
         confidence reaches the required one and leads every other seen track's by
-        `reid_margin` (a lead over nobody is no evidence); with a re-id cue its
+        `reid_margin` (a lead over nobody is no evidence, nor over a person seen without
+        a crop, who was compared with nobody); with a re-id cue its
         similarity to the gallery reaches the required one (`reid_accept_similarity`
         rising to `reid_strict_similarity` at `reid_strict_after_s`)."""
+        if frame.unscored_beside(track_id):
+            return False
         confidences = frame.confidences
         confidence = confidences[track_id]
         runner_up = max((c for i, c in confidences.items() if i != track_id), default=-1.0)
@@ -368,7 +387,9 @@ class Probation(Tracking):
     be named again; a low confidence ends it too (a handover counts as an identity risk).
     A frame in which another person covers the candidate judges no stature either way
     (as tracking takes none from it): its skeleton may carry that person's feet, and one
-    such frame must not reject the real target for good. Whatever ends the probation
+    such frame must not reject the real target for good. A gap between frames longer
+    than `identity_risk_unseen_s` starts its time and its count again: the tracker may
+    have moved the track onto someone else in it. Whatever ends the probation
     early (that, a lost track, a doubted identity) also undoes what the candidate taught
     the model and where it walked, so a wrong pick leaves nothing behind. Then it is the
     target: tracking."""
@@ -386,6 +407,10 @@ class Probation(Tracking):
             # A handover is itself a moment the identity may be wrong: learning needs a
             # lead as after a crossing (and `_excused_as_turn` never excuses it).
             context.identity_risk_s = self.since_s
+        if context.frame_gap_s > context.config.identity_risk_unseen_s:
+            self.observed, self.since_s = 0, frame.stamp_s  # what came before proves nothing
+        if self.present_at_loss is not None:
+            self.present_at_loss = _still_present(context, frame, self.present_at_loss)
         track = frame.by_id.get(self.target_id)
         judged = track is not None and self._stature_judged(context, frame)
         if judged and not context.same_height(track):
@@ -425,3 +450,13 @@ class Probation(Tracking):
 def _seen(frame: FrameTracks) -> set[int]:
     """The tracks observed in the frame (not coasting on the tracker's prediction)."""
     return {i for i, track in frame.by_id.items() if track.observation is not None}
+
+
+def _still_present(context: IdentityContext, frame: FrameTracks, present: set[int]) -> set[int]:
+    """`present`, or nobody after a gap between frames longer than `identity_risk_unseen_s`
+    (perception stalled): every track went unseen at once, and the tracker may have
+    carried any of them onto anyone. A track that coasts unseen on its own keeps its
+    place: the tracker retires it after `max_unseen_s` (ids are never reused), and the
+    occlusions it bridges are what the re-id-decisive path is for (cut at 0.5 s unseen,
+    PETS blur lost its target 1 for good after an occlusion of 0.86 s: CT 0.87 -> 0.22)."""
+    return set() if context.frame_gap_s > context.config.identity_risk_unseen_s else present
