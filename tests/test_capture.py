@@ -117,18 +117,22 @@ def test_a_jpeg_cut_short_in_a_folder_is_skipped_not_used_half_decoded(tmp_path,
     assert len(frames) == 2 and "b.jpg: a JPEG cut short" in caplog.text
 
 
-class _UnpluggedCamera:
-    """A camera that delivers `frames` images (each its own, as a sensor's noise makes
-    them), then fails every read (unplugged)."""
-
-    def __init__(self, frames: int):
-        self.frames = frames
+class _LiveCamera30Fps:
+    """What every fake live camera here answers: open, 30 fps."""
 
     def isOpened(self):
         return True
 
     def get(self, prop):
         return 30.0
+
+
+class _UnpluggedCamera(_LiveCamera30Fps):
+    """A camera that delivers `frames` images (each its own, as a sensor's noise makes
+    them), then fails every read (unplugged)."""
+
+    def __init__(self, frames: int):
+        self.frames = frames
 
     def read(self):
         if self.frames == 0:
@@ -151,18 +155,12 @@ def test_a_camera_that_stops_delivering_frames_is_an_error_not_the_end_of_the_ru
         next(frames)
 
 
-class _FrozenCamera:
+class _FrozenCamera(_LiveCamera30Fps):
     """A live camera whose driver hands back its last image again for `frozen` reads
     after the first two images, then delivers new ones."""
 
     def __init__(self, frozen: int):
         self.reads, self.frozen = 0, frozen
-
-    def isOpened(self):
-        return True
-
-    def get(self, prop):
-        return 30.0
 
     def read(self):
         self.reads += 1
@@ -184,7 +182,7 @@ def test_a_frozen_camera_repeating_its_last_image_delivers_nothing_new(monkeypat
     assert "the same image again" in caplog.text
 
 
-class _QueueingCamera:
+class _QueueingCamera(_LiveCamera30Fps):
     """A 30 fps camera on a fake clock whose driver queues `queued` frames while nobody
     reads: a grab of a queued frame returns at once, a grab of a new one waits for the
     sensor (a frame period). Each image carries the time it was captured, in ms."""
@@ -192,12 +190,6 @@ class _QueueingCamera:
     def __init__(self, clock, queued: int):
         self.clock, self.queued = clock, queued
         self._grabbed = None
-
-    def isOpened(self):
-        return True
-
-    def get(self, prop):
-        return 30.0
 
     def grab(self):
         if self.queued:  # captured when the pause began
@@ -649,19 +641,13 @@ def test_a_file_frame_rate_at_the_ends_of_the_plausible_range_is_kept(
     assert "not trusted" not in caplog.text
 
 
-class _RingFrozenCamera:
+class _RingFrozenCamera(_LiveCamera30Fps):
     """A live camera whose driver, after `fresh` images, hands back its ring of stale
     buffers in turn (fresh - 1, fresh, fresh - 1, ...) for `frozen` reads, then new
     images again."""
 
     def __init__(self, fresh: int, frozen: int):
         self.fresh, self.frozen, self.reads = fresh, frozen, 0
-
-    def isOpened(self):
-        return True
-
-    def get(self, prop):
-        return 30.0
 
     def read(self):
         self.reads += 1
