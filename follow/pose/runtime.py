@@ -165,7 +165,10 @@ class OrtBackend:
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")
         model = with_frame_input(model_path) if frame_input else str(model_path)
         self.session = ort.InferenceSession(model, options, providers=provider_entries(providers))
-        check_pose_signature(model_path, self.session.get_inputs()[0].shape,
+        shape = list(self.session.get_inputs()[0].shape)
+        if frame_input:  # the frame's NHWC, checked as the network's own NCHW
+            shape = [shape[0], shape[3], shape[1], shape[2]] if len(shape) == 4 else shape
+        check_pose_signature(model_path, shape,
                              [o.shape for o in self.session.get_outputs()])  # fmt: skip
         self.input_name = self.session.get_inputs()[0].name
         active = self.session.get_providers()
