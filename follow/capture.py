@@ -10,6 +10,7 @@ import os
 import re
 import time
 from collections.abc import Callable, Iterable, Iterator
+from decimal import Decimal
 from pathlib import Path
 
 import cv2
@@ -406,9 +407,11 @@ def _gstreamer_support() -> str:
 
 def _frame_order(path: Path) -> tuple:
     """Sort key of an image file in a folder: the numbers in its name compared as numbers,
-    so that frame_2 comes before frame_10 (as text it would come after frame_19)."""
-    parts = re.split(r"(\d+)", path.name)
-    return [int(p) if i % 2 else p for i, p in enumerate(parts)], path.name
+    so that frame_2 comes before frame_10 (as text it would come after frame_19), and a
+    number with a fraction (a time stamp, 1700000000.25.png) by its value: its fraction's
+    digits compared as a whole number put .5 after .25."""
+    parts = re.split(r"(\d+(?:\.\d+)?)", path.name)
+    return [Decimal(p) if i % 2 else p for i, p in enumerate(parts)], path.name
 
 
 def _truncated_jpeg(path: Path, data: bytes) -> bool:

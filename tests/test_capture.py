@@ -278,6 +278,16 @@ def test_folder_frames_numbered_without_leading_zeros_play_in_number_order(tmp_p
     assert [int(f.image[0, 0, 0]) // 10 for f in frames] == list(range(1, 13))
 
 
+def test_folder_frames_named_by_their_time_stamps_play_in_time_order(tmp_path):
+    """Names written as `f"{time.time()}.png"`: the fractions' digits compared as whole
+    numbers played .5 after .25, frames out of order without a word."""
+    stamps = [1700000000 + k / 4 for k in range(12)]  # .0, .25, .5, .75, ...
+    for k, stamp in enumerate(stamps):
+        cv2.imwrite(str(tmp_path / f"{stamp}.png"), np.full((20, 30, 3), k * 10, np.uint8))
+    frames = list(FrameSource(str(tmp_path), folder_fps=10.0))
+    assert [int(f.image[0, 0, 0]) // 10 for f in frames] == list(range(12))
+
+
 def test_a_camera_named_by_its_device_file_is_live_not_a_video_file(monkeypatch):
     # /dev/video0 or a /dev/v4l/by-id/... link: a camera, whose frames are stamped as they
     # come and whose failing reads are a lost camera, not the end of a file.
