@@ -200,8 +200,11 @@ class PeopleTracker:
         depths = [self._depth_m(t.filter.mean, robot) for t in self._tracks]
         no_noise = np.zeros((4, 4))
         expected = [t.filter.expected_measurement(model, no_noise, True) for t in self._tracks]
-        floor_ok = self._floor_gate(obs, robot)
-        placed = self._placed_for_a_neck(robot)
+        # each track's predicted place and its spread, for both gates on the floor
+        positions = np.array([t.filter.mean[:2] for t in self._tracks]).reshape(-1, 2)
+        spreads = np.array([_position_std_m(t) for t in self._tracks])
+        floor_ok = self._floor_gate(obs, robot, positions, spreads)
+        placed = self._placed_for_a_neck(robot, positions, spreads)
         for i, o in enumerate(obs):
             if not o.has_ankle:
                 floor_ok[i] &= placed
@@ -273,9 +276,11 @@ class PeopleTracker:
         for track in self._tracks:
             track.filter.move_frame(rotation, offset)
 
-    def _floor_gate(self, obs: list[Observation], robot: Odometry) -> np.ndarray:
+    def _floor_gate(self, obs: list[Observation], robot: Odometry, positions: np.ndarray,
+                    spreads: np.ndarray) -> np.ndarray:  # fmt: skip
         """(observations, tracks): False where an observation's ground point (from its
-        ankles) lies too far from a track's predicted position for that track to take
+        ankles) lies too far from a track's predicted position (`positions`, with their
+        position std `spreads`) for that track to take
         it (`floor_gate_m`, `floor_gate_per_range`, 3 x the track's position std up to
         `floor_gate_max_spread_m`: an unseen track's std grows to over a metre before it
         is retired, and a gate that grew with it took a person 7 m off). The
@@ -287,8 +292,6 @@ class PeopleTracker:
         ok = np.ones((len(obs), len(self._tracks)), dtype=bool)
         if not self._tracks or not any(o.has_ankle for o in obs):
             return ok
-        positions = np.array([t.filter.mean[:2] for t in self._tracks])
-        spreads = np.array([_position_std_m(t) for t in self._tracks])
         for i, o in enumerate(obs):
             if not o.has_ankle:
                 continue
@@ -302,18 +305,15 @@ class PeopleTracker:
             ok[i] = distance <= limit
         return ok
 
-    def _placed_for_a_neck(self, robot: Odometry) -> np.ndarray:
-        """Per track: whether its position is known well enough for a neck alone to
-        update it (its std within `neck_only_max_position_std_m` +
+    def _placed_for_a_neck(self, robot: Odometry, positions: np.ndarray,
+                           spreads: np.ndarray) -> np.ndarray:  # fmt: skip
+        """Per track: whether its position (`positions`) is known well enough for a neck
+        alone to update it (its std, `spreads`, within `neck_only_max_position_std_m` +
         `max_position_std_per_range` x its range). A neck gives a bearing, and a range only
         where the camera looks down on it steeply: a track unseen long enough to have lost
         its place would be drawn along the bearing toward whoever shows a neck there."""
         cfg = self.config
-        if not self._tracks:
-            return np.ones(0, dtype=bool)
-        positions = np.array([t.filter.mean[:2] for t in self._tracks])
         ranges = np.hypot(positions[:, 0] - robot.x_m, positions[:, 1] - robot.y_m)
-        spreads = np.array([_position_std_m(t) for t in self._tracks])
         return spreads <= cfg.neck_only_max_position_std_m + cfg.max_position_std_per_range * ranges
 
     def _associate(
@@ -421,7 +421,7 @@ class PeopleTracker:
         xyh, P3 = init
         range_m = math.hypot(xyh[0], xyh[1])
         std_m = math.sqrt(max(np.linalg.eigvalsh(P3[:2, :2])[-1], 0.0))
-        if std_m > cfg.max_position_std_m + cfg.max_position_std_per_range * range_m:
+        if std_m > self._max_position_std_m(range_m):
             # `_retire` would delete it in this very update; started, its gate (wide as
             # its spread) would keep a nearer person in the same image column from
             # starting a track, frame after frame.
@@ -459,6 +459,12 @@ class PeopleTracker:
         cfg = self.config
         return cfg.max_unseen_s if track.confirmed else cfg.tentative_max_unseen_s
 
+    def _max_position_std_m(self, range_m: float) -> float:
+        """The position std past which a track at `range_m` is too uncertain to keep (far
+        people are always uncertain along the viewing ray)."""
+        cfg = self.config
+        return cfg.max_position_std_m + cfg.max_position_std_per_range * range_m
+
     def _retire(self, stamp_s: float, robot: Odometry, outside_view: set[int]) -> None:
         """Delete the tracks unseen for too long (shorter while predicted outside the
         image, `outside_view`), too uncertain, or broken."""
@@ -472,8 +478,8 @@ class PeopleTracker:
             mean = t.filter.mean
             range_m = math.hypot(mean[0] - robot.x_m, mean[1] - robot.y_m)
             pos_std = _position_std_m(t)
-            max_std = cfg.max_position_std_m + cfg.max_position_std_per_range * range_m
-            if unseen_s > limit_s or pos_std > max_std or not np.isfinite(mean).all():
+            if (unseen_s > limit_s or pos_std > self._max_position_std_m(range_m)
+                    or not np.isfinite(mean).all()):  # fmt: skip
                 log.debug(
                     "track %d retired (unseen %.2f s, std %.2f m)", t.track_id, unseen_s, pos_std
                 )
