@@ -365,32 +365,37 @@ class MavlinkBase:
         robot and reports odometry lost at every start, and sets off behind the target.
         A vehicle that does not stream telemetry is logged and left to the control loop,
         which keeps the robot still without odometry."""
-        # Real time, whatever clock stamps the telemetry (a test's may stand still).
-        deadline = time.monotonic() + self.config.odometry_timeout_s + ODOMETRY_WAIT_MARGIN_S
+        proven = self._wait_until(
+            lambda: self._boot_offset_proven and len(self._newest) == 2,
+            self.config.odometry_timeout_s + ODOMETRY_WAIT_MARGIN_S,
+        )
+        if not proven:
+            log.warning(
+                "no steady LOCAL_POSITION_NED and ATTITUDE from the vehicle yet: "
+                "the robot stays still until there is odometry"
+            )
+
+    def _wait_until(self, done: Callable[[], bool], wait_s: float) -> bool:
+        """Wait until `done()` (called under the lock) holds, `wait_s` of real time at
+        most, whatever clock stamps the telemetry (a test's may stand still); whether it
+        held."""
+        deadline = time.monotonic() + wait_s
         with self._lock:
-            while not (self._boot_offset_proven and len(self._newest) == 2):
+            while not done():
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
-                    log.warning(
-                        "no steady LOCAL_POSITION_NED and ATTITUDE from the vehicle yet: "
-                        "the robot stays still until there is odometry"
-                    )
-                    return
+                    return False
                 self._changed.wait(timeout=remaining)
+        return True
 
     def _await_heartbeat(self, done: Callable[[], bool], failure: Callable[[], str]) -> None:
         """Wait until the vehicle's heartbeat shows what an accepted command asked for
         (`done`, called under the lock), or raise MavlinkError(`failure()`). The wait has
         its own deadline, `connect_timeout_s` but at least HEARTBEAT_CONFIRM_S: lost ACKs
         before the command (retried) must not use it up and fail a change that was made."""
-        wait_s = max(self.config.connect_timeout_s, HEARTBEAT_CONFIRM_S)
-        deadline = time.monotonic() + wait_s  # real time, like `_wait_for_odometry`
-        with self._lock:
-            while not done():
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    raise MavlinkError(failure())
-                self._changed.wait(timeout=remaining)
+        if not self._wait_until(done, max(self.config.connect_timeout_s, HEARTBEAT_CONFIRM_S)):
+            with self._lock:
+                raise MavlinkError(failure())
 
     def _disarm_after_failed_connect(self) -> None:
         """A connect that fails after asking the vehicle to arm (its ACK or heartbeat
