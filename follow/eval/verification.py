@@ -162,8 +162,9 @@ def operating_figures(pos: np.ndarray, neg: np.ndarray) -> dict:
     out = {"auc": roc_auc(pos, neg), "positives": len(pos), "negatives": len(neg)}
     for far in FARS:
         bar = far_bar(neg, far)
-        out[f"tar_at_far_{far:g}"] = float((ranked_scores(pos) > bar).mean())
-        out[f"realised_far_at_far_{far:g}"] = float((ranked_scores(neg) > bar).mean())
+        # a NaN score (a crop without a cue) passes no bar, as it ranks in `far_bar`
+        out[f"tar_at_far_{far:g}"] = float((np.asarray(pos) > bar).mean())
+        out[f"realised_far_at_far_{far:g}"] = float((np.asarray(neg) > bar).mean())
     out["shipped_tar"] = float((pos >= 0).mean())
     out["shipped_far"] = float((neg >= 0).mean())
     return out
