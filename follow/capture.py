@@ -52,6 +52,12 @@ FRAME_RATE_GRID_TOLERANCE_S = 1e-3
 QUEUE_PAUSE_PERIODS = 2.0
 QUEUED_READ_MAX_PERIOD_FRACTION = 0.25
 MAX_QUEUED_FRAMES = MAX_DRIVER_BUFFERS
+# A file's announced frame count above its size in bytes over this is a damaged header, not a
+# count (no container stores a frame in fewer: AVI's chunk header alone is 8 bytes); it does
+# not bound a run of failed reads, which would be walked for hours (2**31 frames) at the end.
+MIN_FILE_BYTES_PER_FRAME = 8
+# A JPEG marker in entropy-coded data: 0xFF not followed by a stuffed 0x00 or a restart (RSTn).
+_JPEG_MARKER_IN_SCAN = re.compile(rb"\xff[^\x00\xd0-\xd7]")
 
 
 class SourceError(RuntimeError):
@@ -79,6 +85,8 @@ class FrameSource:
         self.frame_count: int | None = None
         self._cap: cv2.VideoCapture | None = None
         self._rate_trusted = True
+        self._count_trusted = False  # the frame count bounds a damaged stretch (a file's)
+        self._damage_seen = False  # a damaged stretch was skipped: the file is not whole
         if not str(spec).strip():
             raise SourceError("source is empty: give a video file, camera index, folder or bag")
         path = Path(spec)
@@ -115,6 +123,7 @@ class FrameSource:
         self.fps = self._frame_rate()
         count = self._cap.get(cv2.CAP_PROP_FRAME_COUNT) if not self.live else 0
         self.frame_count = int(count) if count and np.isfinite(count) and count > 0 else None
+        self._count_trusted = self.frame_count is not None and self._count_fits_file()
 
     def _frame_rate(self) -> float:
         """The capture's frame rate: FALLBACK_FPS where it reports none, or (a file) one
@@ -168,8 +177,10 @@ class FrameSource:
         frozen_said = False
         returned_s = None  # when the last frame was handed over (a live camera's)
         while True:
-            paused = self.live and returned_s is not None and (
-                time.monotonic() - returned_s > QUEUE_PAUSE_PERIODS / self.fps
+            paused = (
+                self.live
+                and returned_s is not None
+                and (time.monotonic() - returned_s > QUEUE_PAUSE_PERIODS / self.fps)
             )
             ok, image = self._read_past_queue() if paused else self._cap.read()
             if not ok:
@@ -181,14 +192,16 @@ class FrameSource:
                         f"source {self.spec}: the camera delivered no frame after {index} "
                         "frames (every read since failed: disconnected or stalled?)"
                     )
-                if self._frames_announced_after(position) and failures < MAX_UNDECODABLE_RUN:
+                if self._damaged_not_end(position, failures):
                     failures += 1  # a damaged frame, or the end of a file cut short
                     position += 1
                     continue
                 self._warn_if_short(position - failures)
+                self._warn_if_uncounted(position - failures, failures)
                 return
             if failures and not self.live:  # frames after them: they were damaged
                 first = position - failures
+                self._damage_seen = True
                 log.warning("source %s: frame%s %s cannot be decoded: skipped", self.spec,
                             "s" if failures > 1 else "",
                             first if failures == 1 else f"{first}-{position - 1}")  # fmt: skip
@@ -243,8 +256,31 @@ class FrameSource:
                 break
         if dropped:
             log.info("source %s: %d frame(s) queued in the camera's driver during a pause in "
-                     "reading dropped (older than they would be stamped)", self.spec, dropped)  # fmt: skip
+                     "reading dropped (older than they would be stamped)", self.spec,
+                     dropped)  # fmt: skip
         return self._cap.retrieve()
+
+    def _count_fits_file(self) -> bool:
+        """Whether the frame count a file's header announces could be stored in its bytes
+        (MIN_FILE_BYTES_PER_FRAME a frame): a count to walk a damaged stretch up to."""
+        try:
+            size = os.path.getsize(self.spec)
+        except OSError:
+            return False
+        return self.frame_count * MIN_FILE_BYTES_PER_FRAME <= size
+
+    def _damaged_not_end(self, position: int, failures: int) -> bool:
+        """Whether a file's failed read at `position`, after `failures` in a row, is a
+        damaged frame to skip rather than the end. A read fails alike at both, and OpenCV's
+        position counts decoded frames only: a trusted frame count is the end, and a damaged
+        stretch of any length before it is skipped (a read past a cut file's data fails in
+        microseconds). Without a count to trust, MAX_UNDECODABLE_RUN failed reads in a row
+        end the file (said by _warn_if_short, _warn_if_uncounted)."""
+        if self.frame_count is None:
+            return failures < MAX_UNDECODABLE_RUN
+        if not self._frames_announced_after(position):
+            return False
+        return self._count_trusted or failures < MAX_UNDECODABLE_RUN
 
     def _frames_announced_after(self, position: int) -> bool:
         """Whether a file's header announces frames beyond `position`: a read that fails
@@ -263,6 +299,19 @@ class FrameSource:
                 "source %s: the stream ended after %d of the %d frames its header announces "
                 "(truncated or corrupt file?)", self.spec, read, self.frame_count,
             )  # fmt: skip
+
+    def _warn_if_uncounted(self, read: int, failures: int) -> None:
+        """A file whose header announces no frame count ends after MAX_UNDECODABLE_RUN failed
+        reads in a row: its end, or a longer damaged stretch whose later frames are lost;
+        nothing tells the two apart, so the frame it ended at is said (a warning where the
+        file already had a damaged stretch, else information: a whole raw stream ends so)."""
+        if self.live or self.frame_count is not None:
+            return
+        log.log(logging.WARNING if self._damage_seen else logging.INFO,
+                "source %s: the file announces no frame count: it ended at frame %d, where "
+                "%d reads in a row failed; if a damaged stretch starts there, the file "
+                "ended early and its frames after it were not read", self.spec, read,
+                failures)  # fmt: skip
 
     def close(self) -> None:
         if self._cap is not None:
@@ -415,11 +464,41 @@ def _frame_order(path: Path) -> tuple:
 
 
 def _truncated_jpeg(path: Path, data: bytes) -> bool:
-    """Whether a .jpg/.jpeg file lacks the end-of-image marker a whole JPEG ends with
-    (padding after it allowed): a file cut short in copying or writing."""
+    """Whether a .jpg/.jpeg file lacks its image's end-of-image marker (FFD9): a file cut
+    short in copying or writing. Found by walking the JPEG's segments, since phones append
+    data after it (Samsung's trailer, Apple's further images); where they cannot be walked,
+    the file must end with it (padding after it allowed)."""
     if path.suffix.lower() not in (".jpg", ".jpeg"):
         return False
-    return not data.rstrip(b"\x00\r\n ").endswith(b"\xff\xd9")
+    ends = _jpeg_reaches_end(data)
+    if ends is None:
+        return not data.rstrip(b"\x00\r\n ").endswith(b"\xff\xd9")
+    return not ends
+
+
+def _jpeg_reaches_end(data: bytes) -> bool | None:
+    """Whether a JPEG's segments, walked from its start-of-image marker, reach the image's
+    end-of-image marker (False: the data ends first; None: no JPEG segments to walk). An
+    FFD9 searched for would be found in an EXIF thumbnail too, ahead of the image."""
+    if not data.startswith(b"\xff\xd8"):
+        return None
+    at = 2
+    while at + 1 < len(data):
+        if data[at] != 0xFF:
+            return None
+        marker = data[at + 1]
+        if marker == 0xD9:
+            return True
+        if marker == 0xFF or 0xD0 <= marker <= 0xD7 or marker == 0x01:
+            at += 1 if marker == 0xFF else 2  # a fill byte, or a marker without a segment
+            continue
+        at += 2 + int.from_bytes(data[at + 2 : at + 4], "big")
+        if marker == 0xDA:  # a scan: its entropy-coded data runs to the next marker
+            found = _JPEG_MARKER_IN_SCAN.search(data, at)
+            if found is None:
+                return False
+            at = found.start()
+    return False
 
 
 def open_source(

@@ -20,9 +20,10 @@ from pathlib import Path
 MAX_CAMERA_INDEX = 2**31 - 1
 
 
-# A video file's damaged frames, read alike by `follow run` and `follow-calib`: a failed
-# read before the frame count the file's header announces is a damaged frame, skipped,
-# up to this many in a row (then the file counts as cut short); containers may count a
+# A video file's damaged frames: a failed read before the frame count the file's header
+# announces is a damaged frame, skipped. `follow run` skips any number of them before a
+# count that fits the file, and this many in a row where there is no such count (then the
+# file counts as ended); `follow-calib` skips this many in a row. Containers may count a
 # frame more than they decode, so a file this much short ends without a warning.
 MAX_UNDECODABLE_RUN = 30
 EARLY_END_TOLERANCE_FRAMES = 1

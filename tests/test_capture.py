@@ -340,9 +340,7 @@ class _ScriptedCapture:
         pass
 
 
-def test_single_channel_frames_of_a_pipeline_are_converted_to_bgr_not_skipped(
-    monkeypatch, caplog
-):
+def test_single_channel_frames_of_a_pipeline_are_converted_to_bgr_not_skipped(monkeypatch, caplog):
     # e.g. "... ! video/x-raw,format=GRAY8 ! appsink" or a mono USB camera: OpenCV hands
     # over 2-D frames, as a bag's mono8 images are, and they are used as grey BGR frames.
     grey = [np.full((24, 32), 40 * i, np.uint8) for i in range(3)]
@@ -370,7 +368,8 @@ def test_a_single_channel_video_file_is_read_as_bgr_and_odd_frames_still_skipped
     monkeypatch.setattr(cv2, "VideoCapture", lambda *a: _ScriptedCapture(images))
     frames = list(FrameSource(str(path)))
     assert [(f.image.shape, int(f.image[0, 0, 1])) for f in frames] == [
-        ((24, 32, 3), 10), ((24, 32, 3), 30)
+        ((24, 32, 3), 10),
+        ((24, 32, 3), 30),
     ]
     assert caplog.text.count("skipping frame") == 4
 
