@@ -23,7 +23,8 @@ from follow.pose.preprocess import (
     prepare_frame,
     prepare_input,
 )
-from follow.pose.runtime import create_backend, runs_on_gpu
+from follow.pose.runtime import PoseBackend, create_backend, runs_on_gpu
+from follow.pose.size_cache import RecentlyUsed
 from follow.pose.stages import STAGE_CHOICES, initial_stage_file
 from follow.types import Skeleton
 
@@ -182,6 +183,22 @@ def _advise_on_int8_without_dot_product(model_path: Path, backend_name: str) -> 
                     '[pose] precision = "fp32" (or "auto", which runs it on such a CPU; docs/pose.md)')  # fmt: skip
 
 
+def network_and_backend(config: PoseConfig, model_path: Path | None = None
+                        ) -> tuple[Path, PoseBackend]:  # fmt: skip
+    """The network file (`model_file_for`) and the back-end that runs it. Where `auto`
+    chose a GPU that then did not start (runtime.create_backend ran the CPU's runtime),
+    the file is chosen again for the CPU, as on a machine without a GPU: INT8 where made,
+    not the GPU's FP32."""
+    on_gpu = runs_on_gpu(config.provider)
+    path = model_file_for(config, model_path)
+    backend = create_backend(config.provider, path, config.cpu_threads)
+    if on_gpu and not runs_on_gpu(config.provider):
+        cpu_path = model_file_for(config, model_path)
+        if cpu_path != path:
+            path, backend = cpu_path, create_backend(config.provider, cpu_path, config.cpu_threads)
+    return path, backend
+
+
 class PoseDetector:
     """Lightweight OpenPose on onnxruntime (or OpenVINO), with our own decoding.
 
@@ -205,15 +222,14 @@ class PoseDetector:
                 f"pose input_height_px must be a positive multiple of {NETWORK_STRIDE_PX}, "
                 f"got {config.input_height_px}"
             )
-        self.model_path = model_file_for(config, model_path)
-        self.backend = create_backend(config.provider, self.model_path, config.cpu_threads)
+        self.model_path, self.backend = network_and_backend(config, model_path)
         self.params = decode_params(config)
         self.last_timing_ms: dict[str, float] = {}
         log.info("pose: running %s (sha256 %s) on %s", self.model_path,
                  models.sha256_of(self.model_path)[:16], self.backend.name)  # fmt: skip
         if config.precision != "int8_if_made":  # chosen for settings made with INT8
             _advise_on_int8_without_dot_product(self.model_path, self.backend.name)
-        self._input_buffers: dict[tuple, np.ndarray] = {}
+        self._input_buffers: RecentlyUsed = RecentlyUsed()  # per frame size and height
         self._frame_filter = FrameFilter.from_config(self.config)
         self.reset_input_sizing()
         if self.input_sizing is not None:

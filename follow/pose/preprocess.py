@@ -18,6 +18,13 @@ from follow.types import InvalidInput
 NETWORK_STRIDE_PX = 8
 # Padding colour, raw BGR. The network subtracts 128 internally, so 128 pads with zeros.
 PAD_VALUE = 128
+# The largest frame taken, px a side: 8K video (7680 x 4320, DCI 8192 x 4320) fits. A
+# larger array is no camera's (a mosaic, a panorama, a size mixed up), and its filtering,
+# resizing and network input would take gigabytes.
+MAX_FRAME_SIDE_PX = 8192
+# ... and at most this many times as wide as tall: the network input's width follows the
+# frame's (an 8192 x 8 strip would make a 368 x 376832 px input, 1.6 GB as floats).
+MAX_FRAME_ASPECT = 8
 
 
 @dataclass(frozen=True)
@@ -90,8 +97,15 @@ def check_frame(image_bgr: np.ndarray) -> None:
         raise InvalidInput(f"pose: frame must be HxWx3 BGR, got shape {image_bgr.shape}")
     if image_bgr.dtype != np.uint8:
         raise InvalidInput(f"pose: frame must be uint8, got dtype {image_bgr.dtype}")
-    if image_bgr.shape[0] < NETWORK_STRIDE_PX or image_bgr.shape[1] < NETWORK_STRIDE_PX:
-        raise InvalidInput(f"pose: frame too small ({image_bgr.shape[1]}x{image_bgr.shape[0]} px)")
+    height, width = image_bgr.shape[:2]
+    if height < NETWORK_STRIDE_PX or width < NETWORK_STRIDE_PX:
+        raise InvalidInput(f"pose: frame too small ({width}x{height} px)")
+    if max(width, height) > MAX_FRAME_SIDE_PX:
+        raise InvalidInput(f"pose: frame too large ({width}x{height} px; at most "
+                           f"{MAX_FRAME_SIDE_PX} px a side)")  # fmt: skip
+    if width > MAX_FRAME_ASPECT * height:
+        raise InvalidInput(f"pose: frame too wide ({width}x{height} px; at most "
+                           f"{MAX_FRAME_ASPECT} times as wide as tall)")  # fmt: skip
 
 
 def median_filtered(image_bgr: np.ndarray, radius_px: int) -> np.ndarray:
@@ -174,10 +188,11 @@ def prepare_input(
 ) -> tuple[np.ndarray, Letterbox]:
     """A float32 (1, 3, H, W) raw-BGR tensor for the network, and the plan to map back.
 
-    With `buffers` (one per frame size and input height, kept by the caller) the tensor is written into
-    the same array every frame instead of a new one; the caller must be done with the
-    previous tensor before the next call. `frame_filter` (a `FrameFilter`) filters the
-    frame first.
+    With `buffers` (one per frame size and input height, kept by the caller: a
+    `size_cache.RecentlyUsed` keeps the memory bounded where sizes vary) the tensor is
+    written into the same array every frame instead of a new one; the caller must be done
+    with the previous tensor before the next call. `frame_filter` (a `FrameFilter`)
+    filters the frame first.
     """
     resized, plan = _resized(image_bgr, input_height_px, frame_filter)
     width, height = plan.input_size

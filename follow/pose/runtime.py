@@ -3,7 +3,8 @@
 onnxruntime is the portable default (CPU everywhere, CUDA/TensorRT on GPU boards). The
 OpenVINO runtime is an optional fast CPU path; it also reads the official IR (.xml).
 A provider that is not available falls back to onnxruntime on the CPU with a warning
-that says what was asked for, what is missing and what runs instead.
+that says what was asked for, what is missing and what runs instead; `auto` checks that
+the GPU provider it chose runs the session, else runs the CPU's choice (OpenVINO).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from follow.models import ModelError
+from follow.pose.size_cache import RecentlyUsed
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +83,7 @@ def check_pose_signature(model_path: Path, input_shape: list, output_shapes: lis
     model_file` (the re-id one), or one made with a fixed size, otherwise fails on the
     first frame inside the runtime, naming neither. Shapes as the runtimes give them: a
     dimension that is not an int is free."""
+
     def fixed(dim) -> int | None:
         return dim if isinstance(dim, int) and dim > 0 else None
 
@@ -187,9 +190,10 @@ class OrtBackend:
 
 
 class OpenVinoBackend:
-    """OpenVINO runtime on the CPU; reads ONNX or IR, one compiled model per input shape;
-    with `frame_input` it takes the uint8 NHWC frame (OpenVINO's own pre-processing
-    converts it inside the compiled model)."""
+    """OpenVINO runtime on the CPU; reads ONNX or IR, one compiled model per input shape
+    (the most recently used `size_cache.SHAPES_KEPT` kept: 25-30 MiB each); with
+    `frame_input` it takes the uint8 NHWC frame (OpenVINO's own pre-processing converts
+    it inside the compiled model)."""
 
     def __init__(self, model_path: Path, cpu_threads: int = 0, frame_input: bool = False):
         import openvino as ov
@@ -209,7 +213,7 @@ class OpenVinoBackend:
         self._config = {"PERFORMANCE_HINT": "LATENCY"}
         if cpu_threads > 0:
             self._config["INFERENCE_NUM_THREADS"] = cpu_threads
-        self._compiled: dict[tuple[int, ...], object] = {}
+        self._compiled: RecentlyUsed = RecentlyUsed()
         self.name = "openvino:CPU"
         self.frame_input = frame_input
 
@@ -263,17 +267,23 @@ GPU_PROVIDERS = {
 }
 
 
+# The GPU providers `auto` found listed by onnxruntime but not starting in this process,
+# with why (`_started_gpu_backend`): `auto` chooses the CPU's runtime from then on.
+GPU_FAILURES: dict[str, str] = {}
+
+
 def _auto_gpu(available: list[str], is_ir: bool) -> str | None:
     """The GPU provider `auto` chooses here (TensorRT, else CUDA), or None."""
     for gpu in ("tensorrt", "cuda"):
-        if not is_ir and GPU_PROVIDERS[gpu][0] in available:
+        if not is_ir and GPU_PROVIDERS[gpu][0] in available and gpu not in GPU_FAILURES:
             return gpu
     return None
 
 
 def auto_provider(model_path: Path) -> str:
     """The provider `auto` runs `model_path` on here: TensorRT, else CUDA (not for an
-    OpenVINO IR), else OpenVINO where installed, else onnxruntime on the CPU."""
+    OpenVINO IR; not once found not to start, GPU_FAILURES), else OpenVINO where
+    installed, else onnxruntime on the CPU."""
     is_ir = Path(model_path).suffix == ".xml"
     return _auto_gpu(ort_available_providers(), is_ir) or (
         "openvino" if openvino_installed() else "cpu"
@@ -282,9 +292,10 @@ def auto_provider(model_path: Path) -> str:
 
 def runs_on_gpu(provider: str) -> bool:
     """Whether `provider` will put the network on a GPU here, as `create_backend` does:
-    `auto` with a GPU provider offered, or `cuda` / `tensorrt` with any of theirs
-    offered (TensorRT missing, its request runs on CUDA). Asked before the model file is
-    chosen, since the INT8 model is for CPUs (docs/pose.md: slower than FP32 on CUDA)."""
+    `auto` with a GPU provider offered (and not found not to start), or `cuda` /
+    `tensorrt` with any of theirs offered (TensorRT missing, its request runs on CUDA).
+    Asked before the model file is chosen, since the INT8 model is for CPUs (docs/pose.md:
+    slower than FP32 on CUDA)."""
     available = ort_available_providers()
     if provider == "auto":
         return _auto_gpu(available, is_ir=False) is not None
@@ -328,6 +339,11 @@ def _create_backend(provider: str, model_path: Path, cpu_threads: int) -> PoseBa
     available = ort_available_providers()
     if provider == "auto":
         provider = auto_provider(model_path)
+        while provider in GPU_PROVIDERS:  # listed; a broken install still lists it
+            backend = _started_gpu_backend(provider, model_path, cpu_threads)
+            if backend is not None:
+                return backend
+            provider = auto_provider(model_path)
         log.info("pose: provider 'auto' chose '%s'", provider)
     if provider == "openvino":
         if openvino_installed():
@@ -341,13 +357,45 @@ def _create_backend(provider: str, model_path: Path, cpu_threads: int) -> PoseBa
         present = [p for p in GPU_PROVIDERS[provider] if p in available]
         if present and not is_ir:
             return OrtBackend(model_path, present + ["CPUExecutionProvider"], cpu_threads)
-        _fallback_warning(provider, f"onnxruntime here has no {GPU_PROVIDERS[provider][0]}", available)
+        _fallback_warning(
+            provider, f"onnxruntime here has no {GPU_PROVIDERS[provider][0]}", available
+        )
     if is_ir:
         raise ValueError(
             f"pose model {model_path} is an OpenVINO IR; onnxruntime cannot read it "
             "(install openvino and use provider 'openvino', or give the ONNX file)"
         )
     return OrtBackend(model_path, ["CPUExecutionProvider"], cpu_threads)
+
+
+def _started_gpu_backend(gpu: str, model_path: Path, cpu_threads: int) -> OrtBackend | None:
+    """The onnxruntime session `auto` chose `gpu` for, or None where it does not run on
+    the GPU. onnxruntime lists a provider whose libraries are missing (no libcudart, a
+    driver of another CUDA) and then runs the session on its CPU provider, FP32: slower
+    than the CPU's own choice (OpenVINO, INT8 where made). Such a provider is warned of
+    and recorded in GPU_FAILURES, and `auto` goes on as without it."""
+    wanted = GPU_PROVIDERS[gpu]
+    try:
+        backend = OrtBackend(model_path, wanted + ["CPUExecutionProvider"], cpu_threads)
+    except ModelError:
+        raise  # the file is no pose network: no GPU changes that
+    except Exception as exc:  # a provider that cannot start may raise instead
+        failed, reason = [gpu], f"the session failed: {type(exc).__name__}: {_last_line(exc)}"
+    else:
+        active = backend.session.get_providers()
+        if any(p in wanted for p in active):
+            return backend
+        failed = [g for g, names in GPU_PROVIDERS.items() if set(names) <= set(wanted)]
+        reason = f"the session runs on {', '.join(active)} only"
+    GPU_FAILURES.update(dict.fromkeys(failed, reason))
+    log.warning(
+        "pose: provider 'auto': onnxruntime lists %s, but it does not start here (%s; "
+        "missing CUDA libraries or a driver mismatch?); running what a machine without a "
+        "GPU runs instead",
+        wanted[0],
+        reason,
+    )
+    return None
 
 
 def _fallback_warning(provider: str, reason: str, available: list[str]) -> None:
