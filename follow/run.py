@@ -35,7 +35,7 @@ from follow.person_in_view import log_person_in_view
 from follow.pipeline import FrameResult, Perception, build_runner, run_offline
 from follow.render import annotate, top_down
 from follow.runlog import RunLogWriter, read_run_log
-from follow.shutdown import ShutdownSignals
+from follow.shutdown import ShutdownSignals, stop_within
 from follow.types import Frame, Odometry, VelocityCommand
 
 log = logging.getLogger(__name__)
@@ -135,6 +135,10 @@ def camera_for_frames(camera: CameraModel, width: int, height: int) -> CameraMod
 # How long the log waits for the control loop's command from a frame (it comes within a
 # millisecond of the frame's result; longer only when the loop is starved).
 COMMAND_WAIT_S = 0.25
+# How long `follow run` waits for the base to close. MavlinkBase's own waits add up to
+# 3.5 s at most (0.5 s on a write under way before each of its three zeros, 1 s on each
+# of its threads), but a write of its own may hang on a port that stopped draining.
+BASE_CLOSE_WAIT_S = 5.0
 MAX_VIDEO_REPEAT_S = 2.0  # the longest one processed frame stands in the video
 # ... and at most this many copies of it, whatever the rate (a bag's, a camera's: 10^6 fps
 # would write millions of copies of one frame)
@@ -431,6 +435,26 @@ def close_source(source, name: str, in_use: bool) -> None:
     source.close()
 
 
+def close_base(base) -> None:
+    """`base.close()` on a helper thread, waited for BASE_CLOSE_WAIT_S at most: a base
+    whose close hangs (a third-party driver stuck on its link) must not hang `follow
+    run`'s exit nor keep the outputs from closing; the control loop's last zero went out
+    before. An error that close raises in time is raised here, as from this thread."""
+    wait_s, failure = BASE_CLOSE_WAIT_S, []
+
+    def close() -> None:
+        try:
+            base.close()
+        except Exception as exc:
+            failure.append(exc)
+
+    if not stop_within(close, wait_s, name="base-close"):
+        log.warning("base %s has not closed after %g s: going on without it (the "
+                    "process's exit ends it)", type(base).__name__, wait_s)  # fmt: skip
+    elif failure:
+        raise failure[0]
+
+
 def base_connection(args, config: Config) -> Config:
     """The configuration with the base the command line asks for: `--mavlink` over the
     configuration's connection, `--no-base` none at all (a configuration that names the
@@ -501,7 +525,7 @@ def _run_source(args, config: Config, source, summary: RunSummary) -> dict:
             signals.cleaning_up = True  # a signal now is recorded, not raised in here
             try:
                 if base is not None:
-                    base.close()
+                    close_base(base)
             finally:
                 if outputs is not None:
                     outputs.close()
@@ -711,6 +735,8 @@ def replay(args, config: Config) -> dict:
                     "not replayed", args.replay, left, first_left, args.source)  # fmt: skip
     summary = {"frames": total, "target_agreement": round(agree / total, 4), "not_replayed": left}
     if not args.json:
-        print(f"replayed {total} frames: the same target in {100 * agree / total:.1f} %"
-              + (f"; {left} logged frames past the source's end not replayed" if left else ""))
+        print(
+            f"replayed {total} frames: the same target in {100 * agree / total:.1f} %"
+            + (f"; {left} logged frames past the source's end not replayed" if left else "")
+        )
     return summary

@@ -192,10 +192,11 @@ class ShutdownSignals:
 def stop_within(
     stop: Callable[[], None], wait_s: float = EMERGENCY_STOP_WAIT_S, name: str = "emergency-stop"
 ) -> bool:
-    """Run `stop` (a zero command on a second signal, a control loop's last zero) on a
-    helper thread named `name` and wait for it `wait_s` at most: a send that hangs must
-    not keep the caller, nor the process, alive. An error is logged (closing already, or
-    the link is gone). Returns whether `stop` returned in time."""
+    """Run `stop` (a zero command on a second signal, a control loop's last zero, `follow
+    run`'s close of the base) on a helper thread named `name` and wait for it `wait_s` at
+    most: a send or close that hangs must not keep the caller, nor the process, alive.
+    An error is logged (closing already, or the link is gone). Returns whether `stop`
+    returned in time."""
 
     def guarded() -> None:
         try:

@@ -67,8 +67,9 @@ def test_hand_computed_frames():
 
 def test_gcs_heartbeat_is_not_taken_for_the_vehicle(vehicle):
     gcs = mavlink.MAVLink(vehicle.rover.mav.file, srcSystem=255, srcComponent=190)
-    vehicle.extra.append(lambda: gcs.heartbeat_send(
-        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0))
+    vehicle.extra.append(
+        lambda: gcs.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    )
     vehicle.rover.silent = True  # only the GCS is heard
     with pytest.raises(MavlinkError, match="no vehicle heartbeat"):  # no other refusal
         MavlinkBase(MavlinkConfig(connection=vehicle.connection, **FAST))
@@ -535,8 +536,15 @@ class TcpRover:
                 nxt = time.monotonic() + 0.05
                 self.rover.tick()
 
-    def drop_client(self):
+    def drop_client(self, reset=False):
+        """Close the connection: with a FIN, or with a RST (`reset`: a peer that crashed
+        or a router that forgot the connection)."""
+        import socket
+        import struct
+
         c, self.client = self.client, None
+        if reset:
+            c.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
         c.close()
 
     def close(self):
@@ -546,12 +554,14 @@ class TcpRover:
             self.client.close()
 
 
-def test_tcp_link_recovers_after_the_peer_restarts(capfd):
+@pytest.mark.parametrize("reset", [False, True], ids=["closed", "reset"])
+def test_tcp_link_recovers_after_the_peer_restarts(capfd, reset):
+    # The receiver reopens the connection (the sender's writes only report their failures)
     v = TcpRover()
     try:
         with MavlinkBase(MavlinkConfig(connection=f"tcp:127.0.0.1:{v.port}", **FAST)) as base:
             assert base.state is LinkState.ACTIVE
-            v.drop_client()  # server still listening: a new connection would work
+            v.drop_client(reset)  # server still listening: a new connection would work
             cpu0 = time.process_time()
             time.sleep(3.0)
             cpu_s = time.process_time() - cpu0
@@ -757,8 +767,8 @@ def test_a_disarm_while_driving_is_reported(vehicle, caplog):
 
 
 class _RouteGone:
-    """A UDP socket whose sends fail while `gone` is set (the route to the vehicle gone:
-    ENETUNREACH); receiving goes on."""
+    """A UDP or TCP socket whose sends fail while `gone` is set (the route to the vehicle
+    gone: ENETUNREACH); receiving goes on."""
 
     def __init__(self, sock):
         self.sock, self.gone = sock, False
@@ -766,10 +776,17 @@ class _RouteGone:
     def __getattr__(self, name):
         return getattr(self.sock, name)
 
-    def sendto(self, *args):
+    def _check(self):
         if self.gone:
             raise OSError(101, "Network is unreachable")
+
+    def sendto(self, *args):
+        self._check()
         return self.sock.sendto(*args)
+
+    def send(self, *args):
+        self._check()
+        return self.sock.send(*args)
 
 
 def test_udp_write_failures_are_reported(vehicle, caplog):
@@ -784,6 +801,74 @@ def test_udp_write_failures_are_reported(vehicle, caplog):
         base.emergency_stop()
     base.close()
     assert "send failed while closing: [Errno 101]" in caplog.text
+
+
+def test_tcp_write_failures_are_reported(caplog):
+    """pymavlink's TCP write drops every socket error (and reconnects on a reset only):
+    as for UDP, nothing was logged or raised while no setpoint reached the vehicle."""
+    v = TcpRover()
+    try:
+        base = MavlinkBase(MavlinkConfig(connection=f"tcp:127.0.0.1:{v.port}", **FAST))
+        base._conn.port = port = _RouteGone(base._conn.port)
+        base.send(VelocityCommand(1.0, 0.0, time.monotonic()))
+        port.gone = True
+        assert wait_for(lambda: "MAVLink send failed: [Errno 101]" in caplog.text, 1.0)
+        assert "unreachable" in base.status()["last_error"]
+        with pytest.raises(MavlinkError, match="emergency stop: .*unreachable"):
+            base.emergency_stop()
+        base.close()
+        assert "send failed while closing: [Errno 101]" in caplog.text
+    finally:
+        v.close()
+
+
+class _TcpPort:
+    """A connected TCP socket that takes only `room` bytes of a send (its buffer nearly
+    full: a peer that stopped reading), or raises BlockingIOError when it has none."""
+
+    def __init__(self, room):
+        self.room, self.sent = room, []
+
+    def send(self, data, flags=0):
+        if self.room == 0:
+            raise BlockingIOError(11, "Resource temporarily unavailable")
+        self.sent.append(bytes(data[: self.room]))
+        return min(self.room, len(data))
+
+
+@pytest.mark.parametrize(
+    "port, error",
+    [
+        (None, r"tcp:host:5760 not connected \(reconnecting\)"),  # a reconnect that failed
+        (_TcpPort(room=3), r"write to tcp:host:5760 failed \(3 of 10 bytes\)"),
+        (_TcpPort(room=0), r"Resource temporarily unavailable"),
+    ],
+    ids=["no-socket", "short", "full"],
+)
+def test_tcp_writes_that_cannot_send_it_all_raise(port, error):
+    """pymavlink's TCP write returns quietly with no socket (its reconnect failed), and
+    ignores a short write or a full buffer (EAGAIN)."""
+    from pymavlink import mavutil
+
+    conn = object.__new__(mavutil.mavtcp)  # its write method, without a connection
+    conn.port, conn.address, conn.autoreconnect = port, "tcp:host:5760", False
+    base = object.__new__(MavlinkBase)
+    base._conn = conn
+    base._install_transport()
+    with pytest.raises(OSError, match=error):
+        conn.write(b"0123456789")
+
+
+def test_closing_a_tcp_link_left_without_a_socket_does_not_raise():
+    """pymavlink's TCP close calls the socket's close, and a reconnect that failed left
+    none: close() must still end quietly (its zeros went out, or failed, before)."""
+    from pymavlink import mavutil
+
+    conn = object.__new__(mavutil.mavtcp)
+    conn.port, conn.address, conn.autoreconnect = None, "tcp:host:5760", False
+    base = object.__new__(MavlinkBase)
+    base._conn = conn
+    base._close_link()  # AttributeError from pymavlink without the guard
 
 
 def test_serial_write_failures_raise():

@@ -39,6 +39,30 @@ def test_second_signal_stops_the_base_then_exits(monkeypatch):
     assert base.closed and base.commands[-1].is_stop
 
 
+def test_a_second_signal_with_a_base_whose_close_hangs_exits_in_time(monkeypatch):
+    """A base without emergency_stop gets a zero and close() from a helper thread; a
+    close that hangs (a third-party driver) holds the exit EMERGENCY_STOP_WAIT_S at most."""
+    exits, release = [], threading.Event()
+    monkeypatch.setattr(shutdown.os, "_exit", lambda code: exits.append(time.monotonic()))
+
+    class HangingClose(NullBase):
+        def close(self):
+            release.wait(5.0)
+
+    base = HangingClose()
+    try:
+        with shutdown.ShutdownSignals() as signals:
+            signals.base = base
+            with pytest.raises(KeyboardInterrupt):
+                signals._handle(signal.SIGTERM, None)
+            started = time.monotonic()
+            signals._handle(signal.SIGTERM, None)
+    finally:
+        release.set()
+    assert len(exits) == 1 and exits[0] - started < shutdown.EMERGENCY_STOP_WAIT_S + 0.5
+    assert base.commands[-1].is_stop
+
+
 def _native_call(seconds: float):
     """A native call that holds the main thread for about `seconds` without returning to
     Python (as the pose network does) and lets other threads run meanwhile."""

@@ -218,6 +218,48 @@ def test_sigterm_while_the_base_closes_does_not_escape_the_cleanup(tmp_path, mon
     assert frames >= 25, f"video not finalised: {frames} frames readable"
 
 
+def test_a_base_whose_close_hangs_does_not_hang_follow_run(tmp_path, monkeypatch, caplog):
+    """A third-party base whose close() never returns (a driver stuck on its link): the
+    run gives up on it after BASE_CLOSE_WAIT_S, with a warning naming it, and still
+    finalises the video and the log. It used to wait on the close for ever."""
+    release, closing = threading.Event(), []
+
+    class _StuckBase(_Base):
+        pass
+
+    def hang():
+        closing.append(time.monotonic())
+        release.wait(5.0)
+
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
+    monkeypatch.setattr(run_module, "open_base", lambda config: _StuckBase(close_hook=hang))
+    monkeypatch.setattr(run_module, "BASE_CLOSE_WAIT_S", 0.5)
+    try:
+        summary = run_module.main(_args(tmp_path))
+        returned_s = time.monotonic()
+    finally:
+        release.set()
+    assert closing and returned_s - closing[0] < 2.0, "follow run waited on the base's close"
+    assert "base _StuckBase has not closed after 0.5 s" in caplog.text
+    lines = (tmp_path / "run.jsonl").read_text().splitlines()
+    assert len(lines) - 1 == summary["frames"] > 0  # the log closed, every frame in it
+    assert _video_frames(tmp_path / "out.mp4") >= 25  # the video finalised
+
+
+def test_an_error_the_base_close_raises_is_still_the_run_error(tmp_path, monkeypatch):
+    """The close bounded in time still reports its failure (a serial port gone), after
+    the outputs were closed."""
+
+    def unplugged():
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
+    monkeypatch.setattr(run_module, "open_base", lambda config: _Base(close_hook=unplugged))
+    with pytest.raises(OSError, match="Input/output error"):
+        run_module.main(_args(tmp_path))
+    assert _video_frames(tmp_path / "out.mp4") >= 25
+
+
 def test_sigterm_while_outputs_drain_loses_no_logged_frame(tmp_path, monkeypatch):
     """The run ended by itself; SIGTERM arrives while the runner waits for the output
     thread to finish the frames still queued. Every processed frame must be logged,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import atexit
 import enum
+import errno
 import functools
 import logging
 import math
@@ -236,7 +237,16 @@ class MavlinkBase:
         for thread in (self._sender, self._receiver):
             if thread.is_alive() and thread is not threading.current_thread():
                 thread.join(timeout=1.0)
-        self._conn.close()
+        self._close_link()
+
+    def _close_link(self) -> None:
+        """The link's own close, which must not fail `close` after its zeros went out:
+        pymavlink's TCP close raises AttributeError while a failed reconnect left it no
+        socket, a port already gone raises OSError."""
+        try:
+            self._conn.close()
+        except (OSError, AttributeError) as exc:
+            log.info("MAVLink: the link was already closed (%s)", exc)
 
     def emergency_stop(self) -> None:
         """Zero setpoints now, from any thread, taking no lock that the interrupted main
@@ -449,12 +459,15 @@ class MavlinkBase:
 
     def _install_transport(self) -> None:
         """Writes that raise on failure, so that the sender's log, close()'s log and
-        emergency_stop()'s MavlinkError hear of it: pymavlink's UDP write drops OSError and
-        its serial write returns -1. And a `udpin` link that sends to the vehicle only:
-        pymavlink's sends to every address that ever sent it a datagram, kept for ever."""
+        emergency_stop()'s MavlinkError hear of it: pymavlink's UDP and TCP writes drop
+        OSError and its serial write returns -1. And a `udpin` link that sends to the
+        vehicle only: pymavlink's sends to every address that ever sent it a datagram,
+        kept for ever."""
         conn = self._conn
         if isinstance(conn, mavutil.mavudp):
             conn.recv, conn.write = self._udp_recv, self._udp_write
+        elif isinstance(conn, mavutil.mavtcp):
+            conn.write = self._tcp_write
         elif isinstance(conn, mavutil.mavserial):
             serial_write = conn.write
 
@@ -495,6 +508,21 @@ class MavlinkBase:
                 conn.resolved_destination_addr = conn.destination_addr[0]
             address = conn.destination_addr
         conn.port.sendto(buf, address)
+
+    def _tcp_write(self, buf) -> None:
+        """All of `buf` on the stream, or raise what the socket raises, a short write
+        too (pymavlink's write drops both and a message cut short garbles the next one
+        for the vehicle). A connection gone is not reopened here but by the receiver
+        (pymavlink's `autoreconnect` on EOF, a reset or no socket): a reconnect from
+        this thread too raced it, and held the send lock through seconds of retries.
+        MSG_DONTWAIT: the socket of a reconnect under way blocks until it connects."""
+        conn = self._conn
+        port = conn.port
+        if port is None:  # the last reconnect failed: the receiver tries again
+            raise OSError(errno.ENOTCONN, f"{conn.address} not connected (reconnecting)")
+        sent = port.send(buf, getattr(socket, "MSG_DONTWAIT", 0))
+        if sent < len(buf):
+            raise OSError(f"write to {conn.address} failed ({sent} of {len(buf)} bytes)")
 
     # -- receiving ------------------------------------------------------------------------
 
@@ -563,7 +591,10 @@ class MavlinkBase:
                 was_armed = self._armed_locked()
                 self._heartbeat, self._heartbeat_at_s = msg, now
                 self._on_heartbeat_locked(was_armed)
-            elif self._target is None or (msg.get_srcSystem(), msg.get_srcComponent()) != self._target:
+            elif (
+                self._target is None
+                or (msg.get_srcSystem(), msg.get_srcComponent()) != self._target
+            ):
                 return  # another vehicle, or another component of ours (a gimbal's ATTITUDE)
             elif kind == "COMMAND_ACK":
                 # MAVLink 2 names whom an ACK answers: one to a ground station's command
