@@ -156,7 +156,9 @@ def _strict_json(value):
     if isinstance(value, dict):
         return {k: _strict_json(v) for k, v in value.items()}
     if isinstance(value, list | tuple | np.ndarray):
-        return [_strict_json(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)]
+        return [
+            _strict_json(v) for v in (value.tolist() if isinstance(value, np.ndarray) else value)
+        ]
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):

@@ -60,14 +60,44 @@ def refuse_unwritable(output: Path, name: str, why: str = "") -> None:
                       "written in" + (f"; {why}" if why else ""))  # fmt: skip
 
 
+# The namespace attribute holding, during one parse, the options already given a value.
+_GIVEN = "_options_given"
+
+
+class StoreOnce(argparse._StoreAction):
+    """argparse's `store`, refusing an option given a value twice (`--config a.toml
+    --config b.toml`): argparse keeps the last silently, so an override a script appends,
+    or the value before it, would be dropped unseen. Positionals, flags (`-v -v` sets
+    the same) and the accumulating actions (append, extend, count) are not concerned."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if self.option_strings:
+            given = namespace.__dict__.setdefault(_GIVEN, set())
+            if self.dest in given:
+                raise argparse.ArgumentError(
+                    self, "given more than once; give it once (the last would silently win)"
+                )
+            given.add(self.dest)
+        super().__call__(parser, namespace, values, option_string)
+
+
 class ArgumentParser(argparse.ArgumentParser):
     """argparse's parser, whose refusal of a command line (a bad option value, an unknown
     option) also ends stdout with `{"error": ...}` when that command line asks for
-    `--json`, as every other error does (`print_error`); it still exits with 2."""
+    `--json`, as every other error does (`print_error`); it still exits with 2. An
+    option that takes a value is refused when given twice (`StoreOnce`), in the
+    commands' parsers too (made by `add_subparsers`)."""
 
     def __init__(self, *args, json_requested: bool = False, **kwargs):
         super().__init__(*args, **kwargs)
         self.json_requested = json_requested
+        self.register("action", None, StoreOnce)
+        self.register("action", "store", StoreOnce)
+
+    def parse_known_args(self, args=None, namespace=None):
+        namespace, extras = super().parse_known_args(args, namespace)
+        namespace.__dict__.pop(_GIVEN, None)  # bookkeeping of this parse only
+        return namespace, extras
 
     def add_subparsers(self, **kwargs):
         kwargs.setdefault("parser_class", _parser_class(self.json_requested))

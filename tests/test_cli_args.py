@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+from pathlib import Path
 
 import pytest
 
@@ -70,9 +71,13 @@ def test_the_types_take_what_is_in_range_and_refuse_the_rest():
 
 @pytest.mark.parametrize(
     "name, message",
-    [("plot.xyz", "a picture file is needed"), ("missing/plot.png", "does not exist"),
-     ("folder.png", "is a folder"), ("notes.txt/plot.png", "notes.txt is a file, not a folder"),
-     ("/proc/plot.png", "the folder /proc cannot be written")],  # fmt: skip
+    [
+        ("plot.xyz", "a picture file is needed"),
+        ("missing/plot.png", "does not exist"),
+        ("folder.png", "is a folder"),
+        ("notes.txt/plot.png", "notes.txt is a file, not a folder"),
+        ("/proc/plot.png", "the folder /proc cannot be written"),
+    ],
 )
 def test_a_plot_path_that_cannot_be_written_is_refused_before_the_evaluation(
     tmp_path, monkeypatch, capsys, name, message
@@ -205,3 +210,63 @@ def test_an_empty_option_is_refused_by_every_command(argv, option, capsys):
         main(argv)
     assert exit_.value.code == 2
     assert f"argument {option}: empty" in capsys.readouterr().err
+
+
+CALIB_BOARD = ["--pattern", "7x5", "--square-size-m", "0.03"]
+
+
+@pytest.mark.parametrize(
+    "tool, argv, option",
+    [("follow", ["run", "x.avi", "--camera", "c.yaml", "--config", "a.toml", "--config", "b.toml"],
+      "--config"),
+     ("follow", ["run", "x.avi", "--camera=c.yaml", "--target-id=1", "--target-id", "2"],
+      "--target-id"),
+     ("follow", ["eval", "tracking", "--frames", "5", "--frames=6"], "--frames"),
+     ("follow", ["eval", "pose", "--sizes", "256", "368", "--sizes", "256"], "--sizes"),
+     ("follow", ["models", "fetch", "--from", "a/", "--from=b/"], "--from"),
+     ("follow-calib", ["ground", "b.png", *CALIB_BOARD, "--camera", "c.yaml", "--camera=d.yaml"],
+      "--camera")],
+)  # fmt: skip
+def test_an_option_given_twice_is_refused_by_name(tool, argv, option, capsys):
+    """argparse kept the last value silently: `--config a.toml --config b.toml` ran b, and
+    an override a script appended (or the value before it) was dropped unseen."""
+    from calib import cli as calib_cli
+    from follow import cli as follow_cli
+
+    build_parser = follow_cli.build_parser if tool == "follow" else calib_cli.build_parser
+    with pytest.raises(SystemExit) as exit_:
+        build_parser(argv).parse_known_args(argv)
+    assert exit_.value.code == 2
+    assert f"argument {option}: given more than once" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "tool, argv, expected",
+    [("follow", ["-v", "-v", "run", "x.avi", "--camera", "c.yaml", "--no-base", "--no-base"],
+      {"verbose": True, "no_base": True}),  # a flag said twice says the same
+     ("follow", ["-vv", "eval", "pose", "--sizes", "256", "368", "--json", "--json"],
+      {"verbose": True, "sizes": [256, 368], "json": True}),  # a list takes its values
+     ("follow", ["models", "fetch", "ccf10", "reid"], {"names": ["ccf10", "reid"]}),
+     ("follow-calib", ["ground", "a.png", "b.png", *CALIB_BOARD, "--camera", "c.yaml"],
+      {"inputs": [Path("a.png"), Path("b.png")]})],
+)  # fmt: skip
+def test_repeatable_options_and_flags_still_repeat(tool, argv, expected):
+    from calib import cli as calib_cli
+    from follow import cli as follow_cli
+
+    build_parser = follow_cli.build_parser if tool == "follow" else calib_cli.build_parser
+    args, _ = build_parser(argv).parse_known_args(argv)
+    assert {key: getattr(args, key) for key in expected} == expected
+    assert not any(name.startswith("_options") for name in vars(args))  # no bookkeeping left
+
+
+def test_an_appended_option_still_accumulates():
+    """No command appends yet: the parser's own `append` and `count` are left alone."""
+    from follow.cli_args import ArgumentParser
+
+    parser = ArgumentParser(prog="t")
+    parser.add_argument("--tag", action="append")
+    parser.add_argument("-q", action="count", default=0)
+    parser.add_argument("--name")
+    args = parser.parse_args(["--tag", "a", "--tag=b", "-qq", "--name", "n"])
+    assert (args.tag, args.q, args.name) == (["a", "b"], 2, "n")

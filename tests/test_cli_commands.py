@@ -39,9 +39,7 @@ def test_json_output_is_strict_json_with_no_figure_as_null(monkeypatch, capsys):
                       "frames": 3}  # fmt: skip
 
 
-def test_a_command_named_after_its_groups_options_is_not_taken_for_the_group(
-    monkeypatch, capsys
-):
+def test_a_command_named_after_its_groups_options_is_not_taken_for_the_group(monkeypatch, capsys):
     """`follow bench --frames 5 pose`: the group's own command (`follow bench`) must not
     run in place of the one named (`follow bench pose`), its name silently dropped."""
     import follow.eval.bench as group_command
