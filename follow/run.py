@@ -315,31 +315,6 @@ class RunSummary:
         self.commands += 1
 
 
-class TargetIdWatch:
-    """`--target-id N`: warns once when no track N has appeared `warn_after_s` into the
-    run (a mistyped id otherwise leaves the robot waiting in silence)."""
-
-    def __init__(self, target_id: int | None, warn_after_s: float):
-        self.target_id = target_id
-        self.warn_after_s = warn_after_s
-        self._first_stamp_s: float | None = None
-        self.found = target_id is None
-        self.warned = False
-
-    def check(self, result: FrameResult) -> None:
-        if self.found or self.warned:
-            return
-        if any(t.track_id == self.target_id for t in result.tracks):
-            self.found = True
-            return
-        if self._first_stamp_s is None:
-            self._first_stamp_s = result.stamp_s
-        if result.stamp_s - self._first_stamp_s >= self.warn_after_s:
-            self.warned = True
-            log.warning("--target-id %d: no track with this id after %.1f s; nothing is followed",
-                        self.target_id, self.warn_after_s)  # fmt: skip
-
-
 def checked_frames(first: Frame, rest, source_name: str, yield_first: bool = True):
     """The frames of a stream, refusing one whose size differs from the first's (the
     camera model and the tracks belong to one image size). A live camera's first frame
@@ -496,12 +471,13 @@ def _run_source(args, config: Config, source, summary: RunSummary) -> dict:
     detect = source.recorded_skeletons if args.skeletons_topic else None
     perception = build_perception(config, camera, detect)
     if args.target_id is not None:
-        perception.identifier.select_target(args.target_id)
+        perception.identifier.select_target(
+            args.target_id, missing_warn_s=config.control.missing_target_warn_s
+        )
     header = {"source": args.source, "camera": str(args.camera), "config": args.config,
               "image_size": [width, height], "target_id": args.target_id,
               "image_topic": args.image_topic, "odom_topic": args.odom_topic,
               "camera_info_topic": args.camera_info_topic}  # fmt: skip
-    watch = TargetIdWatch(args.target_id, config.control.missing_target_warn_s)
     elapsed = None  # the frames' time: not the base's connection, nor the closing
     with ShutdownSignals() as signals:
         base = outputs = None
@@ -515,7 +491,7 @@ def _run_source(args, config: Config, source, summary: RunSummary) -> dict:
             started = time.perf_counter()
             try:
                 run_frames(args, config, source, frames,
-                           perception, camera, base, outputs, summary, watch,
+                           perception, camera, base, outputs, summary,
                            bag_odometry)  # fmt: skip
             finally:
                 elapsed = time.perf_counter() - started
@@ -559,7 +535,7 @@ def _run_source(args, config: Config, source, summary: RunSummary) -> dict:
 
 
 def run_frames(args, config, source, frames, perception, camera, base, outputs, summary,
-               watch, bag_odometry=None) -> None:  # fmt: skip
+               bag_odometry=None) -> None:  # fmt: skip
     """The loop: threads (a live source, `--realtime`, or any run driving a base: a file
     is then played at its own stamps, with the watchdog) or, for a file without a base,
     every frame in order."""
@@ -575,7 +551,6 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
 
         def on_result(frame, result):
             summary.add_result(result)
-            watch.check(result)
             # the outputs' own thread: waiting for the control loop holds up no frame
             command = runner.control.command_from(result, COMMAND_WAIT_S)
             outputs.write(frame, result, command)
@@ -603,7 +578,6 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
         if result is None:
             continue
         summary.add_result(result)
-        watch.check(result)
         outputs.write(frame, result, command)
         if args.max_frames and summary.frames >= args.max_frames:
             break

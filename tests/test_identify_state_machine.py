@@ -415,3 +415,27 @@ def test_select_target_refuses_what_is_no_track_id_by_name(identifier, track_id)
         identifier.select_target(track_id)
     identifier.select_target(np.int64(3))  # a numpy id from an array of track ids is fine
     assert identifier.context.requested_id == 3
+
+
+def test_a_selected_id_never_seen_is_reported_once_and_nobody_else_is_chosen(identifier, caplog):
+    """A mistyped id left a library or ROS caller waiting in silence."""
+    rng = np.random.default_rng(12)
+    people = [Person(1, 2.0, 180, RED), Person(2, 3.0, 460, BLUE)]
+    identifier.select_target(9)
+    with caplog.at_level(logging.WARNING, logger="follow"):
+        ests = run(identifier, people, 50, rng)  # 0 .. 4.9 s: not yet
+        assert not identifier.selected_id_missing and not caplog.records
+        ests += run(identifier, people, 30, rng)  # 5.0 s on
+    assert identifier.selected_id_missing
+    (warning,) = [r.getMessage() for r in caplog.records]
+    assert "selected track 9" in warning and "[1, 2]" in warning
+    assert all(e.status == TargetStatus.INITIAL and e.target_id is None for e in ests)
+
+    est = run(identifier, [*people, Person(9, 2.5, 320, GREEN)], 1, rng)[0]
+    assert not identifier.selected_id_missing
+    assert est.status == TargetStatus.INITIAL_TRAINING and est.target_id == 9
+    identifier.select_target(7)
+    run(identifier, people, 60, rng)
+    assert identifier.selected_id_missing
+    identifier.select_nearest()  # nothing selected: nothing missing
+    assert not identifier.selected_id_missing

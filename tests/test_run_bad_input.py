@@ -12,9 +12,8 @@ from follow import cli
 from follow.camera import CameraModel, CameraPose
 from follow.capture import FrameSource
 from follow.config import MavlinkConfig
-from follow.pipeline import FrameResult
-from follow.run import TargetIdWatch, checked_frames
-from follow.types import Frame, Odometry, TargetEstimate, TargetStatus, TrackState
+from follow.run import checked_frames
+from follow.types import Frame
 
 
 def _video(path, frames=30, size=(64, 48)):
@@ -137,26 +136,21 @@ def test_replay_log_out_of_order(tmp_path, capsys, monkeypatch, frames, message)
     assert f"--replay {log}: the log's {message}" in err
 
 
-def _result(stamp_s, track_ids):
-    tracks = [TrackState(i, np.array([3.0, 0.0, 0.0, 0.0, 1.45]), np.eye(5), True, stamp_s)
-              for i in track_ids]  # fmt: skip
-    estimate = TargetEstimate(TargetStatus.INITIAL, None, {}, stamp_s)
-    return FrameResult(0, stamp_s, Odometry.origin(stamp_s), [], tracks, estimate)
-
-
-def test_unknown_target_id_warns_once(caplog):
-    watch = TargetIdWatch(999, warn_after_s=2.0)
-    with caplog.at_level(logging.WARNING, logger="follow.run"):
-        for k in range(60):
-            watch.check(_result(k / 15, [1, 2]))
-    warnings = [r.getMessage() for r in caplog.records]
-    assert (
-        len(warnings) == 1 and "--target-id 999: no track with this id after 2.0 s" in warnings[0]
-    )
-    found = TargetIdWatch(2, warn_after_s=2.0)
-    for k in range(60):
-        found.check(_result(k / 15, [1, 2]))
-    assert found.found and not found.warned
+def test_a_target_id_never_seen_is_warned_of_after_the_configured_wait(tmp_path, caplog,
+                                                                        model_path):  # fmt: skip
+    """`follow run --target-id` leaves the watch to the identifier (one warning, not two),
+    after `[control] missing_target_warn_s` of the video's frames."""
+    model_path("pose/human-pose-estimation-0001.onnx")
+    config = tmp_path / "f.toml"
+    config.write_text("[control]\nmissing_target_warn_s = 1.0\n")
+    video = _video(tmp_path / "a.avi", frames=40)  # 4 s at 10 fps, nobody in it
+    argv = ["run", str(video), "--camera", str(_camera(tmp_path)), "--config", str(config),
+            "--no-base", "--target-id", "999", "--json"]  # fmt: skip
+    with caplog.at_level(logging.WARNING, logger="follow"):
+        assert cli.main(argv) == 0
+    said = [r.getMessage() for r in caplog.records if "999" in r.getMessage()]
+    assert len(said) == 1
+    assert "selected track 999: not among the tracks 1.0 s after its selection" in said[0]
 
 
 def test_stream_ending_early_warns(tmp_path, caplog):

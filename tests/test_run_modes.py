@@ -67,7 +67,7 @@ def _run(base, monkeypatch, offline_allowed):
     run_module.run_frames(
         SimpleNamespace(realtime=False, max_frames=None), Config(),
         SimpleNamespace(live=False, fps=10.0), iter(frames), _Perception(), CAMERA, base,
-        run_module.Outputs({}, 10.0), summary, run_module.TargetIdWatch(None, 5.0),
+        run_module.Outputs({}, 10.0), summary,
     )  # fmt: skip
     return summary
 
@@ -157,7 +157,6 @@ def test_a_live_camera_that_hangs_ends_follow_run_after_the_stall_limit():
                 SimpleNamespace(realtime=False, max_frames=None), config,
                 SimpleNamespace(live=True, fps=30.0), camera(), _Perception(), CAMERA, base,
                 run_module.Outputs({}, 30.0), run_module.RunSummary(),
-                run_module.TargetIdWatch(None, 5.0),
             )  # fmt: skip
     finally:
         released.set()

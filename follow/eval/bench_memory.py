@@ -38,7 +38,7 @@ def rss_mib() -> float:
 
 def measure(frames: int, warmup_frames: int, seed: int = 0, progress: bool = False) -> dict:
     from follow.control.base import NullBase
-    from follow.run import Outputs, RunSummary, TargetIdWatch, run_frames
+    from follow.run import Outputs, RunSummary, run_frames
     from follow.sim.demo import DEMO_CAMERA, SimFrame, scenario, sim_perception
     from follow.sim.world import World
 
@@ -74,9 +74,7 @@ def measure(frames: int, warmup_frames: int, seed: int = 0, progress: bool = Fal
     args = SimpleNamespace(realtime=False, max_frames=None)
     clip = SimpleNamespace(live=False, fps=DEMO_CAMERA.fps)
     outputs = Outputs({"source": "bench memory"}, DEMO_CAMERA.fps)  # writes nothing
-    watch = TargetIdWatch(None, config.control.missing_target_warn_s)
-    run_frames(args, config, clip, source(), perception, camera, NullBase(), outputs, summary,
-               watch)  # fmt: skip
+    run_frames(args, config, clip, source(), perception, camera, NullBase(), outputs, summary)
     bar.close()
     readings["end"] = rss_mib()
     growth = readings["end"] - readings["warmup"]

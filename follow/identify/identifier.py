@@ -37,6 +37,11 @@ from follow.types import InvalidInput, Odometry, TargetEstimate, TargetStatus, T
 
 log = logging.getLogger(__name__)
 
+# A selected track id not among the tracks this long after the selection (frame stamps)
+# is reported: a mistyped id, or a track already gone, otherwise waits in silence
+# (`follow run --target-id` passes its `[control] missing_target_warn_s`).
+SELECTED_ID_MISSING_S = 5.0
+
 
 class TargetIdentifier:
     """Learns the target's appearance online and says, per frame, which track it is."""
@@ -51,6 +56,7 @@ class TargetIdentifier:
         self.config = config
         self.context = IdentityContext(config, AppearanceModel(config, extractor, reid))
         self._last: TargetEstimate | None = None  # the newest frame's estimate
+        self._selection = SelectionWatch(None)
         self.reset()
 
     @property
@@ -70,6 +76,12 @@ class TargetIdentifier:
         return self.state.target_id
 
     @property
+    def selected_id_missing(self) -> bool:
+        """The selected track id has not appeared in `SELECTED_ID_MISSING_S` of frames
+        since it was selected (nothing is followed meanwhile); False once it appears."""
+        return self._selection.missing
+
+    @property
     def last_stamp_s(self) -> float | None:
         """The stamp of the newest frame taken (one not newer is ignored)."""
         return None if self._last is None else self._last.stamp_s
@@ -85,18 +97,22 @@ class TargetIdentifier:
         if self._last is not None:
             self._last = TargetEstimate(self.state.status, None, {}, self._last.stamp_s)
 
-    def select_target(self, track_id: int) -> None:
-        """Follow this track id: learning starts afresh on the next frame it is present."""
+    def select_target(self, track_id: int, missing_warn_s: float = SELECTED_ID_MISSING_S) -> None:
+        """Follow this track id: learning starts afresh on the next frame it is present.
+        Not among the tracks `missing_warn_s` of frames later, it is warned of once
+        (`selected_id_missing`); nobody else is chosen meanwhile."""
         if isinstance(track_id, bool) or not isinstance(track_id, int | np.integer):
             raise InvalidInput(f"select_target: track id {track_id!r} is not a whole number")
         if track_id < 0:
             raise InvalidInput(f"select_target: track id {track_id} is negative: no track's")
         self.context.requested_id = int(track_id)
+        self._selection = SelectionWatch(int(track_id), missing_warn_s)
         self.reset()
 
     def select_nearest(self) -> None:
         """Forget any selected id and the target: the nearest person is chosen afresh."""
         self.context.requested_id = None
+        self._selection = SelectionWatch(None)
         self.reset()
 
     def required_similarity(self, stamp_s: float) -> float:
@@ -128,6 +144,7 @@ class TargetIdentifier:
             log.warning("identifier: ignoring a frame stamped %.3f s, not after the last "
                         "(%.3f s)", stamp_s, self._last.stamp_s)  # fmt: skip
             return self._last
+        self._selection.check(by_id, stamp_s)
         self.context.count_observations(by_id)
         self.context.note_frame(stamp_s, robot)
         frame = FrameTracks(image_bgr, list(tracks), stamp_s, robot, by_id)
@@ -137,6 +154,34 @@ class TargetIdentifier:
         seen = target_id in by_id and by_id[target_id].observation is not None
         self._last = TargetEstimate(self.state.status, target_id, frame.confidences, stamp_s, seen)
         return self._last
+
+
+class SelectionWatch:
+    """Whether a selected track id has appeared since its selection: warns once when it
+    has not, `warn_after_s` into the frames after it. Only reports: the identifier keeps
+    waiting for that id and never chooses anyone else by itself."""
+
+    def __init__(self, track_id: int | None, warn_after_s: float = SELECTED_ID_MISSING_S):
+        self.track_id = track_id
+        self.warn_after_s = warn_after_s
+        self.found = track_id is None
+        self.missing = False
+        self._first_stamp_s: float | None = None
+
+    def check(self, by_id: dict[int, TrackState], stamp_s: float) -> None:
+        if self.found:
+            return
+        if self.track_id in by_id:
+            self.found, self.missing = True, False
+            return
+        if self._first_stamp_s is None:
+            self._first_stamp_s = stamp_s
+        if not self.missing and stamp_s - self._first_stamp_s >= self.warn_after_s:
+            self.missing = True
+            in_view = [int(i) for i in sorted(by_id)]
+            log.warning("selected track %d: not among the tracks %.1f s after its selection "
+                        "(tracks now: %s); nothing is followed until it appears",
+                        self.track_id, self.warn_after_s, in_view)  # fmt: skip
 
 
 def check_identify_config(config: IdentifyConfig) -> None:
