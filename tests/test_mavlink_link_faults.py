@@ -859,6 +859,38 @@ def test_tcp_writes_that_cannot_send_it_all_raise(port, error):
         conn.write(b"0123456789")
 
 
+def test_tcpin_writes_raise_and_a_broken_connection_is_dropped_for_the_next():
+    """`tcpin` (the vehicle connects to us): pymavlink's write returns quietly with no
+    vehicle connected and drops every error; a broken pipe must still free the listener
+    for the vehicle's next connection, as pymavlink did."""
+    from pymavlink import mavutil
+
+    class Broken:
+        closed = False
+
+        def send(self, data, flags=0):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def close(self):
+            self.closed = True
+
+    class Listener:
+        def fileno(self):
+            return 7
+
+    conn = object.__new__(mavutil.mavtcpin)
+    conn.port, conn.address, conn.listen, conn.fd = None, "tcpin:0.0.0.0:5760", Listener(), 9
+    base = object.__new__(MavlinkBase)
+    base._conn = conn
+    base._install_transport()
+    with pytest.raises(OSError, match=r"tcpin:0.0.0.0:5760 not connected \(no vehicle"):
+        conn.write(b"abc")
+    conn.port = broken = Broken()
+    with pytest.raises(BrokenPipeError):
+        conn.write(b"abc")
+    assert broken.closed and conn.port is None and conn.fd == 7
+
+
 def test_closing_a_tcp_link_left_without_a_socket_does_not_raise():
     """pymavlink's TCP close calls the socket's close, and a reconnect that failed left
     none: close() must still end quietly (its zeros went out, or failed, before)."""

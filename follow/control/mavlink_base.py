@@ -466,7 +466,7 @@ class MavlinkBase:
         conn = self._conn
         if isinstance(conn, mavutil.mavudp):
             conn.recv, conn.write = self._udp_recv, self._udp_write
-        elif isinstance(conn, mavutil.mavtcp):
+        elif isinstance(conn, mavutil.mavtcp | mavutil.mavtcpin):
             conn.write = self._tcp_write
         elif isinstance(conn, mavutil.mavserial):
             serial_write = conn.write
@@ -515,12 +515,22 @@ class MavlinkBase:
         for the vehicle). A connection gone is not reopened here but by the receiver
         (pymavlink's `autoreconnect` on EOF, a reset or no socket): a reconnect from
         this thread too raced it, and held the send lock through seconds of retries.
+        `tcpin` (we listen, the vehicle connects) drops a connection whose pipe broke, as
+        pymavlink does, so that its receiver accepts the vehicle's next one.
         MSG_DONTWAIT: the socket of a reconnect under way blocks until it connects."""
         conn = self._conn
         port = conn.port
-        if port is None:  # the last reconnect failed: the receiver tries again
-            raise OSError(errno.ENOTCONN, f"{conn.address} not connected (reconnecting)")
-        sent = port.send(buf, getattr(socket, "MSG_DONTWAIT", 0))
+        listening = isinstance(conn, mavutil.mavtcpin)
+        if port is None:  # tcp: the last reconnect failed; tcpin: no vehicle connected now
+            why = "no vehicle connected" if listening else "reconnecting"
+            raise OSError(errno.ENOTCONN, f"{conn.address} not connected ({why})")
+        try:
+            sent = port.send(buf, getattr(socket, "MSG_DONTWAIT", 0))
+        except BrokenPipeError:
+            if listening:
+                port.close()
+                conn.port, conn.fd = None, conn.listen.fileno()
+            raise
         if sent < len(buf):
             raise OSError(f"write to {conn.address} failed ({sent} of {len(buf)} bytes)")
 
