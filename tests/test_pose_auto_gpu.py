@@ -147,3 +147,17 @@ def test_the_detector_runs_the_int8_model_where_auto_found_cuda_not_starting(
     assert detector.model_path == expected_path == int8
     assert detector.backend_name == expected.name
     assert type(detector.backend) is type(expected)
+
+
+def test_a_model_file_that_no_provider_loads_is_no_gpu_failure(tmp_path, monkeypatch):
+    """A file cut short fails a GPU session as it fails the CPU's: it is the model's
+    error, named as such, and the GPU stays trusted for the next (good) file."""
+    from follow.models import ModelError
+
+    break_cuda(monkeypatch, "cpu_only")  # a CUDA session that is made: the file decides
+    cut = tmp_path / "cut.onnx"
+    _tiny_pose_like_model(cut)
+    cut.write_bytes(cut.read_bytes()[:40])
+    with pytest.raises((ModelError, ValueError)):
+        create_backend("auto", cut)
+    assert runtime.GPU_FAILURES == {}

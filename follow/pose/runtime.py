@@ -380,6 +380,8 @@ def _started_gpu_backend(gpu: str, model_path: Path, cpu_threads: int) -> OrtBac
     except ModelError:
         raise  # the file is no pose network: no GPU changes that
     except Exception as exc:  # a provider that cannot start may raise instead
+        if not _loads_on_cpu(model_path, cpu_threads):
+            raise  # the file fails without the GPU too: the model's fault, not the GPU's
         failed, reason = [gpu], f"the session failed: {type(exc).__name__}: {_last_line(exc)}"
     else:
         active = backend.session.get_providers()
@@ -396,6 +398,16 @@ def _started_gpu_backend(gpu: str, model_path: Path, cpu_threads: int) -> OrtBac
         reason,
     )
     return None
+
+
+def _loads_on_cpu(model_path: Path, cpu_threads: int) -> bool:
+    """Whether onnxruntime's CPU provider loads `model_path`: a GPU session that raised on
+    a file the CPU cannot load either (cut short, no network) says nothing of the GPU."""
+    try:
+        OrtBackend(model_path, ["CPUExecutionProvider"], cpu_threads)
+    except Exception:
+        return False
+    return True
 
 
 def _fallback_warning(provider: str, reason: str, available: list[str]) -> None:
