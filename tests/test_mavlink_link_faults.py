@@ -861,8 +861,9 @@ def test_tcp_writes_that_cannot_send_it_all_raise(port, error):
 
 def test_tcpin_writes_raise_and_a_broken_connection_is_dropped_for_the_next():
     """`tcpin` (the vehicle connects to us): pymavlink's write returns quietly with no
-    vehicle connected and drops every error; a broken pipe must still free the listener
-    for the vehicle's next connection, as pymavlink did."""
+    vehicle connected and drops every error. Before any vehicle was heard there is nobody
+    to send to (as on udpin, no error); after, a write with none connected is a failure;
+    and a broken pipe must still free the listener for the vehicle's next connection."""
     from pymavlink import mavutil
 
     class Broken:
@@ -881,8 +882,10 @@ def test_tcpin_writes_raise_and_a_broken_connection_is_dropped_for_the_next():
     conn = object.__new__(mavutil.mavtcpin)
     conn.port, conn.address, conn.listen, conn.fd = None, "tcpin:0.0.0.0:5760", Listener(), 9
     base = object.__new__(MavlinkBase)
-    base._conn = conn
+    base._conn, base._target = conn, None
     base._install_transport()
+    conn.write(b"abc")  # no vehicle heard yet: nobody to send to, nothing to report
+    base._target = (1, 1)  # the vehicle was heard, and has gone
     with pytest.raises(OSError, match=r"tcpin:0.0.0.0:5760 not connected \(no vehicle"):
         conn.write(b"abc")
     conn.port = broken = Broken()

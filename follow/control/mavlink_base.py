@@ -521,13 +521,15 @@ class MavlinkBase:
         conn = self._conn
         port = conn.port
         listening = isinstance(conn, mavutil.mavtcpin)
-        if port is None:  # tcp: the last reconnect failed; tcpin: no vehicle connected now
+        if port is None and listening and self._target is None:
+            return  # tcpin before any vehicle was heard: nobody to send to (as udpin)
+        if port is None:  # tcp: the last reconnect failed; tcpin: the vehicle went away
             why = "no vehicle connected" if listening else "reconnecting"
             raise OSError(errno.ENOTCONN, f"{conn.address} not connected ({why})")
         try:
             sent = port.send(buf, getattr(socket, "MSG_DONTWAIT", 0))
         except BrokenPipeError:
-            if listening:
+            if listening and conn.port is port:  # not one the receiver accepted since
                 port.close()
                 conn.port, conn.fd = None, conn.listen.fileno()
             raise
