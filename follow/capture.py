@@ -58,6 +58,10 @@ MAX_QUEUED_FRAMES = MAX_DRIVER_BUFFERS
 MIN_FILE_BYTES_PER_FRAME = 8
 # A JPEG marker in entropy-coded data: 0xFF not followed by a stuffed 0x00 or a restart (RSTn).
 _JPEG_MARKER_IN_SCAN = re.compile(rb"\xff[^\x00\xd0-\xd7]")
+# The markers that may follow a scan: frame and table segments (C0-CF), another scan and
+# its tables (DA-DF), APPn (E0-EF), a comment (FE), the end (D9), or a fill byte (FF).
+_JPEG_MARKERS_AFTER_SCAN = frozenset([*range(0xC0, 0xD0), *range(0xD9, 0xE0),
+                                      *range(0xE0, 0xF0), 0xFE, 0xFF])  # fmt: skip
 
 
 class SourceError(RuntimeError):
@@ -498,6 +502,8 @@ def _jpeg_reaches_end(data: bytes) -> bool | None:
             if found is None:
                 return False
             at = found.start()
+            if data[at + 1] not in _JPEG_MARKERS_AFTER_SCAN:
+                return None  # a damaged byte pair in the scan, not a marker: walk no further
     return False
 
 

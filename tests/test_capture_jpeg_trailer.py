@@ -67,3 +67,15 @@ def test_a_jpeg_cut_short_is_refused_though_its_exif_thumbnail_ends_whole(tmp_pa
     cut = whole[: len(whole) - 200]  # into the image's data, past the thumbnail
     assert b"\xff\xd9" in cut
     assert len(folder_of(tmp_path, cut)) == 2 and "b.jpg: a JPEG cut short" in caplog.text
+
+
+def test_a_whole_jpeg_with_a_damaged_byte_pair_in_its_data_is_used_as_before(tmp_path, caplog):
+    """A bit error that makes FF 50 in the image data is no marker: the walk stops there,
+    and a file that ends with its end marker is used (OpenCV decodes most of it), as
+    before the walk; it is not skipped as cut short."""
+    whole = bytearray(jpeg(2))
+    scan = whole.index(b"\xff\xda")
+    at = scan + 2 + int.from_bytes(whole[scan + 2 : scan + 4], "big") + 40
+    whole[at : at + 2] = b"\xff\x50"
+    frames = folder_of(tmp_path, bytes(whole))
+    assert len(frames) == 3 and "cut short" not in caplog.text
