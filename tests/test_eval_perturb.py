@@ -380,3 +380,33 @@ def test_a_cache_folder_that_cannot_be_made_is_refused_before_the_network_runs(
             pets_setup.pets_skeletons(SimpleNamespace(sequence=FakeSequence()), [0, 1],
                                       config, use_cache)  # fmt: skip
     assert PixelDetector.calls == 0
+
+
+def test_the_cache_key_names_the_runtime_that_ran_where_a_listed_gpu_does_not_start(
+    tmp_path, monkeypatch
+):
+    """onnxruntime lists CUDA, but it does not start, so `auto` runs OpenVINO: the
+    skeletons are OpenVINO's and must be kept under OpenVINO's key, not CUDA's (served as
+    CUDA's once CUDA works)."""
+    from follow.eval import pets_setup
+    from follow.pose import runtime
+
+    monkeypatch.setattr(runtime, "GPU_FAILURES", {})
+    monkeypatch.setattr(runtime, "openvino_installed", lambda: True)
+    monkeypatch.setattr(runtime, "ort_available_providers",
+                        lambda: ["CUDAExecutionProvider", "CPUExecutionProvider"])  # fmt: skip
+
+    class CudaNotStarting(PixelDetector):
+        def __init__(self, config):
+            runtime.GPU_FAILURES["cuda"] = "the session runs on CPUExecutionProvider only"
+
+    monkeypatch.setattr("follow.pose.detector.PoseDetector", CudaNotStarting)
+    model = tmp_path / "pose.onnx"
+    model.write_bytes(b"model one")
+    config = PoseConfig(model_file=str(model), network_stages=2, provider="auto")
+    frames = [0, 1]
+    pixels = pets_setup.frames_digest(FakeSequence(), frames)
+    cuda_key = pets_setup._cache_path(config, frames, pixels)
+    pets_setup.pets_skeletons(SimpleNamespace(sequence=FakeSequence()), frames, config)
+    ran_key = pets_setup._cache_path(config, frames, pixels)  # OpenVINO's, as it ran
+    assert ran_key != cuda_key and ran_key.exists() and not cuda_key.exists()

@@ -196,6 +196,14 @@ def pets_skeletons(
     """Skeletons of the given frames, from the pose network; cached on disk, keyed by the
     frames' pixels, the pose settings and the model file's hash, so that every method of
     an evaluation, and every later run on the same frames, sees the same detections."""
+    from follow.pose.detector import PoseDetector
+    from follow.pose.runtime import runs_on_gpu
+
+    # `auto` with a GPU listed: whether it starts decides the model and runtime the key
+    # names (one that does not runs the CPU's choice), so the detector is made first.
+    detector = None
+    if pose_config.provider == "auto" and runs_on_gpu("auto"):
+        detector = PoseDetector(pose_config)
     path = _cache_path(pose_config, frames, frames_digest(setup.sequence, frames))
     from follow.models import make_cache_folder
 
@@ -209,9 +217,7 @@ def pets_skeletons(
             return cached
     from tqdm import tqdm
 
-    from follow.pose.detector import PoseDetector
-
-    detector = PoseDetector(pose_config)
+    detector = detector or PoseDetector(pose_config)
     out = {}
     for index, image in tqdm(setup.sequence.frames(frames), total=len(frames),
                              desc="pose network on PETS", unit="frame", leave=False):  # fmt: skip
