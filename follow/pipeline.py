@@ -138,7 +138,11 @@ MAX_CARRY_FORWARD_S = 0.25
 
 
 def target_motion(
-    result: FrameResult | None, robot_now: Odometry, now_s: float | None = None
+    result: FrameResult | None,
+    robot_now: Odometry,
+    now_s: float | None = None,
+    reused: bool = False,
+    odometry_jump_s: float | None = None,
 ) -> TargetMotion | None:
     """The target's position and velocity in the robot frame as the robot stands now,
     stamped with the time of its track's last observation (a coasting track ages).
@@ -150,10 +154,16 @@ def target_motion(
     fed where they were lags them by that latency times their speed. Only within
     `MAX_CARRY_FORWARD_S`: an older result is late, not in flight, and stalled
     perception must not make a target seem to walk on ahead while the robot closes in
-    (the watchdog stops the base at its own time-out). None when the odometry jumped
-    since the frame's pose (a reset): its tracks are in an odom frame that no longer
-    exists until the tracker moves them with the next frame."""
+    (the watchdog stops the base at its own time-out); such a result that a control step
+    already took (`reused`) is `late`: driven on, never faster. None when the odometry
+    jumped since the frame's pose (a reset): its tracks are in an odom frame that no
+    longer exists until the tracker moves them with the next frame. The jump is seen
+    between the frame's pose and the newest, or (`odometry_jump_s`, the odometry stamp of
+    the newest jump between two consecutive samples, `OdometryPolicy`) after the frame:
+    over a frame's age a base may turn or drive far enough to hide a reset."""
     if result is None or result.target.status != TargetStatus.TRACKING:
+        return None
+    if odometry_jump_s is not None and result.robot.stamp_s < odometry_jump_s:
         return None
     if pose_jumped(result.robot, robot_now, abs(robot_now.stamp_s - result.robot.stamp_s)):
         return None
@@ -161,15 +171,18 @@ def target_motion(
     if track is None or track.observation is None and not track.confirmed:
         return None
     position_m = np.asarray(track.position_m, dtype=float)
+    late = False
     if now_s is not None:
         ahead_s = max(0.0, now_s - result.stamp_s)
         if ahead_s <= MAX_CARRY_FORWARD_S:
             position_m = position_m + np.asarray(track.velocity_mps) * ahead_s
+        late = reused and ahead_s > MAX_CARRY_FORWARD_S
     return TargetMotion(
         odom_to_base(position_m, robot_now),
         vector_odom_to_base(track.velocity_mps, robot_now),
         min(track.last_seen_s, result.stamp_s),
         observed=track.observation is not None,
+        late=late,
     )
 
 
@@ -314,7 +327,9 @@ class ControlLoop:
                         "perception stalled (%.2f s since the last frame): stopping the base",
                         now - result.stamp_s,
                     )
-        target = None if stalled else target_motion(result, robot, now)
+        reused = result is not None and result is self._last_result
+        jump_s = getattr(self.odometry, "last_jump_s", None)
+        target = None if stalled else target_motion(result, robot, now, reused, jump_s)
         command = self.controller.update(target, now)
         if stalled:
             command = VelocityCommand.stop(now)

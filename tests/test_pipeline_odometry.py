@@ -8,6 +8,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from follow.capture import LatestSlot
 from follow.config import ControlConfig
@@ -175,6 +176,71 @@ def test_the_watchdog_has_its_own_timeout():
     assert loop.tick().forward_mps > 0  # 0.2 s old: fresh for both timeouts
     now[0] = 0.4
     assert loop.tick().is_stop and loop.watchdog_trips == 1  # past the watchdog only
+
+
+def test_a_frozen_frame_is_driven_on_never_faster_until_the_watchdog():
+    """Perception stops on a frame that saw the target (a frozen camera or driver): each
+    tick took that frame as a fresh sighting and sped up toward it (0.3 -> 1.0 m/s) until
+    the watchdog. Past a frame in flight (MAX_CARRY_FORWARD_S) it is driven on at most at
+    the speed of that moment; a new frame may speed up again."""
+    from follow.pipeline import MAX_CARRY_FORWARD_S
+
+    now = [0.0]
+
+    class StampedBase(_Base):
+        def odometry(self):
+            return Odometry(0.0, 0.0, 0.0, now[0])
+
+    slot = LatestSlot()
+    loop = ControlLoop(FollowingController(ControlConfig()), StampedBase(), slot,
+                       rate_hz=15.0, perception_timeout_s=0.5, clock=lambda: now[0])  # fmt: skip
+    for _ in range(3):  # speeding up from rest toward the target 4 m ahead
+        now[0] += 1 / 15
+        slot.put(_tracking(now[0]))
+        loop.tick()
+    frozen_s = now[0]
+    in_flight, late = [], []
+    while now[0] + 1 / 15 < frozen_s + 0.5:  # up to the watchdog
+        now[0] += 1 / 15
+        age_s = now[0] - frozen_s
+        (in_flight if age_s <= MAX_CARRY_FORWARD_S else late).append(loop.tick().forward_mps)
+    assert late and max(late) <= in_flight[-1] + 1e-9
+    now[0] += 1 / 15
+    slot.put(_tracking(now[0]))  # perception is back: speeding up again
+    assert loop.tick().forward_mps > in_flight[-1]
+
+
+@pytest.mark.parametrize("age_s", [1 / 30, 0.15, 0.3])
+def test_a_reset_hidden_by_a_frames_age_still_drives_nothing(age_s):
+    """Over a frame's age a base may turn as far as an estimator's reset moves the pose
+    (4 rad/s x 0.15 s), so comparing the frame's pose with the newest one misses a 0.6
+    rad reset; consecutive samples of the control loop show it. Until the next frame:
+    zero, not a turn and a speed-up after a phantom 34 degrees off."""
+    now = [0.0]
+    pose = [Odometry.origin()]
+
+    class StampedBase(_Base):
+        def odometry(self):
+            return dataclasses.replace(pose[0], stamp_s=now[0])
+
+    def tracking(stamp_s: float) -> FrameResult:
+        return _tracking(stamp_s, dataclasses.replace(pose[0], stamp_s=stamp_s))
+
+    loop, slot, moving = _following(StampedBase(), now, tracking)
+    assert moving.forward_mps > 0.5 and moving.yaw_rate_radps == 0.0
+    now[0] += 1 / 15
+    slot.put(tracking(now[0]))
+    frame_s = now[0]
+    while now[0] + 1 / 15 < frame_s + age_s:  # the loop's own ticks, 15 a second
+        now[0] += 1 / 15
+        loop.tick()
+    now[0] = frame_s + age_s
+    pose[0] = Odometry(0.0, 0.0, 0.6, 0.0)  # the heading "changed" by 0.6 rad at once
+    for _ in range(3):
+        assert loop.tick().is_stop
+        now[0] += 1 / 30
+    slot.put(tracking(now[0]))  # the next frame, its tracks in the new odom frame
+    assert loop.tick().forward_mps > 0
 
 
 def test_odometry_that_jumped_since_the_frame_drives_nothing():

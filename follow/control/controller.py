@@ -222,9 +222,12 @@ class FollowingController:
             unseen_s = stamp_s - target.stamp_s
             forward = min(forward, self.blind_forward_limit_mps(unseen_s))
             forward = max(forward, -self.blind_backward_limit_mps(unseen_s))
+        elif target.late:  # a frozen frame: no faster than the speed of the step before it
+            forward = min(forward, max(0.0, self._forward_when_seen_mps))
+            forward = max(forward, min(0.0, self._forward_when_seen_mps))
         if self.view is not None and not self.view.contains(target.position_m):
             forward = min(forward, 0.0)
-        if target.observed:
+        if target.observed and not target.late:
             self._forward_when_seen_mps = forward
         return VelocityCommand(forward, yaw, stamp_s)
 

@@ -11,21 +11,31 @@ base (`NullBase`: the camera is assumed still) uses a fixed pose.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 
+from follow.frames import wrap_angle
+from follow.odometry_buffer import pose_jumped
 from follow.types import Odometry
 
 log = logging.getLogger(__name__)
 
 
 class OdometryPolicy:
-    """Samples the base's odometry; None means stop. Safe to share between threads."""
+    """Samples the base's odometry; None means stop. Safe to share between threads.
+
+    It also watches consecutive samples for a jump no base drives (an estimator's reset):
+    `last_jump_s` is the odometry stamp of the newest, so that a frame whose pose came
+    before it is not driven toward (`pipeline.target_motion`); between samples a few
+    tens of milliseconds apart a reset is plain, where over a frame's age it may not be."""
 
     def __init__(self, base):
         self.base = base
         self._lock = threading.Lock()
         self._missing = False
         self.losses = 0  # how many times fresh odometry went away
+        self._previous: Odometry | None = None
+        self.last_jump_s: float | None = None  # odometry stamp of the newest jump seen
 
     def sample(self) -> Odometry | None:
         """The base's newest pose, or None (and a warning the first time) when it has
@@ -39,9 +49,27 @@ class OdometryPolicy:
             elif pose is not None and self._missing:
                 self._missing = False
                 log.warning("odometry from the base is back: resuming")
+            if pose is not None:
+                self._note_jump(pose)
         return pose
+
+    def _note_jump(self, pose: Odometry) -> None:
+        previous, self._previous = self._previous, pose
+        if previous is None or pose.stamp_s <= previous.stamp_s:
+            return  # the same sample again (or an older one): nothing moved between them
+        if pose_jumped(previous, pose, pose.stamp_s - previous.stamp_s):
+            self.last_jump_s = pose.stamp_s
+            log.warning("the base's odometry jumped (%.2f m, %.2f rad in %.3f s: a reset?): "
+                        "no target motion from frames before it", *_change(previous, pose),
+                        pose.stamp_s - previous.stamp_s)  # fmt: skip
 
     @property
     def missing(self) -> bool:
         with self._lock:
             return self._missing
+
+
+def _change(before: Odometry, after: Odometry) -> tuple[float, float]:
+    """How far and how much the pose moved between two samples (m, rad)."""
+    turned = abs(float(wrap_angle(after.yaw_rad - before.yaw_rad)))
+    return math.hypot(after.x_m - before.x_m, after.y_m - before.y_m), turned

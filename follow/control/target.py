@@ -23,12 +23,16 @@ class TargetMotion:
     predicted), so that a track coasting without observations ages and goes stale.
     `observed` says whether the newest frame saw it; when not, the position is the
     tracker's prediction and the controller only drives blind for a bounded time.
+    `late` says the frame is one a control step already took and is older than a frame
+    in flight (perception gave nothing newer: a frozen camera): the target is driven on
+    at the speed of the last step before, never faster, until the watchdog trips.
     """
 
     position_m: np.ndarray  # (2,) x forward, y left
     velocity_mps: np.ndarray  # (2,)
     stamp_s: float
     observed: bool = True
+    late: bool = False
 
     def __post_init__(self):
         for name in ("position_m", "velocity_mps"):
