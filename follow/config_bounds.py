@@ -236,7 +236,8 @@ BOUNDS: dict[str, dict[str, Range]] = {
         "px4_turn_horizon_s": positive(5.0),
     },
     "ros": {
-        "max_image_age_s": positive(2.0),
+        # The node's watchdog (`watchdog_timeout_s` of `follow run`), held to its bound.
+        "max_image_age_s": positive(1.0),
         "max_odometry_age_s": positive(2.0),
         "diagnostics_period_s": positive(60.0),
     },

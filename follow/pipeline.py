@@ -34,6 +34,7 @@ import numpy as np
 
 from follow.capture import LatestSlot, SourceError
 from follow.config import ControlConfig
+from follow.control.controller import MAX_WATCHDOG_TIMEOUT_S
 from follow.control.odometry import OdometryPolicy
 from follow.control.target import TargetMotion, ViewCone
 from follow.frames import odom_to_base, vector_odom_to_base
@@ -214,6 +215,11 @@ class ControlLoop:
         on_command: Callable[[VelocityCommand], None] | None = None,
         odometry: OdometryPolicy | None = None,
     ):
+        if not (0.0 < perception_timeout_s <= MAX_WATCHDOG_TIMEOUT_S):
+            raise ValueError(
+                f"control loop perception_timeout_s must be in (0, {MAX_WATCHDOG_TIMEOUT_S:g}] "
+                f"s (a frozen frame is driven on until it trips), got {perception_timeout_s}"
+            )
         self.controller = controller
         self.base = base
         self.odometry = odometry if odometry is not None else OdometryPolicy(base)

@@ -2,6 +2,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from follow.capture import LatestSlot
 from follow.config import ControlConfig
@@ -293,3 +294,12 @@ def test_stop_gives_up_on_a_last_zero_whose_send_hangs(monkeypatch):
         assert _returns_within(loop.stop, 1.0), "a second stop() waits on the send lock"
     finally:
         base.release.set()
+
+
+@pytest.mark.parametrize("timeout_s", [0.0, 1.5, float("nan")])
+def test_a_control_loop_refuses_a_watchdog_longer_than_a_blind_drive(timeout_s):
+    """A frozen frame that saw the target is driven on until the watchdog trips: the
+    ROS node's `max_image_age_s` allowed 2 s of it, twice `follow run`'s bound."""
+    with pytest.raises(ValueError, match="perception_timeout_s must be in"):
+        ControlLoop(FollowingController(ControlConfig()), NullBase(), LatestSlot(),
+                    rate_hz=15.0, perception_timeout_s=timeout_s)  # fmt: skip

@@ -153,7 +153,7 @@ def test_a_new_result_is_commanded_before_the_next_fixed_tick():
     base = NullBase()
     slot = LatestSlot()
     loop = ControlLoop(FollowingController(ControlConfig()), base, slot, rate_hz=1.0,
-                       perception_timeout_s=5.0).start()  # fmt: skip
+                       perception_timeout_s=1.0).start()  # fmt: skip
     time.sleep(0.1)  # the first tick has run; the next fixed one is a second away
     sent = len(base.commands)
     slot.put(_result(0, time.monotonic()))

@@ -36,9 +36,9 @@ except ImportError as exc:  # pragma: no cover - depends on the installation
 pytestmark = pytest.mark.slow  # a node process, its model, ~10 frames and a 3 s stop
 SELECT_AFTER_FRAME = 2
 FRAMES = 10  # 8, a pause, one before the stop request and one after
-MAX_IMAGE_AGE_S = 1.5
+MAX_IMAGE_AGE_S = 1.0
 # The target estimate outlives the images' own limit, so that stopping the images is
-# what stops the robot; both within the safe ranges of the configuration (<= 2 s).
+# what stops the robot; both within the safe ranges of the configuration (<= 1 s, <= 2 s).
 TARGET_TIMEOUT_S = 2.0
 CONFIG = f"""
 [pose]
