@@ -439,3 +439,19 @@ def test_a_selected_id_never_seen_is_reported_once_and_nobody_else_is_chosen(ide
     assert identifier.selected_id_missing
     identifier.select_nearest()  # nothing selected: nothing missing
     assert not identifier.selected_id_missing
+
+
+def test_frames_too_far_apart_to_learn_from_are_said_once(identifier, caplog):
+    """Each gap over identity_risk_unseen_s is a stall that drops what initial training
+    learnt: on a host that slow nothing is ever learnt, and the user must be told why."""
+    rng = np.random.default_rng(5)
+    people = [Person(1, 2.0, 180, RED)]
+    gap_s = CFG.identity_risk_unseen_s + 0.5
+    with caplog.at_level(logging.WARNING, logger="follow.identify"):
+        ests = [
+            run(identifier, people, 1, rng, t0=k * gap_s)[0]
+            for k in range(3 * CFG.initial_training_frames)
+        ]
+    assert all(e.status != TargetStatus.TRACKING for e in ests)
+    said = [r.getMessage() for r in caplog.records if "cannot be learnt" in r.getMessage()]
+    assert len(said) == 1 and "frames come" in said[0]

@@ -83,6 +83,7 @@ class InitialTraining(State):
         self.frames_learnt = 0
         self.crowded = False  # someone walks near the target: learning waits
         self.waited = False  # the wait was logged
+        self.slow_said = False  # frames too far apart to learn from: said once
 
     def update(self, context: IdentityContext, frame: FrameTracks) -> State:
         if self.target_id not in frame.by_id:
@@ -100,6 +101,7 @@ class InitialTraining(State):
                      "frame(s) learnt before are dropped)", self.target_id, unseen_s,
                      self.frames_learnt)  # fmt: skip
             self._drop_learnt(context)
+            self._say_if_too_slow(context)
         context.look(frame, only=self.target_id)
         crowded = bool(context.swappable(self.target_id, frame))
         if crowded and not self.crowded:  # said once; again (someone at the limit) quietly
@@ -128,6 +130,18 @@ class InitialTraining(State):
                 log.info("target track %d learnt: tracking", self.target_id)
                 return Tracking(self.target_id)
         return self
+
+    def _say_if_too_slow(self, context: IdentityContext) -> None:
+        """Frames further apart than `identity_risk_unseen_s` each count as a stall, so a
+        perception that slow never learns a target: the robot stays stopped, and the
+        user is told why (once), not left waiting."""
+        if self.slow_said or context.frame_gap_s <= context.config.identity_risk_unseen_s:
+            return
+        self.slow_said = True
+        log.warning("frames come %.1f s apart, more than identity_risk_unseen_s (%.1f s): "
+                    "the target cannot be learnt from frames this far apart (a slow or "
+                    "overloaded host?); nothing is followed", context.frame_gap_s,
+                    context.config.identity_risk_unseen_s)  # fmt: skip
 
     def _drop_learnt(self, context: IdentityContext) -> None:
         """Forget the frames learnt so far: the track may carry someone else now."""
