@@ -269,6 +269,9 @@ ORDERED: tuple[tuple[str, str, str], ...] = (
     ("control", "search_yaw_rate_radps", "max_yaw_rate_radps"),
     ("identify", "reid_confidence", "reid_strict_confidence"),
     ("identify", "reid_accept_similarity", "reid_strict_similarity"),
+    # A target taken back by re-id must be held as surely as one kept through a switch
+    # (follow.identify.identifier.check_identify_config refuses it when a run starts).
+    ("identify", "id_switch_confidence", "reid_confidence"),
 )
 
 # The unscented filter's sigma points lie sqrt(sigma_alpha^2 (n + sigma_kappa)) standard
@@ -306,6 +309,28 @@ def _braking_error(section) -> str | None:
         f"max_forward_speed_mps ({speed:g}) within following_distance_m "
         f"({section.following_distance_m:g}): braking takes {braking_m:.2f} m, so a target "
         f"that stops would be run into; brake at least {needed:.2f} m/s^2 or drive slower"
+    )
+
+
+# Telemetry periods the odometry time-out must span: a gap between two messages longer
+# than `odometry_timeout_s` restarts the settle window of the vehicle's clock
+# (follow.control.mavlink_base), so with fewer the odometry is never fresh, the robot
+# never moves, and the only messages blame the vehicle.
+MIN_TELEMETRY_PERIODS_PER_ODOMETRY_TIMEOUT = 2.0
+
+
+def _telemetry_error(section) -> str | None:
+    """`odometry_timeout_s` must hold at least two telemetry periods (see above)."""
+    rate_hz, timeout_s = section.telemetry_rate_hz, section.odometry_timeout_s
+    periods = MIN_TELEMETRY_PERIODS_PER_ODOMETRY_TIMEOUT
+    if rate_hz * timeout_s >= periods:
+        return None
+    return (
+        f"[mavlink] telemetry_rate_hz ({rate_hz:g}) and odometry_timeout_s ({timeout_s:g}) "
+        f"leave {rate_hz * timeout_s:.3g} telemetry periods within the odometry time-out: "
+        f"telemetry_rate_hz * odometry_timeout_s must be at least {periods:g}, or a gap "
+        "between two telemetry messages makes the odometry stale for the whole run "
+        "(the robot never moves)"
     )
 
 
@@ -364,6 +389,10 @@ def section_errors(name: str, section) -> list[str]:
     if name == "control" and not braking_keys & out_of_range:
         if braking := _braking_error(section):
             errors.append(braking)
+    telemetry_keys = {"telemetry_rate_hz", "odometry_timeout_s"}
+    if name == "mavlink" and not telemetry_keys & out_of_range:
+        if telemetry := _telemetry_error(section):
+            errors.append(telemetry)
     return errors
 
 

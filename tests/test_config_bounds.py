@@ -203,3 +203,85 @@ def test_pose_model_choices_are_the_registry_pose_networks():
     with pytest.raises(ConfigError, match="model = 'person-reidentification-retail-0248'"
                        ".*human-pose-estimation-0001"):  # fmt: skip
         Config().replace("pose", model="person-reidentification-retail-0248")
+
+
+def test_an_id_switch_confidence_above_the_reid_confidence_is_refused_at_load(tmp_path):
+    """The identifier refuses it too, but only when `follow run` builds it, after opening
+    the source and loading the pose network, naming neither the file nor the section."""
+    from follow.identify.identifier import check_identify_config
+
+    path = tmp_path / "c.toml"
+    path.write_text("[identify]\nid_switch_confidence = 0.5\n")
+    where = rf"^config {re.escape(str(path))}: \[identify\] "
+    with pytest.raises(ConfigError, match=where + r"id_switch_confidence \(0.5\) must not "
+                       r"exceed reid_confidence \(0.2\)"):  # fmt: skip
+        Config.load(path)
+    equal = Config().replace("identify", id_switch_confidence=0.2, reid_confidence=0.2)
+    check_identify_config(equal.identify)  # the identifier takes what loading takes
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {"reid_confidence": 0.6, "reid_strict_confidence": 0.5},
+        {"reid_accept_similarity": 0.6, "reid_strict_similarity": 0.5},
+        {"id_switch_confidence": 0.5, "reid_confidence": 0.4, "reid_strict_confidence": 0.45},
+    ],
+)
+def test_every_identify_rule_of_the_identifier_is_held_at_load(settings):
+    """Each order check_identify_config refuses is refused when a config is made."""
+    from follow.config import IdentifyConfig
+    from follow.identify.identifier import check_identify_config
+
+    with pytest.raises(ValueError):
+        check_identify_config(dataclasses.replace(IdentifyConfig(), **settings))
+    with pytest.raises(ConfigError, match="must not exceed"):
+        Config().replace("identify", **settings)
+
+
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ("telemetry_rate_hz = 0.5\n", r"telemetry_rate_hz \(0.5\) and odometry_timeout_s \(0.5\)"),
+        ("odometry_timeout_s = 0.01\n", r"telemetry_rate_hz \(30\) and odometry_timeout_s \(0.01\)"),
+        ("telemetry_rate_hz = 3\nodometry_timeout_s = 0.6\n", r"leave 1.8 telemetry periods"),
+    ],
+)  # fmt: skip
+def test_an_odometry_timeout_shorter_than_two_telemetry_periods_is_refused(tmp_path, text, match):
+    """A gap between two telemetry messages longer than odometry_timeout_s restarts the
+    settle window of the vehicle's clock: the odometry was never fresh, the robot never
+    moved, and the only messages blamed the vehicle."""
+    path = tmp_path / "c.toml"
+    path.write_text("[mavlink]\n" + text)
+    with pytest.raises(ConfigError, match=match) as caught:
+        Config.load(path)
+    assert str(caught.value).startswith(f"config {path}: [mavlink] ")
+    assert "at least 2" in str(caught.value) and "never moves" in str(caught.value)
+
+
+def test_two_telemetry_periods_within_the_odometry_timeout_are_enough():
+    cfg = Config().replace("mavlink", telemetry_rate_hz=4.0, odometry_timeout_s=0.5)
+    assert cfg.mavlink.telemetry_rate_hz * cfg.mavlink.odometry_timeout_s == 2.0
+
+
+def test_a_mavlink_driver_made_in_code_refuses_too_few_telemetry_periods():
+    from follow.config import MavlinkConfig
+    from follow.control.mavlink_base import check_mavlink_config
+
+    config = MavlinkConfig(connection="udpin:0.0.0.0:14550", telemetry_rate_hz=1.0)
+    with pytest.raises(ConfigError, match="telemetry_rate_hz .* odometry_timeout_s"):
+        check_mavlink_config(config)
+
+
+def test_the_defaults_and_every_shipped_config_load():
+    """The cross-key checks refuse none of what the project ships."""
+    from pathlib import Path
+
+    from follow.eval.pets_setup import PETS_SETTINGS
+
+    root = Path(__file__).parents[1]
+    shipped = sorted((root / "examples").glob("*.toml")) + [PETS_SETTINGS]
+    assert len(shipped) >= 2
+    Config().validate()
+    for path in shipped:
+        Config.load(path)
