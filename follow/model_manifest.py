@@ -10,12 +10,13 @@ how to make it again, instead of running and finding nobody.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from collections.abc import Callable
 from pathlib import Path
 
-from follow.models import ModelError, sha256_of
+from follow.models import ModelError, cache_write_error, sha256_of
 
 MANIFEST_SUFFIX = ".json"
 
@@ -53,9 +54,19 @@ def install(
         write(partial)
         write_manifest(model_path, source_path, made_from, written=partial)
         partial.replace(model_path)
-    except BaseException:
-        partial.unlink(missing_ok=True)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):  # a read-only folder: the first error tells
+            partial.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and _written_in(exc, partial.parent):
+            raise OSError(cache_write_error(partial.parent, exc)) from exc
         raise
+
+
+def _written_in(exc: OSError, folder: Path) -> bool:
+    """Whether `exc` came from writing into `folder` (a file there, or no file named: a
+    full disk), not from reading the source: a bare errno naming a temporary file
+    (`....partial`) said nothing of the cache it was in."""
+    return exc.filename is None or Path(os.fsdecode(exc.filename)).parent == folder
 
 
 def read_manifest(model_path: Path) -> dict | None:

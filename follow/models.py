@@ -168,13 +168,30 @@ def make_cache_folder(folder: Path) -> Path:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OSError(_cache_write_error(folder, exc)) from exc
+        raise OSError(cache_write_error(folder, exc)) from exc
     return folder
 
 
-def _cache_write_error(folder: Path, exc: OSError) -> str:
-    return (f"cannot write {folder}, in the cache ($FOLLOW_CACHE_DIR, now {cache_dir()}): "
-            f"{exc.strerror or exc}")  # fmt: skip
+def writable_cache_folder(folder: Path) -> Path:
+    """`folder` made if missing and proven writable by a file made in it and dropped: a
+    read-only cache is named before a long job (INT8 calibration takes ~30 s) instead of
+    when that job writes its result."""
+    make_cache_folder(folder)
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise OSError(cache_write_error(folder, exc)) from exc
+    return folder
+
+
+def cache_write_error(folder: Path, exc: OSError) -> str:
+    """What cannot be written and why, naming the cache and its setting where `folder`
+    lies in it (not only the errno, nor a temporary file's name)."""
+    reason = exc.strerror or exc
+    if not Path(folder).is_relative_to(cache_dir()):
+        return f"cannot write {folder}: {reason}"
+    return f"cannot write {folder}, in the cache ($FOLLOW_CACHE_DIR, now {cache_dir()}): {reason}"
 
 
 def search_dirs() -> list[Path]:
@@ -345,7 +362,7 @@ def _download(url: str, target: Path, sha256: str) -> None:
         fd, tmp_name = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
                                         suffix=".part")  # fmt: skip
     except OSError as exc:  # a ModelError: fetching everything goes on to the next model
-        raise ModelError(_cache_write_error(target.parent, exc)) from exc
+        raise ModelError(cache_write_error(target.parent, exc)) from exc
     digest = hashlib.sha256()
     tmp = Path(tmp_name)
     out = os.fdopen(fd, "wb")  # closed on every path, a download that never starts included

@@ -238,3 +238,43 @@ def test_a_model_file_refuses_settings_it_would_override_in_silence(tmp_path, se
     named_int8.write_bytes(b"x")
     with pytest.raises(ModelError, match="is an INT8 model by its name"):
         model_file_for(PoseConfig(model_file=str(named_int8), precision="fp32"))
+
+
+def test_a_read_only_cache_names_the_cache_not_a_temporary_file(cache, tmp_path, monkeypatch):
+    """A bare `[Errno 13] Permission denied: '...<pid>.partial'` named a file the user
+    never made, and not the cache or its setting."""
+    from test_models import read_only
+
+    source = tmp_path / "net.onnx"
+    _save_graph(source)
+    folder = models.make_cache_folder(cache / "pose")
+    read_only(monkeypatch, folder)
+    with pytest.raises(OSError) as caught:
+        model_manifest.install(folder / "m.onnx", source, {}, lambda p: p.write_bytes(b"x"))
+    message = str(caught.value)
+    assert message.startswith(f"cannot write {folder}, in the cache ($FOLLOW_CACHE_DIR, now ")
+    assert "partial" not in message and message.endswith("Permission denied")
+
+
+def test_a_source_that_cannot_be_read_is_not_blamed_on_the_cache(cache, tmp_path):
+    folder = models.make_cache_folder(cache / "pose")
+    with pytest.raises(FileNotFoundError, match="gone.onnx"):
+        model_manifest.install(folder / "m.onnx", tmp_path / "gone.onnx", {},
+                               lambda p: p.write_bytes(b"x"))  # fmt: skip
+    assert list(folder.iterdir()) == []
+
+
+def test_int8_calibration_does_not_start_on_a_read_only_cache(cache, tmp_path, monkeypatch):
+    """`follow models prepare` calibrated for ~30 s before failing to write its result."""
+    from test_models import read_only
+
+    from follow.pose import quantize
+
+    source = tmp_path / "fp32.onnx"
+    _save_graph(source)
+    calibrated = []
+    monkeypatch.setattr(quantize, "prepare_input", lambda *a: calibrated.append(a))
+    read_only(monkeypatch, models.make_cache_folder(default_int8_path().parent))
+    with pytest.raises(OSError, match=r"cannot write .*pose, in the cache \(\$FOLLOW_CACHE_DIR"):
+        quantize.quantize_pose_model(source, [np.zeros((16, 16, 3), np.uint8)], 16)
+    assert calibrated == []

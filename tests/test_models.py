@@ -297,3 +297,59 @@ def test_a_cache_folder_that_cannot_be_made_names_the_cache(tmp_path, monkeypatc
     with pytest.raises(OSError, match=r"in the cache \(\$FOLLOW_CACHE_DIR, now .*notes.txt/c\)"):
         models.make_cache_folder(models.cache_dir() / "pose")
     assert models.make_cache_folder(tmp_path / "ok" / "pose").is_dir()
+
+
+def read_only(monkeypatch, folder) -> None:
+    """Make `folder` read-only for the rest of the test, whoever runs it: chmod stops no
+    write by root (CI runs as root), so each way of making or replacing a file in it
+    fails as on a read-only disk (EACCES, naming the file)."""
+    import builtins
+    import errno
+    import io
+    from pathlib import Path
+
+    folder = Path(os.path.abspath(folder))
+    real_open, real_os_open, real_replace = builtins.open, os.open, os.replace
+
+    def check(path) -> None:
+        if isinstance(path, int):  # a file descriptor
+            return
+        name = Path(os.path.abspath(os.fsdecode(path)))
+        if folder in (name, name.parent):  # O_TMPFILE opens the folder itself
+            raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(name))
+
+    def guarded_open(file, mode="r", *args, **kwargs):
+        if any(c in mode for c in "wax+"):
+            check(file)
+        return real_open(file, mode, *args, **kwargs)
+
+    def guarded_os_open(path, flags, *args, **kwargs):
+        if flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT):
+            check(path)
+        return real_os_open(path, flags, *args, **kwargs)
+
+    def guarded_replace(src, dst, *args, **kwargs):
+        check(src)
+        check(dst)
+        return real_replace(src, dst, *args, **kwargs)
+
+    for module in (builtins, io):
+        monkeypatch.setattr(module, "open", guarded_open)
+    monkeypatch.setattr(os, "open", guarded_os_open)
+    monkeypatch.setattr(os, "replace", guarded_replace)
+    monkeypatch.setattr(os, "rename", guarded_replace)
+
+
+def test_a_read_only_cache_folder_is_named_before_any_long_job(tmp_path, monkeypatch):
+    """Making the folder succeeded on a read-only cache: INT8 calibration ran ~30 s, then
+    failed with a bare `[Errno 13] Permission denied` naming a temporary file."""
+    folder = models.make_cache_folder(models.cache_dir() / "pose")
+    assert models.writable_cache_folder(folder) == folder
+    assert list(folder.iterdir()) == []  # the probe leaves nothing behind
+    read_only(monkeypatch, folder)
+    with pytest.raises(OSError, match=r"^cannot write .*pose, in the cache \(\$FOLLOW_CACHE_DIR"):
+        models.writable_cache_folder(folder)
+    elsewhere = tmp_path / "elsewhere"
+    read_only(monkeypatch, elsewhere)
+    with pytest.raises(OSError, match=r"^cannot write .*elsewhere: Permission denied$"):
+        models.writable_cache_folder(elsewhere)  # not the cache: not said to be

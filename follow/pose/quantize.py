@@ -70,7 +70,7 @@ def quantize_pose_model(
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
     output_path = Path(output_path) if output_path else default_int8_path()
-    models.make_cache_folder(output_path.parent)
+    models.writable_cache_folder(output_path.parent)  # before the calibration, not after
     tensors = [prepare_input(f, input_height_px)[0] for f in calibration_frames]
     if not tensors:
         raise ValueError("INT8 calibration needs at least one frame")
