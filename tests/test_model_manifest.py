@@ -1,6 +1,7 @@
 """Derived model files carry an integrity record, checked before they run."""
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -278,3 +279,17 @@ def test_int8_calibration_does_not_start_on_a_read_only_cache(cache, tmp_path, m
     with pytest.raises(OSError, match=r"cannot write .*pose, in the cache \(\$FOLLOW_CACHE_DIR"):
         quantize.quantize_pose_model(source, [np.zeros((16, 16, 3), np.uint8)], 16)
     assert calibrated == []
+
+
+def test_models_prepare_reads_no_calibration_frame_on_a_read_only_cache(cache, monkeypatch):
+    """`prepare_int8` read its calibration frames (seconds) before the write check."""
+    from test_models import read_only
+
+    from follow.pose import prepare
+
+    monkeypatch.setattr(prepare.models, "resolve", lambda name: Path("fp32.onnx"))
+    monkeypatch.setattr(prepare, "calibration_frames",
+                        lambda: pytest.fail("calibration frames read"))  # fmt: skip
+    read_only(monkeypatch, models.make_cache_folder(default_int8_path().parent))
+    with pytest.raises(OSError, match=r"cannot write .*pose, in the cache \(\$FOLLOW_CACHE_DIR"):
+        prepare.prepare_int8(force=True)

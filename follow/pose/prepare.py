@@ -68,6 +68,7 @@ def prepare_int8(force: bool = False) -> Path:
         log.info("INT8 pose model already made: %s", target)
         return target
     fp32 = models.resolve(SOURCE_MODEL)
+    models.writable_cache_folder(target.parent)  # before the frames are read, not after
     log.info("making the INT8 pose model %s from %s (a few minutes)", target, fp32)
     frames = calibration_frames()
     description = (
