@@ -4,7 +4,10 @@ MCAP / SQLite files, read with `rosbags` (pure Python, no ROS installation).
 Images come from one topic (Image or CompressedImage), stamped with their header's
 time; the robot's pose at each image's stamp comes from an odometry topic
 (nav_msgs/Odometry, interpolated between samples). An image with no odometry close
-enough is skipped with a warning rather than placed at an assumed pose.
+enough is skipped with a warning rather than placed at an assumed pose. Every image
+skipped is counted by reason (`skipped_images`); a bag whose images are all skipped is
+refused with those counts, and a damaged record that the storage layer cannot read ends
+the bag with a SourceError naming it (a damaged message only skips that message).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from pathlib import Path
 
 from follow.capture import SourceError
 from follow.odometry_buffer import OdometryBuffer
-from follow.rosmsg import image_from_msg, odometry_from_msg, stamp_s
+from follow.rosmsg import IMAGE_ENCODINGS, image_from_msg, odometry_from_msg, stamp_s
 from follow.types import Frame, InvalidInput, Odometry
 
 log = logging.getLogger(__name__)
@@ -82,7 +85,7 @@ class BagSource:
         self.camera_info = None
         if camera_info_topic:
             info = self._connections(camera_info_topic, (CAMERA_INFO_TYPE,))
-            for connection, log_time_ns, raw in self._reader.messages(info):
+            for connection, log_time_ns, raw in self._messages(info):
                 try:
                     self.camera_info = self._decode(raw, connection, log_time_ns)
                 except InvalidInput as exc:
@@ -99,6 +102,19 @@ class BagSource:
         self.frames_without_odometry = 0
         self.repeated_frames = 0  # images not stamped after the one before: skipped
         self.damaged_images = 0  # image messages whose bytes do not decode: skipped
+        self.skipped_images: dict[str, int] = {}  # every image skipped, by reason
+
+    def _messages(self, connections: list) -> Iterator:
+        """The reader's messages, with an error of the storage layer (a damaged record:
+        rosbags' ReaderError, its assertions, struct's errors) as a SourceError naming the
+        bag and topic, so that `follow run` ends naming it rather than with a traceback."""
+        try:
+            yield from self._reader.messages(connections)
+        except Exception as exc:  # rosbags raises its own classes, and asserts, per format
+            raise SourceError(
+                f"bag {self.spec}: {connections[0].topic}: damaged record "
+                f"({type(exc).__name__}: {exc})"
+            ) from None
 
     def _decode(self, raw: bytes, connection, log_time_ns: int):
         """The message in `raw`, or InvalidInput naming the topic and time where its bytes
@@ -122,8 +138,11 @@ class BagSource:
         return found
 
     def _read_odometry(self, connections: list, max_gap_s: float) -> OdometryBuffer:
-        poses, bad = [], []
-        for c, log_time_ns, raw in self._reader.messages(connections):
+        """The topic's poses, in recording order, keeping only those stamped after the
+        last kept (as images): after a clock stepped back, the samples before and after
+        the step would share stamps and give images the pose from the wrong side."""
+        poses, bad, stepped_back = [], [], 0
+        for c, log_time_ns, raw in self._messages(connections):
             try:
                 pose = odometry_from_msg(self._decode(raw, c, log_time_ns))
             except InvalidInput as exc:  # one bad sample: a gap, not an unreadable bag
@@ -131,10 +150,17 @@ class BagSource:
                 continue
             if pose.stamp_s == 0.0:  # unstamped, as images can be: the time it was recorded
                 pose = Odometry(pose.x_m, pose.y_m, pose.yaw_rad, log_time_ns * 1e-9)
+            if poses and pose.stamp_s <= poses[-1].stamp_s:
+                stepped_back += 1
+                continue
             poses.append(pose)
         if bad:
             log.warning("bag %s: %d odometry message(s) on %s skipped (first at %s)",
                         self.spec, len(bad), connections[0].topic, bad[0])  # fmt: skip
+        if stepped_back:
+            log.warning("bag %s: %d odometry message(s) on %s skipped: stamped at or before "
+                        "an earlier sample (a clock stepped back?)",
+                        self.spec, stepped_back, connections[0].topic)  # fmt: skip
         if not poses:
             raise SourceError(f"bag {self.spec}: odometry topic {connections[0].topic} is empty")
         buffer = OdometryBuffer(max_gap_s, capacity=len(poses))
@@ -150,7 +176,7 @@ class BagSource:
         from follow.runlog import skeleton_from_json
 
         stamps, skeletons, damaged = [], [], []
-        for c, log_time_ns, raw in self._reader.messages(connections):
+        for c, log_time_ns, raw in self._messages(connections):
             try:
                 text = self._decode(raw, c, log_time_ns).data
             except InvalidInput as exc:  # its frame is run without recorded skeletons
@@ -189,19 +215,19 @@ class BagSource:
         return []
 
     def _frame_rate(self) -> float:
-        stamps = [t for _, t, _ in self._reader.messages(self._images)]
+        stamps = [t for _, t, _ in self._messages(self._images)]
         if len(stamps) < 2 or stamps[-1] <= stamps[0]:
             return 15.0
         return (len(stamps) - 1) / ((stamps[-1] - stamps[0]) * 1e-9)
 
     def __iter__(self) -> Iterator[Frame]:
-        last_stamp = None
-        for connection, log_time_ns, raw in self._reader.messages(self._images):
+        last_stamp, yielded = None, 0
+        for connection, log_time_ns, raw in self._messages(self._images):
             try:
                 msg = self._decode(raw, connection, log_time_ns)
             except InvalidInput as exc:
                 self.damaged_images += 1
-                log.warning("skipping an image: %s", exc)
+                self._skip("damaged", "skipping an image: %s", exc)
                 continue
             stamp = stamp_s(msg.header)
             if stamp == 0.0:  # an unstamped image: the time it was recorded
@@ -210,21 +236,36 @@ class BagSource:
                 # A repeated (or older) image: the tracker would fold the same detections
                 # in twice at dt = 0 and grow falsely sure of them (as the ROS node, drop).
                 self.repeated_frames += 1
-                log.warning("skipping the image at %.6f s: not after the previous one (%.6f s)",
-                            stamp, last_stamp)  # fmt: skip
+                self._skip("stamp not after the previous", "skipping the image at %.6f s: "
+                           "not after the previous one (%.6f s)", stamp, last_stamp)  # fmt: skip
                 continue
             last_stamp = stamp
             try:
                 frame = Frame(image_from_msg(msg), stamp)
             except InvalidInput as exc:
-                log.warning("skipping the image at %.3f s: %s", stamp, exc)
+                self._skip(_unusable_reason(msg), "skipping the image at %.3f s: %s", stamp, exc)
                 continue
             if self.odometry is not None and self.odometry.at(stamp) is None:
                 self.frames_without_odometry += 1
-                log.warning("skipping the image at %.3f s: no odometry within %.2f s",
-                            stamp, self.odometry.max_gap_s)  # fmt: skip
+                self._skip("no odometry", "skipping the image at %.3f s: no odometry within "
+                           "%.2f s", stamp, self.odometry.max_gap_s)  # fmt: skip
                 continue
+            yielded += 1
             yield frame
+        if not yielded and self.skipped_images:
+            raise SourceError(f"bag {self.spec}: {self._all_skipped()}")
+
+    def _skip(self, reason: str, message: str, *args) -> None:
+        """Count a skipped image under `reason` (the summary's `skipped_images`), warning."""
+        self.skipped_images[reason] = self.skipped_images.get(reason, 0) + 1
+        log.warning(message, *args)
+
+    def _all_skipped(self) -> str:
+        """'6 images on /camera/image_raw, all skipped: 6 in unsupported encoding ...'."""
+        total = sum(self.skipped_images.values())
+        counts = ", ".join(f"{n} {_with_reason(r)}" for r, n in self.skipped_images.items())
+        images = "image" if total == 1 else "images"
+        return f"{total} {images} on {self._images[0].topic}, all skipped: {counts}"
 
     def odometry_at(self, stamp: float) -> Odometry:
         """The robot's pose at an image's stamp (only for frames this source yielded)."""
@@ -235,3 +276,18 @@ class BagSource:
 
     def close(self) -> None:
         self._reader.close()
+
+
+def _unusable_reason(msg) -> str:
+    """Why an image message that decodes gives no image: its encoding, or its content."""
+    encoding = getattr(msg, "encoding", None)  # CompressedImage has a format instead
+    if encoding is not None and encoding not in IMAGE_ENCODINGS:
+        return f"unsupported encoding {encoding!r}"
+    return "unusable"
+
+
+def _with_reason(reason: str) -> str:
+    """A skip reason after its count: '6 in unsupported encoding ...', '2 with no odometry'."""
+    if reason.startswith("unsupported encoding"):
+        return f"in {reason}"
+    return f"with {reason}" if reason in ("no odometry", "stamp not after the previous") else reason

@@ -16,7 +16,7 @@ from follow.camera import CameraModel
 from follow.types import InvalidInput, Odometry
 
 # Encodings of sensor_msgs/Image we decode: channels and the OpenCV conversion to BGR.
-_ENCODINGS: dict[str, tuple[int, int | None]] = {
+IMAGE_ENCODINGS: dict[str, tuple[int, int | None]] = {
     "bgr8": (3, None),
     "8UC3": (3, None),
     "rgb8": (3, cv2.COLOR_RGB2BGR),
@@ -53,11 +53,12 @@ def image_from_msg(msg) -> np.ndarray:
         if image is None:
             raise InvalidInput(f"compressed image ({msg.format!r}) cannot be decoded")
         return image
-    if msg.encoding not in _ENCODINGS:
+    if msg.encoding not in IMAGE_ENCODINGS:
         raise InvalidInput(
-            f"image encoding {msg.encoding!r} is not supported; use one of {sorted(_ENCODINGS)}"
+            f"image encoding {msg.encoding!r} is not supported; "
+            f"use one of {sorted(IMAGE_ENCODINGS)}"
         )
-    channels, conversion = _ENCODINGS[msg.encoding]
+    channels, conversion = IMAGE_ENCODINGS[msg.encoding]
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height <= 0 or width <= 0:
         raise InvalidInput(f"image {width}x{height} {msg.encoding} is empty")

@@ -523,6 +523,9 @@ def _run_source(args, config: Config, source, summary: RunSummary) -> dict:
     damaged = getattr(source, "damaged_images", 0)  # a bag's image messages that do not decode
     if damaged:
         result["damaged_images"] = damaged
+    skipped_images = getattr(source, "skipped_images", None)  # a bag's, by reason
+    if skipped_images is not None:
+        result["skipped_images"] = dict(skipped_images)
     if not args.json:
         skipped = f", {without_odometry} without odometry" if without_odometry else ""
         skipped += f", {damaged} damaged" if damaged else ""
