@@ -649,6 +649,22 @@ def replay_config(header: dict, log_path: str) -> Config:
     return Config.load(logged)
 
 
+def check_replay_stamp(log_path: str, source: str, record, stamp_s: float) -> None:
+    """Refuse a record whose frame of the source is another image than the run's: one
+    image more or less (a bag replayed with another `[ros] max_odometry_age_s`, a folder
+    at another `--folder-fps`) paired every later record with the wrong image, silently.
+    The log keeps stamps to 1e-6 s; beyond 1e9 s, a float's own precision counts too."""
+    if abs(record.stamp_s - stamp_s) <= max(1e-6, 1e-15 * abs(stamp_s)):
+        return
+    index = record.frame_index
+    raise ValueError(
+        f"--replay {log_path}: the log's frame {index} is stamped {record.stamp_s:.6f} s, "
+        f"but frame {index} of {source} is stamped {stamp_s:.6f} s: the source does not "
+        "give the frames the run read (another [ros] max_odometry_age_s or --folder-fps, "
+        "or another file?)"
+    )
+
+
 def replay(args, config: Config) -> dict:
     """Tracking and identification again on a log's skeletons and the same frames."""
     header, records = read_run_log(args.replay)
@@ -657,6 +673,11 @@ def replay(args, config: Config) -> dict:
     target_id = replay_target_id(header, args.replay, args.target_id)
     if not args.config:
         config = replay_config(header, args.replay)
+    # the log is read a record at a time as the frames reach it: its records are in the
+    # order of their frames, each frame without one (skipped by the run) is skipped again
+    record = next(records, None)
+    if record is None:  # not the source's fault: say so before opening it
+        raise ValueError(f"the log {args.replay} holds no frame records")
     # The log holds the robot's poses; a bag's odometry is read again only so that the
     # images the run skipped for want of it are skipped again, and frame numbers agree.
     # The bag's image and camera-info topics are the run's unless given again.
@@ -668,10 +689,10 @@ def replay(args, config: Config) -> dict:
     perception = None
     agree = total = 0
     current: list = [[]]  # the logged skeletons of the frame being replayed
-    # the log is read a record at a time as the frames reach it: its records are in the
-    # order of their frames, each frame without one (skipped by the run) is skipped again
-    record = next(records, None)
     try:
+        if source.live:
+            raise ValueError(f"--replay {args.replay}: {args.source} is a live camera; a "
+                             "replay needs the recorded frames (a file, folder or bag)")  # fmt: skip
         for index, frame in enumerate(source):
             if record is None:
                 break  # the log has ended: the rest of the source has nothing to replay
@@ -693,6 +714,7 @@ def replay(args, config: Config) -> dict:
                 perception = build_perception(config, camera, detect=lambda f: current[0])
                 if target_id is not None:
                     perception.identifier.select_target(target_id)
+            check_replay_stamp(args.replay, args.source, record, frame.stamp_s)
             current[0] = record.skeletons
             robot = record.robot or Odometry.origin(record.stamp_s)
             result = perception.process(Frame(frame.image, record.stamp_s), robot, index)

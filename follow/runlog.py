@@ -25,6 +25,9 @@ from follow.types import (
 )
 
 LOG_VERSION = 1
+# The latest frame stamp a log may hold (about the year 5138): a hand-edited 1e300 passed
+# as a finite number and overflowed the tracker's motion model (dt ** 3) on replay.
+MAX_STAMP_S = 1e11
 
 
 def _num(x: float) -> float | None:
@@ -269,7 +272,7 @@ def _record(d: dict) -> FrameRecord:
     that is of the wrong shape."""
     if not isinstance(d, dict):
         raise ValueError(f"a frame record must be a JSON object, got {_shown(d)}")
-    stamp_s = _number(d["stamp_s"], "stamp_s")
+    stamp_s = _stamp(d["stamp_s"])
     frame = _whole(d["frame"], "frame")
     skeletons = d["skeletons"]
     if not isinstance(skeletons, list):
@@ -293,6 +296,14 @@ def _record(d: dict) -> FrameRecord:
         else VelocityCommand(*_numbers(command, "command", 2), stamp_s),
         timing_ms=_of_type(d.get("timing_ms", {}), dict, "timing_ms"),
     )
+
+
+def _stamp(value) -> float:
+    """A frame's time in seconds, in the range a clock gives (see MAX_STAMP_S)."""
+    stamp_s = _number(value, "stamp_s")
+    if not 0 <= stamp_s < MAX_STAMP_S:
+        raise ValueError(f"stamp_s is {_shown(value)}, not a time from 0 to {MAX_STAMP_S:g} s")
+    return stamp_s
 
 
 def _of_type(value, kind: type, name: str):

@@ -128,8 +128,9 @@ def test_replay_log_out_of_order(tmp_path, capsys, monkeypatch, frames, message)
 
     monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: Perception())
     video = _video(tmp_path / "a.avi")
-    records = [json.dumps({"frame": k, "stamp_s": 0.1 * n, "skeletons": []})
-               for n, k in enumerate(frames)]  # fmt: skip
+    # stamped as the video's frames are (15 fps), so that only their order is wrong
+    records = [json.dumps({"frame": k, "stamp_s": max(k, 0) / 15.0, "skeletons": []})
+               for k in frames]  # fmt: skip
     log = _log(tmp_path / "run.jsonl", {"source": str(video), "image_size": [64, 48]}, records)
     err = _error(capsys, ["run", str(video), "--camera", str(_camera(tmp_path)),
                           "--replay", str(log)])  # fmt: skip

@@ -6,6 +6,7 @@ from types import SimpleNamespace
 
 import cv2
 import numpy as np
+import pytest
 
 from follow import cli
 from follow import run as run_module
@@ -130,3 +131,100 @@ def test_a_replay_through_another_camera_file_is_warned_of(tmp_path, caplog):
         assert not caplog.records  # the same file, however named
         warn_if_other_camera({"camera": str(run_camera)}, other)
     assert "new_cam.yaml; the run used" in caplog.text
+
+
+def test_a_replay_whose_source_gives_other_frames_than_the_runs_is_refused(
+    tmp_path, capsys, model_path
+):
+    """A bag replayed with a tighter `[ros] max_odometry_age_s` skips one image more
+    than the run did: every later record used to be replayed on the next image, with
+    full agreement and a false "past the end" warning."""
+    from follow.bag_writer import BagWriter
+    from follow.types import Odometry
+
+    model_path("ccf/ccf10")  # the run's identifier
+    bag = tmp_path / "gap.mcap"
+    rng = np.random.default_rng(5)
+    with BagWriter(bag) as writer:
+        for i in range(6):
+            stamp = 1000.0 + 0.5 * i
+            for dt in (-0.15, 0.15) if i == 3 else (-0.01, 0.01):  # image 3: odometry 0.15 s off
+                writer.write_odometry("/odom", Odometry(0.0, 0.0, 0.0, stamp + dt))
+            writer.write_string("/skeletons", stamp, "[]")
+            image = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
+            writer.write_image("/camera/image_raw", stamp, image, "camera")
+    camera = tmp_path / "cam.yaml"
+    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0)).save(camera)
+    common = ["run", str(bag), "--camera", str(camera), "--json"]
+    log = tmp_path / "run.jsonl"
+    assert cli.main([*common, "--image-topic", "/camera/image_raw", "--odom-topic", "/odom",
+                     "--skeletons-topic", "/skeletons", "--log", str(log)]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert cli.main([*common, "--replay", str(log)]) == 0  # the run's settings: all 6 frames
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["frames"] == 6
+
+    tight = tmp_path / "tight.toml"
+    tight.write_text("[ros]\nmax_odometry_age_s = 0.1\n")
+    assert cli.main([*common, "--replay", str(log), "--config", str(tight)]) == 1
+    err = capsys.readouterr().err
+    assert (f"--replay {log}: the log's frame 3 is stamped 1001.500000 s, but frame 3 of "
+            f"{bag} is stamped 1002.000000 s" in err)  # fmt: skip
+    assert "max_odometry_age_s" in err and "Traceback" not in err
+
+
+def test_a_replay_of_a_folder_at_another_frame_rate_is_refused(tmp_path, capsys, monkeypatch):
+    """The same images stamped at another `--folder-fps` are not the frames the run saw
+    (its tracker ran at their stamps)."""
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(folder / f"{k:04d}.png"), np.full((48, 64, 3), 20 * k, np.uint8))
+    camera = tmp_path / "cam.yaml"
+    CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0)).save(camera)
+    log = tmp_path / "run.jsonl"
+    lines = [{"log_version": 1, "source": str(folder), "image_size": [64, 48]}]
+    lines += [{"frame": k, "stamp_s": k / 10.0, "skeletons": []} for k in range(3)]
+    log.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    _configs_replayed_with(monkeypatch)
+    argv = ["run", str(folder), "--camera", str(camera), "--replay", str(log), "--json"]
+    assert cli.main([*argv, "--folder-fps", "10"]) == 0
+    assert cli.main([*argv, "--folder-fps", "5"]) == 1
+    err = capsys.readouterr().err
+    assert "the log's frame 1 is stamped 0.100000 s, but frame 1 of" in err
+    assert "is stamped 0.200000 s" in err
+
+
+@pytest.mark.parametrize("tail", ["", '{"frame": 0, "stamp_s": 0.0, "skel'])
+def test_a_log_without_frame_records_is_named_not_its_source(tmp_path, capsys, monkeypatch, tail):
+    """A header alone, or with a first frame line cut short (a run killed at once), was
+    reported as "no frame of it found in SOURCE", as if the source were at fault."""
+    argv = _logged_run(tmp_path, 3, {}, logged=())
+    log = tmp_path / "run.jsonl"
+    log.write_text(log.read_text() + tail)
+    configs = _configs_replayed_with(monkeypatch)
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert f"the log {log} holds no frame records" in err and "found in" not in err
+    assert configs == []
+
+
+def test_a_live_camera_is_not_replayed(tmp_path, capsys, monkeypatch):
+    """A camera's frames are new ones, never those the log was made from."""
+    argv = _logged_run(tmp_path, 3, {"source": "0"})
+    argv[1] = "0"
+    closed = []
+
+    class Camera:
+        live = True
+
+        def __iter__(self):
+            return iter([run_module.Frame(np.zeros((48, 64, 3), np.uint8), 5.0)])
+
+        def close(self):
+            closed.append(True)
+
+    monkeypatch.setattr(run_module, "open_source", lambda *a, **k: Camera())
+    configs = _configs_replayed_with(monkeypatch)
+    assert cli.main(argv) == 1
+    assert "0 is a live camera; a replay needs the recorded frames" in capsys.readouterr().err
+    assert closed == [True] and configs == []

@@ -159,3 +159,23 @@ def test_the_log_is_read_a_line_at_a_time_as_the_records_are_taken(tmp_path):
     offset = len(good) + len(b'{"frame": 4, "stamp_s": ')
     with pytest.raises(ValueError, match=rf"run log {path}: not a text run log .* byte {offset}\)"):
         next(records)
+
+
+@pytest.mark.parametrize("stamp", [1e300, 1e11, -0.5])
+def test_a_stamp_no_clock_gives_is_refused_with_its_line(tmp_path, stamp):
+    """A hand-edited 1e300 is a finite number: it passed, and the replay's tracker then
+    failed with a raw OverflowError (its motion model takes dt ** 3)."""
+    path = tmp_path / "run.jsonl"
+    with RunLogWriter(path, {"source": "video.avi"}) as log:
+        for i in range(3):
+            log.write_frame(i, i / 15.0, None, [_skeleton(100 + i)], [], None, None)
+    lines = path.read_text().splitlines(True)
+    edited = json.loads(lines[2])
+    edited["stamp_s"] = stamp
+    path.write_text("".join([*lines[:2], json.dumps(edited) + "\n", *lines[3:]]))
+    _, records = read_run_log(path)
+    assert next(records).stamp_s == 0.0
+    with pytest.raises(ValueError) as caught:
+        next(records)
+    assert f"run log {path}: line 3: malformed frame record (stamp_s is {json.dumps(stamp)}, " \
+        "not a time from 0 to 1e+11 s)" in str(caught.value)  # fmt: skip
