@@ -10,14 +10,14 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from nobody_seen import NobodySeen
 
 from follow import cli
 from follow import run as run_module
 from follow.bag import BagSource
 from follow.bag_writer import BagWriter
 from follow.camera import CameraModel, CameraPose
-from follow.pipeline import Detections, FrameResult
-from follow.types import Odometry, TargetEstimate, TargetStatus
+from follow.types import Odometry
 
 TOPIC = "/camera/image_raw"
 CAMERA = CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.2, pitch_rad=0.1))
@@ -191,23 +191,11 @@ def test_the_images_a_bag_skips_are_counted_by_reason(tmp_path):
     source.close()
 
 
-class _Perception:
-    def detect_people(self, frame):
-        return Detections([], 0.0)
-
-    def conclude(self, frame, robot, index, detections):
-        target = TargetEstimate(TargetStatus.INITIAL, None, {}, frame.stamp_s)
-        return FrameResult(index, frame.stamp_s, robot, [], [], target)
-
-    def process(self, frame, robot, index):
-        return self.conclude(frame, robot, index, self.detect_people(frame))
-
-
 def test_follow_runs_summary_reports_the_bags_skipped_images(tmp_path, monkeypatch):
     write_mixed_bag(tmp_path / "mixed.mcap")
     CAMERA.save(tmp_path / "camera.yaml")
     (tmp_path / "config.toml").write_text("[ros]\nmax_odometry_age_s = 0.05\n")
-    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: NobodySeen())
     args = SimpleNamespace(
         max_frames=None, config=str(tmp_path / "config.toml"), mavlink=None, replay=None,
         source=str(tmp_path / "mixed.mcap"), image_topic=TOPIC, odom_topic="/odom",

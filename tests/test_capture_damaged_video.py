@@ -117,13 +117,19 @@ def _script(good_before: int, damaged: int, good_after: int) -> list:
     return [image] * good_before + [None] * damaged + [image] * good_after
 
 
+def _uncounted_file(tmp_path, monkeypatch, script: list):
+    """A file whose capture reads `script` and announces no frame count (a raw stream)."""
+    path = tmp_path / "v.mjpeg"
+    path.write_bytes(bytes(1000))
+    capture = _ScriptedFile(script, count=0)
+    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: capture)
+    return path, capture
+
+
 def test_a_video_without_a_frame_count_skips_a_short_damaged_run_and_says_where_it_ended(
     tmp_path, monkeypatch, caplog
 ):
-    path = tmp_path / "v.mjpeg"
-    path.write_bytes(bytes(1000))
-    capture = _ScriptedFile(_script(5, 10, 5), count=0)
-    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: capture)
+    path, capture = _uncounted_file(tmp_path, monkeypatch, _script(5, 10, 5))
     with caplog.at_level(logging.WARNING, logger="follow.capture"):
         frames = list(FrameSource(str(path)))
     assert len(frames) == 10  # the 5 after the damaged run are read
@@ -139,10 +145,7 @@ def test_a_whole_video_without_a_frame_count_ends_without_a_warning(
 ):
     """A raw stream that announces no count and has no damaged frame ends as any file:
     where it ended is information, not a warning repeated at the end of every such file."""
-    path = tmp_path / "v.mjpeg"
-    path.write_bytes(bytes(1000))
-    capture = _ScriptedFile(_script(12, 0, 0), count=0)
-    monkeypatch.setattr(cv2, "VideoCapture", lambda *a: capture)
+    path, capture = _uncounted_file(tmp_path, monkeypatch, _script(12, 0, 0))
     with caplog.at_level(logging.INFO, logger="follow.capture"):
         frames = list(FrameSource(str(path)))
     assert len(frames) == 12

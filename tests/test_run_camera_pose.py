@@ -9,6 +9,7 @@ import logging
 import cv2
 import numpy as np
 import pytest
+from nobody_seen import NobodySeen
 from recording_base import RecordingBase
 
 from calib.camera_file import write_camera_file
@@ -16,28 +17,12 @@ from follow import cli
 from follow import run as run_module
 from follow.camera import CameraModel, CameraPose
 from follow.control.base import NullBase
-from follow.pipeline import Detections, FrameResult
-from follow.types import TargetEstimate, TargetStatus
 
 CAMERA = CameraModel.from_fov((64, 48), 70.0, CameraPose(height_m=1.0))
 # what `follow-calib intrinsics` writes into a new camera file, and `ground` over it
 INTRINSICS_NOTES = {"intrinsics": "follow-calib intrinsics", "intrinsics_rms_px": 0.2,
                     "pose": "placeholder: measure it with `follow-calib ground`"}  # fmt: skip
 GROUND_NOTES = {"pose": "follow-calib ground", "pose_board_rms_px": 0.1}
-
-
-class _Perception:
-    """Nobody is ever seen: no pose network, no model files."""
-
-    def detect_people(self, frame):
-        return Detections([], 0.0)
-
-    def conclude(self, frame, robot, index, detections):
-        target = TargetEstimate(TargetStatus.INITIAL, None, {}, frame.stamp_s)
-        return FrameResult(index, frame.stamp_s, robot, [], [], target)
-
-    def process(self, frame, robot, index):
-        return self.conclude(frame, robot, index, self.detect_people(frame))
 
 
 @pytest.fixture
@@ -50,7 +35,7 @@ def scene(tmp_path, monkeypatch):
         writer.write(np.zeros((48, 64, 3), np.uint8))
     writer.release()
     base = RecordingBase()
-    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: _Perception())
+    monkeypatch.setattr(run_module, "build_perception", lambda *a, **k: NobodySeen())
     monkeypatch.setattr(run_module, "open_base",
                         lambda config: base if config.mavlink.connection else NullBase())  # fmt: skip
     return video, base
