@@ -189,7 +189,7 @@ def cache_write_error(folder: Path, exc: OSError) -> str:
     """What cannot be written and why, naming the cache and its setting where `folder`
     lies in it (not only the errno, nor a temporary file's name)."""
     reason = exc.strerror or exc
-    if not Path(folder).is_relative_to(cache_dir()):
+    if not Path(folder).is_relative_to(cache_dir().parent):  # the models' and eval's
         return f"cannot write {folder}: {reason}"
     return f"cannot write {folder}, in the cache ($FOLLOW_CACHE_DIR, now {cache_dir()}): {reason}"
 
