@@ -69,7 +69,7 @@ def _driving_node(detect):
     """A node with cmd_vel on, fresh odometry fed every 20 ms, whose published twists
     are recorded; (node, twists, stop feeding)."""
     config = Config().replace("identify", identifier="channels")
-    config = config.replace("ros", publish_cmd_vel=True, camera_info_topic="", max_image_age_s=2.0)
+    config = config.replace("ros", publish_cmd_vel=True, camera_info_topic="", max_image_age_s=1.0)
     node = FollowNode(config.replace("control", target_timeout_s=2.0), CAMERA, detect=detect)
     twists: list = []
     node.pub_cmd_vel.publish = twists.append
