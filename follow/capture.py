@@ -280,9 +280,7 @@ class FrameSource:
         stretch of any length before it is skipped (a read past a cut file's data fails in
         microseconds). Without a count to trust, MAX_UNDECODABLE_RUN failed reads in a row
         end the file (said by _warn_if_short, _warn_if_uncounted)."""
-        if self.frame_count is None:
-            return failures < MAX_UNDECODABLE_RUN
-        if not self._frames_announced_after(position):
+        if self.frame_count is not None and not self._frames_announced_after(position):
             return False
         return self._count_trusted or failures < MAX_UNDECODABLE_RUN
 

@@ -82,10 +82,15 @@ POSE_JUMP_MARGIN_M = 0.2
 POSE_JUMP_MARGIN_RAD = 0.1
 
 
+def pose_change(before: Odometry, after: Odometry) -> tuple[float, float]:
+    """How far (m) and how much (rad, the shorter arc) the pose moved between two samples."""
+    moved_m = math.hypot(after.x_m - before.x_m, after.y_m - before.y_m)
+    return moved_m, abs(float(wrap_angle(after.yaw_rad - before.yaw_rad)))
+
+
 def pose_jumped(before: Odometry, after: Odometry, dt_s: float) -> bool:
     """Whether `after` lies farther from `before` than a base drives or turns in `dt_s`."""
-    moved_m = math.hypot(after.x_m - before.x_m, after.y_m - before.y_m)
-    turned_rad = abs(float(wrap_angle(after.yaw_rad - before.yaw_rad)))
+    moved_m, turned_rad = pose_change(before, after)
     dt_s = max(0.0, dt_s)
     return (moved_m > MAX_ROBOT_SPEED_MPS * dt_s + POSE_JUMP_MARGIN_M
             or turned_rad > MAX_ROBOT_YAW_RATE_RADPS * dt_s + POSE_JUMP_MARGIN_RAD)  # fmt: skip

@@ -334,7 +334,7 @@ class ControlLoop:
                         now - result.stamp_s,
                     )
         reused = result is not None and result is self._last_result
-        jump_s = getattr(self.odometry, "last_jump_s", None)
+        jump_s = self.odometry.last_jump_s
         target = None if stalled else target_motion(result, robot, now, reused, jump_s)
         command = self.controller.update(target, now)
         if stalled:

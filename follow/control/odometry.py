@@ -11,11 +11,9 @@ base (`NullBase`: the camera is assumed still) uses a fixed pose.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 
-from follow.frames import wrap_angle
-from follow.odometry_buffer import pose_jumped
+from follow.odometry_buffer import pose_change, pose_jumped
 from follow.types import Odometry
 
 log = logging.getLogger(__name__)
@@ -60,7 +58,7 @@ class OdometryPolicy:
         if pose_jumped(previous, pose, pose.stamp_s - previous.stamp_s):
             self.last_jump_s = pose.stamp_s
             log.warning("the base's odometry jumped (%.2f m, %.2f rad in %.3f s: a reset?): "
-                        "no target motion from frames before it", *_change(previous, pose),
+                        "no target motion from frames before it", *pose_change(previous, pose),
                         pose.stamp_s - previous.stamp_s)  # fmt: skip
 
     @property
@@ -68,8 +66,3 @@ class OdometryPolicy:
         with self._lock:
             return self._missing
 
-
-def _change(before: Odometry, after: Odometry) -> tuple[float, float]:
-    """How far and how much the pose moved between two samples (m, rad)."""
-    turned = abs(float(wrap_angle(after.yaw_rad - before.yaw_rad)))
-    return math.hypot(after.x_m - before.x_m, after.y_m - before.y_m), turned
