@@ -15,6 +15,7 @@ from follow.cli_args import (
     EARLY_END_TOLERANCE_FRAMES,
     MAX_UNDECODABLE_RUN,
     camera_index_too_large,
+    frame_count_fits_file,
     no_camera_at,
 )
 
@@ -116,6 +117,9 @@ def iter_video_frames(
         raise ImageInputError(f"video {source}: cannot be opened")
     count = 0 if camera_index else capture.get(cv2.CAP_PROP_FRAME_COUNT)
     announced = int(count) if count and np.isfinite(count) and count > 0 else 0
+    # A damaged stretch of any length before a count the file could hold is skipped;
+    # without one, MAX_UNDECODABLE_RUN failed reads in a row end the video.
+    count_trusted = not camera_index and frame_count_fits_file(source, announced)
     try:
         index = taken = damaged = failures = 0
         while limit is None or taken < limit:
@@ -123,7 +127,8 @@ def iter_video_frames(
             if not ok:
                 # A file's damaged frame, before the frames its header announces: skipped,
                 # as `follow run` does, not taken for the end of the video.
-                if index < announced - EARLY_END_TOLERANCE_FRAMES and failures < MAX_UNDECODABLE_RUN:
+                within_run = count_trusted or failures < MAX_UNDECODABLE_RUN
+                if index < announced - EARLY_END_TOLERANCE_FRAMES and within_run:
                     failures += 1
                     damaged += 1
                     index += 1

@@ -20,6 +20,7 @@ from follow.cli_args import (
     EARLY_END_TOLERANCE_FRAMES,
     MAX_UNDECODABLE_RUN,
     camera_index_too_large,
+    frame_count_fits_file,
     no_camera_at,
 )
 from follow.handoff import Mailbox
@@ -52,10 +53,6 @@ FRAME_RATE_GRID_TOLERANCE_S = 1e-3
 QUEUE_PAUSE_PERIODS = 2.0
 QUEUED_READ_MAX_PERIOD_FRACTION = 0.25
 MAX_QUEUED_FRAMES = MAX_DRIVER_BUFFERS
-# A file's announced frame count above its size in bytes over this is a damaged header, not a
-# count (no container stores a frame in fewer: AVI's chunk header alone is 8 bytes); it does
-# not bound a run of failed reads, which would be walked for hours (2**31 frames) at the end.
-MIN_FILE_BYTES_PER_FRAME = 8
 # A JPEG marker in entropy-coded data: 0xFF not followed by a stuffed 0x00 or a restart (RSTn).
 _JPEG_MARKER_IN_SCAN = re.compile(rb"\xff[^\x00\xd0-\xd7]")
 # The markers that may follow a scan: frame and table segments (C0-CF), another scan and
@@ -127,7 +124,9 @@ class FrameSource:
         self.fps = self._frame_rate()
         count = self._cap.get(cv2.CAP_PROP_FRAME_COUNT) if not self.live else 0
         self.frame_count = int(count) if count and np.isfinite(count) and count > 0 else None
-        self._count_trusted = self.frame_count is not None and self._count_fits_file()
+        self._count_trusted = self.frame_count is not None and frame_count_fits_file(
+            self.spec, self.frame_count
+        )
 
     def _frame_rate(self) -> float:
         """The capture's frame rate: FALLBACK_FPS where it reports none, or (a file) one
@@ -263,15 +262,6 @@ class FrameSource:
                      "reading dropped (older than they would be stamped)", self.spec,
                      dropped)  # fmt: skip
         return self._cap.retrieve()
-
-    def _count_fits_file(self) -> bool:
-        """Whether the frame count a file's header announces could be stored in its bytes
-        (MIN_FILE_BYTES_PER_FRAME a frame): a count to walk a damaged stretch up to."""
-        try:
-            size = os.path.getsize(self.spec)
-        except OSError:
-            return False
-        return self.frame_count * MIN_FILE_BYTES_PER_FRAME <= size
 
     def _damaged_not_end(self, position: int, failures: int) -> bool:
         """Whether a file's failed read at `position`, after `failures` in a row, is a

@@ -21,12 +21,26 @@ MAX_CAMERA_INDEX = 2**31 - 1
 
 
 # A video file's damaged frames: a failed read before the frame count the file's header
-# announces is a damaged frame, skipped. `follow run` skips any number of them before a
-# count that fits the file, and this many in a row where there is no such count (then the
-# file counts as ended); `follow-calib` skips this many in a row. Containers may count a
-# frame more than they decode, so a file this much short ends without a warning.
+# announces is a damaged frame, skipped. `follow run` and `follow-calib` skip any number of
+# them before a count that fits the file, and this many in a row where there is no such
+# count (then the file counts as ended). Containers may count a frame more than they decode,
+# so a file this much short ends without a warning.
 MAX_UNDECODABLE_RUN = 30
 EARLY_END_TOLERANCE_FRAMES = 1
+# A file's announced frame count above its size in bytes over this is a damaged header, not a
+# count (no container stores a frame in fewer: AVI's chunk header alone is 8 bytes); it does
+# not bound a run of failed reads, which would be walked for hours (2**31 frames) at the end.
+MIN_FILE_BYTES_PER_FRAME = 8
+
+
+def frame_count_fits_file(path: str | Path, frame_count: int) -> bool:
+    """Whether the frame count a video file's header announces could be stored in its
+    bytes: a count to walk a damaged stretch of any length up to."""
+    try:
+        size = Path(path).stat().st_size
+    except OSError:
+        return False
+    return 0 < frame_count and frame_count * MIN_FILE_BYTES_PER_FRAME <= size
 
 
 def refuse_overwriting(inputs: dict, outputs: dict) -> None:

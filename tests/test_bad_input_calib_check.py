@@ -91,6 +91,21 @@ def test_a_damaged_frame_of_a_video_is_skipped_not_taken_for_its_end(tmp_path, c
     assert cli.main([*argv, "--frame", "28"]) == 0  # the 29th frame that decodes
 
 
+def test_a_damaged_stretch_longer_than_the_run_bound_does_not_end_a_calibration_video(tmp_path):
+    """It ended after MAX_UNDECODABLE_RUN failed reads, losing the frames after the stretch;
+    `follow run` reads on to a frame count that fits the file, and so does the calibration."""
+    from test_capture_damaged_video import mjpeg_video
+
+    from calib.chessboard import iter_video_frames
+    from follow.cli_args import MAX_UNDECODABLE_RUN
+
+    damaged = range(30, 70)
+    assert len(damaged) > MAX_UNDECODABLE_RUN
+    video = mjpeg_video(tmp_path / "clip.avi", 100, damaged)
+    names = [name for name, _ in iter_video_frames(video)]
+    assert len(names) == 60 and names[-1] == "frame 99"
+
+
 def test_options_for_videos_only_are_refused_with_an_image(tmp_path, capsys):
     """`--frame` with an image, `--every` with image files: they used to be ignored."""
     import cv2
