@@ -25,6 +25,8 @@ IMAGE_ENCODINGS: dict[str, tuple[int, int | None]] = {
     "mono8": (1, cv2.COLOR_GRAY2BGR),
     "8UC1": (1, cv2.COLOR_GRAY2BGR),
 }
+# Channels of a decoded JPEG/PNG (OpenCV's order: grey, BGR, BGRA) -> conversion to BGR.
+_DECODED_TO_BGR: dict[int, int | None] = {1: cv2.COLOR_GRAY2BGR, 3: None, 4: cv2.COLOR_BGRA2BGR}
 # CameraInfo distortion models that are OpenCV's pinhole coefficients.
 _PINHOLE_MODELS = ("", "plumb_bob", "rational_polynomial")
 
@@ -47,12 +49,7 @@ def image_from_msg(msg) -> np.ndarray:
     raw = msg.data
     data = raw.ravel() if isinstance(raw, np.ndarray) else np.frombuffer(raw, dtype=np.uint8)
     if hasattr(msg, "format"):  # CompressedImage
-        if data.size == 0:
-            raise InvalidInput(f"compressed image ({msg.format!r}) holds no data")
-        image = cv2.imdecode(data, cv2.IMREAD_COLOR)
-        if image is None:
-            raise InvalidInput(f"compressed image ({msg.format!r}) cannot be decoded")
-        return image
+        return _decompressed(str(msg.format), data)
     if msg.encoding not in IMAGE_ENCODINGS:
         raise InvalidInput(
             f"image encoding {msg.encoding!r} is not supported; "
@@ -73,6 +70,47 @@ def image_from_msg(msg) -> np.ndarray:
     return np.ascontiguousarray(image) if conversion is None else cv2.cvtColor(image, conversion)
 
 
+def compressed_source_encoding(image_format: str) -> str | None:
+    """The encoding of the image a CompressedImage was made from, where its `format`
+    names it: image_transport writes `"<encoding>; <jpeg|png> compressed [<target>]"`
+    ("rgb8; jpeg compressed bgr8", "mono16; png compressed mono16"), compressedDepth
+    `"16UC1; compressedDepth png"`; a bare "jpeg" or "png" names none."""
+    if ";" not in image_format:
+        return None
+    return image_format.split(";", 1)[0].strip() or None
+
+
+def _decompressed(image_format: str, data: np.ndarray) -> np.ndarray:
+    """A BGR uint8 image from a CompressedImage's `format` and bytes. Only 8-bit images
+    are taken, as from a raw Image: a 16-bit one (a thermal or depth camera's mono16)
+    scaled to 8 bits would be a nearly black frame in which nobody is ever found, with
+    no error said. Decoded as stored (no EXIF rotation: the camera's own pixels)."""
+    source = compressed_source_encoding(image_format)
+    if source is not None and source not in IMAGE_ENCODINGS:
+        raise InvalidInput(
+            f"compressed image ({image_format!r}) of a {source!r} image is not supported; "
+            f"its source encoding must be one of {sorted(IMAGE_ENCODINGS)}"
+        )
+    if data.size == 0:
+        raise InvalidInput(f"compressed image ({image_format!r}) holds no data")
+    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise InvalidInput(f"compressed image ({image_format!r}) cannot be decoded")
+    if image.dtype != np.uint8:
+        raise InvalidInput(
+            f"compressed image ({image_format!r}) holds {image.dtype} pixels: only 8-bit "
+            "images are decoded (a 16-bit one scaled to 8 bits is nearly black); publish "
+            f"one of {sorted(IMAGE_ENCODINGS)}"
+        )
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    if channels not in _DECODED_TO_BGR:
+        raise InvalidInput(
+            f"compressed image ({image_format!r}) has {channels} channels, not 1, 3 or 4"
+        )
+    conversion = _DECODED_TO_BGR[channels]
+    return np.ascontiguousarray(image) if conversion is None else cv2.cvtColor(image, conversion)
+
+
 def image_fields(image_bgr: np.ndarray) -> dict:
     """sensor_msgs/Image keyword arguments (no header) for a BGR uint8 image."""
     height, width = image_bgr.shape[:2]
@@ -88,7 +126,9 @@ def yaw_of_quaternion(q) -> float:
     w, x, y, z = float(q.w), float(q.x), float(q.y), float(q.z)
     norm2 = w * w + x * x + y * y + z * z
     if not (math.isfinite(norm2) and norm2 > 1e-12):
-        raise InvalidInput(f"orientation quaternion {(x, y, z, w)} has no heading (zero or not finite)")
+        raise InvalidInput(
+            f"orientation quaternion {(x, y, z, w)} has no heading (zero or not finite)"
+        )
     return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
 
 

@@ -641,3 +641,115 @@ def test_no_target_is_published_for_nav2_after_a_stop_or_another_choice(request_
     finally:
         node.shutdown()
         node.destroy_node()
+
+
+def test_select_target_stops_the_base_while_a_frame_holds_the_perception_lock(monkeypatch):
+    """`~/select_target` waited for the frame being tracked and identified (the
+    perception lock, hundreds of ms on a slow CPU), and so did a `~/stop_following`
+    queued behind it (one mutually exclusive callback group): the base drove on toward
+    the person just chosen against. It stops at the next control tick instead."""
+    from std_msgs.msg import Int32
+
+    from follow import pipeline
+
+    monkeypatch.setattr(pipeline.ControlLoop, "_run", lambda loop: loop._stop.wait())  # tick here
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", publish_cmd_vel=True), CAMERA, detect=lambda f: [])
+    twists: list = []
+    node.pub_cmd_vel.publish = twists.append
+    held, release = threading.Event(), threading.Event()
+
+    def perceiving():  # a frame being tracked and identified
+        with node._lock:
+            held.set()
+            release.wait(10.0)
+
+    holder = threading.Thread(target=perceiving, daemon=True)
+    selector = threading.Thread(target=node._on_select_target, args=(Int32(data=3),),
+                                daemon=True)  # fmt: skip
+    try:
+        _drive_toward_a_target(node, twists)
+        holder.start()
+        assert held.wait(3.0)
+        selector.start()
+        selector.join(1.0)
+        returned = not selector.is_alive()
+        node._on_odometry(_odometry(node.now_s()))
+        command = node.control.tick()
+        still_held = node._lock.locked()
+    finally:
+        release.set()
+        holder.join(5.0)
+        selector.join(5.0)
+        node.shutdown()
+        node.destroy_node()
+    assert returned and still_held, "~/select_target waited for the perception lock"
+    assert command.is_stop and twists[-1].linear.x == 0.0 and twists[-1].angular.z == 0.0
+
+
+def test_a_frame_concluded_with_the_old_choice_after_a_selection_is_not_driven_toward(
+    monkeypatch,
+):
+    """A selection made while a frame is identified with the choice before it: that
+    frame's result, put after the selection dropped the ones before, would drive toward
+    the person just chosen against (it tracks them: the controller takes it as the new
+    target tracked). It is not put; the identifier takes the choice before the next
+    frame, and that frame is followed."""
+    from std_msgs.msg import Int32
+
+    from follow.types import Frame, TargetStatus
+
+    with _searching_node(monkeypatch) as (node, people, twists):
+        chosen: list = []
+        monkeypatch.setattr(node.perception.identifier, "select_target", chosen.append)
+        old = _result_at(node, node.now_s(), TargetStatus.TRACKING, 3, people)
+        identifying, release = threading.Event(), threading.Event()
+
+        def identify_slowly(*args, **kwargs):  # tracked and identified with the old choice
+            identifying.set()
+            release.wait(5.0)
+            return old
+
+        node.perception.conclude = identify_slowly
+        frame = Frame(np.zeros((240, 320, 3), np.uint8), old.stamp_s)
+        image_header = _header(old.stamp_s, "camera")
+        concluding = threading.Thread(target=node._conclude, daemon=True,
+                                      args=(frame, old.robot, None, image_header))  # fmt: skip
+        selector = threading.Thread(target=node._on_select_target, args=(Int32(data=7),),
+                                    daemon=True)  # fmt: skip
+        concluding.start()
+        try:
+            assert identifying.wait(5.0)
+            selector.start()
+            selector.join(0.5)
+        finally:
+            release.set()
+            concluding.join(5.0)
+            selector.join(5.0)
+        assert not concluding.is_alive() and not selector.is_alive()
+        node._on_odometry(_odometry(node.now_s()))
+        command = node.control.tick()
+        assert command.is_stop and twists[-1].angular.z == 0.0, command  # not toward person 3
+        assert node.results.peek() is not old
+        node._on_odometry(_odometry(node.now_s()))
+        _conclude_as(node, _result_at(node, node.now_s(), TargetStatus.TRACKING, 7, people))
+        assert chosen == [7]
+        assert node.control.tick().yaw_rate_radps < 0  # person 7, to the right
+
+
+def test_a_target_selected_before_the_first_image_is_followed_once_perception_starts():
+    """The identifier is built with the first image: a selection made before it waits."""
+    from std_msgs.msg import Int32
+
+    config = Config().replace("identify", identifier="channels")
+    node = FollowNode(config.replace("ros", odom_topic="", camera_info_topic=""), CAMERA,
+                      detect=lambda frame: [])  # fmt: skip
+    try:
+        node._on_select_target(Int32(data=5))
+        assert node.perception is None
+        detected = node._detect_in(_image(node.now_s() - 0.05, 320, 240))
+        node._conclude(*detected)
+        assert node.perception.identifier.context.requested_id == 5
+    finally:
+        node.shutdown()
+        node.destroy_node()

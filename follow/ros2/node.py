@@ -64,6 +64,12 @@ NODE_NAME = "follow"
 ODOMETRY_QUEUE = 50  # odometry messages held while the executor is busy
 SILENT_TOPIC_WARNING_S = 5.0  # how often a topic that delivered nothing yet is named
 CLOCK_STEP_S = 1.0  # an image this much older than the last one: a clock went back
+HOST_SIGNALS_FIX = (
+    "A process hosting FollowNode with ros.publish_cmd_vel must call "
+    "rclpy.init(signal_handler_options=SignalHandlerOptions.NO), handle SIGINT and SIGTERM "
+    "itself and call destroy_node() before rclpy.shutdown(), as follow.ros2.node.run "
+    "(`follow ros2`) does"
+)
 
 
 def parameters_over(node: Node, config: Config) -> Config:
@@ -142,7 +148,10 @@ def perception_status(processed_recently: bool, failed_frames: int,
     the message names the newest failure, so an operator sees why nothing gets through
     rather than only that nothing does."""
     if not failed_frames:
-        return processed_recently, "running" if processed_recently else "no frames processed recently"
+        return (
+            processed_recently,
+            "running" if processed_recently else "no frames processed recently",
+        )
     failures = f"{failed_frames} frame(s) failed since the last report, the newest: {last_error}"
     return processed_recently, f"running; {failures}" if processed_recently else failures
 
@@ -157,6 +166,8 @@ class FollowNode(Node):
         check_ros_config(ros)
         if camera_file is not None:  # the file `mounted` was read from: a measured pose?
             check_pose_measured(camera_file, ros.publish_cmd_vel, self.get_logger().warning)
+        if ros.publish_cmd_vel:
+            check_host_signals(self.get_logger())
         self.mounted = mounted
         self.model_name = "given detector"
         self._pose_backend: str | None = None
@@ -175,10 +186,13 @@ class FollowNode(Node):
 
         self._detect = detect
         self.perception = None
-        self._pending_target: int | None = None
-        self._lock = threading.Lock()  # the identifier: perception thread vs requests
+        self._pending_target: int | None = None  # selected, not yet taken by the identifier
+        self._lock = threading.Lock()  # perception: the pose thread vs the one concluding
+        # The operator's requests and what they change; held for no frame, so a request
+        # never waits for perception.
+        self._choice_lock = threading.Lock()
         self.following = True
-        self._choices = 0  # operator's choices (select, stop) so far, changed under _lock
+        self._choices = 0  # operator's choices (select, stop) so far, changed under _choice_lock
         self.camera_info = None
         self.odometry = OdometryBuffer(ros.max_odometry_age_s) if ros.odom_topic else None
         self.frames = 0
@@ -317,34 +331,37 @@ class FollowNode(Node):
         frame is concluded with the new choice, so the robot never drives on toward the
         person the operator just chose against, not even for a command being computed from
         it at this moment; and the controller forgets that target until the new one is
-        tracked (no search turn toward where it was last seen)."""
-        with self._lock:
-            if self.control is not None:
-                # first: a tick that takes the emptied slot must not search for the old one
-                self.control.controller.forget_target()
-                self.control.clear_result()
-            else:
-                self.results.put(None)
+        tracked (no search turn toward where it was last seen). All at once: the
+        identifier takes the choice before the next frame (`_take_choice`), so neither
+        this nor a request queued behind it waits for the frame being processed."""
+        with self._choice_lock:
+            self._drop_the_chosen_against()
             self.following = True
             self._choices += 1
+            self._pending_target = msg.data
             if self.gate is not None:
                 self.gate.following = True
-            if self.perception is None:
-                self._pending_target = msg.data
-            elif msg.data >= 0:
-                self.perception.identifier.select_target(msg.data)
-            else:
-                self.perception.identifier.select_nearest()
         self.get_logger().info(f"target selected: {msg.data if msg.data >= 0 else 'nearest'}")
 
+    def _drop_the_chosen_against(self) -> None:
+        """The newest result dropped and the controller's target forgotten: the control
+        loop sends zero from its next tick (a tick under way too) until a frame concluded
+        with the new choice tracks its target."""
+        if self.control is not None:
+            # first: a tick that takes the emptied slot must not search for the old one
+            self.control.controller.forget_target()
+            self.control.clear_result()
+        else:
+            self.results.put(None)
+
     def _on_stop_following(self, request, response):
-        """Zero on cmd_vel at once, and for every command after it: the gate's stop does
-        not wait for the frame being tracked and identified (the perception lock, held
-        for tens of ms, hundreds on a slow CPU). The node's callbacks share one mutually
-        exclusive group, so no `~/select_target` comes between the two steps."""
+        """Zero on cmd_vel at once, and for every command after it: neither step waits
+        for the frame being tracked and identified (the perception lock, held for tens of
+        ms, hundreds on a slow CPU). The node's callbacks share one mutually exclusive
+        group, so no `~/select_target` comes between the two steps."""
         if self.gate is not None:
             self.gate.stop_following(self.now_s())
-        with self._lock:
+        with self._choice_lock:
             self.following = False
             self._choices += 1
         response.success = True
@@ -388,7 +405,11 @@ class FollowNode(Node):
         another size, or a camera_info that changed, is refused (ValueError): people
         would be placed on the floor with the wrong camera, nearer or farther than they
         are."""
-        key = (width, height, None if self.camera_info is None else camera_info_key(self.camera_info))
+        key = (
+            width,
+            height,
+            None if self.camera_info is None else camera_info_key(self.camera_info),
+        )
         if self.perception is not None:
             if key != self._camera_key:
                 raise ValueError(
@@ -416,8 +437,6 @@ class FollowNode(Node):
         self.perception = build_perception(self.config, camera, detect=self._detect,
                                            pose_backend=self._pose_backend)  # fmt: skip
         self._camera_key = key
-        if self._pending_target is not None and self._pending_target >= 0:
-            self.perception.identifier.select_target(self._pending_target)
         return self.perception
 
     def _detect_in(self, msg):
@@ -487,17 +506,41 @@ class FollowNode(Node):
         return frame, robot, perception.detect_people(frame), msg.header
 
     def _conclude(self, frame: Frame, robot: Odometry, detections, image_header) -> None:
-        with self._lock:  # a result concluded before a selection is not put after it
+        with self._lock:
+            choice = self._take_choice()
             result = self.perception.conclude(frame, robot, self.frames, detections)
-            following, choice = self.following, self._choices
-            if self.control is not None and result.target.status == TargetStatus.TRACKING:
-                self.control.controller.target_tracked()  # concluded with the newest choice
-            self.results.put(result)
+        following = self._hand_to_control(result, choice)
         self.frames += 1
         self._recent.append((time.monotonic(), result.timing_ms))
         if self.control is not None:
             self.control.notify()
         self._publish(result, frame.image, following, image_header, choice)
+
+    def _take_choice(self) -> int:
+        """The operator's newest selection, handed to the identifier before a frame is
+        concluded (under `_lock`); the count of choices that frame is concluded with."""
+        with self._choice_lock:
+            selected, self._pending_target = self._pending_target, None
+            choice = self._choices
+        if selected is None:
+            return choice
+        if selected >= 0:
+            self.perception.identifier.select_target(selected)
+        else:
+            self.perception.identifier.select_nearest()
+        return choice
+
+    def _hand_to_control(self, result: FrameResult, choice: int) -> bool:
+        """`result` for the controller, unless the operator chose since its frame was
+        concluded (`choice`): concluded with the old choice, it would drive toward the
+        person just chosen against after the selection dropped the results before it.
+        Whether following."""
+        with self._choice_lock:
+            if self._choices == choice:
+                if self.control is not None and result.target.status == TargetStatus.TRACKING:
+                    self.control.controller.target_tracked()  # concluded with the newest choice
+                self.results.put(result)
+            return self.following
 
     # ------------------------------------------------------------------ outputs
     def _publish(self, result: FrameResult, image, following: bool, image_header,
@@ -522,10 +565,10 @@ class FollowNode(Node):
                                          **image_fields(picture)))  # fmt: skip
 
     def _publish_target(self, target: PoseStamped, choice: int) -> None:
-        """Under the lock, and only while following with no choice made since the frame
-        was concluded: Nav2 would be led on after `~/stop_following` returned, or toward
-        the person just deselected on `~/select_target`."""
-        with self._lock:
+        """Under the choices' lock, and only while following with no choice made since
+        the frame was concluded: Nav2 would be led on after `~/stop_following` returned,
+        or toward the person just deselected on `~/select_target`."""
+        with self._choice_lock:
             if self.following and self._choices == choice:
                 self.pub_target.publish(target)
 
@@ -558,8 +601,9 @@ class FollowNode(Node):
             message = (f"control loop failed ({type(self.control.error).__name__}: "
                        f"{self.control.error}); the base is stopped: restart the node")  # fmt: skip
         self.pub_diagnostics.publish(
-            messages.diagnostics(self.now_s(), "follow: perception", values, ok, message,
-                                 failed=failed)  # fmt: skip
+            messages.diagnostics(
+                self.now_s(), "follow: perception", values, ok, message, failed=failed
+            )  # fmt: skip
         )
 
     def _warn_of_silent_topics(self) -> list[str]:
@@ -581,7 +625,8 @@ class FollowNode(Node):
 
     # ------------------------------------------------------------------ shutdown
     def shutdown(self) -> dict:
-        """Stop control, then perception; the base's last command is zero."""
+        """Stop control, then perception; the base's last command is zero (or an error
+        says that it could not be published)."""
         if self.control is not None:
             self.control.stop()  # first: waiting for the pose thread must not drive on
         self._stopping.set()
@@ -589,7 +634,7 @@ class FollowNode(Node):
         for worker in self._workers:
             worker.join(timeout=10.0)
         if self.config.ros.publish_cmd_vel:
-            self._publish_twist(VelocityCommand.stop(self.now_s()))
+            self._publish_last_zero()
         return {
             "frames": self.frames,
             "frames_without_odometry": self.frames_without_odometry,
@@ -599,13 +644,52 @@ class FollowNode(Node):
             "cmd_vel_blocked": self.gate.blocked if self.gate is not None else 0,
         }
 
+    def _publish_last_zero(self) -> None:
+        """The base's last command, zero. Where it cannot be published (rclpy's own
+        signal handler shut the context down before the host destroyed the node) the
+        error says so, and the shutdown goes on: the node must still leave the graph."""
+        try:
+            self._publish_twist(VelocityCommand.stop(self.now_s()))
+        except Exception as exc:  # RCLError: the publisher's context is invalid
+            self.get_logger().error(_no_last_zero(exc, context_ok=self.context.ok()))
+
     def destroy_node(self) -> None:
         """`shutdown` first, unless done: a process hosting the node may destroy it
-        without, and once the publishers are gone the control loop cannot send zero."""
+        without, and once the publishers are gone the control loop cannot send zero.
+        The node is destroyed whatever the shutdown met."""
         stopping = getattr(self, "_stopping", None)  # None: __init__ failed before threads
-        if stopping is not None and not stopping.is_set():
-            self.shutdown()
-        super().destroy_node()
+        try:
+            if stopping is not None and not stopping.is_set():
+                self.shutdown()
+        finally:
+            super().destroy_node()
+
+
+def _no_last_zero(exc: Exception, context_ok: bool) -> str:
+    """The error of a last zero cmd_vel that could not be published: the base drives on
+    its last command until its own cmd_vel timeout, and the host must know why."""
+    why = f"{type(exc).__name__}: {exc}"
+    if not context_ok:
+        why = (f"the ROS context was shut down before the node ({why}); rclpy's default "
+               "signal handlers do that on Ctrl-C. " + HOST_SIGNALS_FIX)  # fmt: skip
+    return (
+        "the base did not get the shutdown's zero cmd_vel: it keeps its last command, "
+        f"moving if that was, until its own cmd_vel timeout stops it. Cause: {why}"
+    )
+
+
+def check_host_signals(logger) -> bool:
+    """Warn (once, at construction) where rclpy's own signal handlers are installed: on
+    Ctrl-C they shut the context down before the host can destroy the node, and the
+    node's last zero cmd_vel can then not be published. True when warned."""
+    from rclpy.signals import get_current_signal_handlers_options
+
+    if get_current_signal_handlers_options() == SignalHandlerOptions.NO:
+        return False
+    logger.warning("rclpy's signal handlers are installed: on Ctrl-C or SIGTERM they shut "
+                   "the ROS context down before the node, and the base does not get its "
+                   "last zero cmd_vel. " + HOST_SIGNALS_FIX)  # fmt: skip
+    return True
 
 
 def run(config: Config, camera: CameraModel, ros_args: list[str], camera_file=None) -> dict:
