@@ -12,13 +12,26 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import secrets
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from follow.camera import CameraModel, read_calibration_notes
+from follow.camera import CameraFileError, CameraModel, read_calibration_notes
+
+# follow.camera's advice on a camera it refuses speaks to someone who typed the file ("a
+# typing error in camera_matrix?", "a camera_matrix for another image size?"): of a camera
+# a tool computed from photos or from a Tsai file, it would send the user to the wrong place.
+_TYPED_FILE_ADVICE = re.compile(
+    r" \(a typing error in [\w\[\]]+\?\)|: a camera_matrix for another image size\?"
+)
+
+
+def without_typed_file_advice(reason: str) -> str:
+    """`reason` (a refusal of follow.camera) less its advice on a typed camera file."""
+    return _TYPED_FILE_ADVICE.sub("", reason)
 
 
 def write_image_atomic(path: str | Path, image) -> None:
@@ -94,7 +107,8 @@ def write_camera_file(
     The notes of the file the model was read from, `notes_from` (default: an existing file
     at `path`), are kept where `notes` does not replace them: they say how the parts of
     the model that were not measured now were measured. `keep_notes=False` for a model
-    measured whole: an old file's notes would describe another camera.
+    measured whole: an old file's notes would describe another camera. A camera that
+    `follow` would refuse to read is not written (`refuse_unreadable`).
     """
     path = Path(path)
     source = Path(notes_from) if notes_from is not None else path
@@ -103,6 +117,7 @@ def write_camera_file(
     data = model.to_dict()
     if merged:
         data["calibration"] = _plain(merged)
+    refuse_unreadable(path, data)
     if path.parent and not path.parent.exists():
         path.parent.mkdir(parents=True)
     if path.suffix.lower() in (".yaml", ".yml"):
@@ -110,3 +125,20 @@ def write_camera_file(
     else:
         text = json.dumps(data, indent=2) + "\n"
     write_file_atomic(path, text.encode())
+
+
+def refuse_unreadable(path: Path, data: dict) -> None:
+    """Refuse (CameraFileError naming `path`) to write camera data that every reader of a
+    camera file (`CameraModel.from_dict`) refuses. Models are built through the looser
+    constructor (a principal point anywhere in the image, as in a cropped one), so a
+    calibration could otherwise replace a good file with one nothing reads, the command
+    that wrote it included."""
+    source = f"camera file {path}"
+    try:
+        CameraModel.from_dict(data, source=source)
+    except CameraFileError as exc:
+        reason = without_typed_file_advice(str(exc).removeprefix(f"{source}: "))
+        kept = "; the file there is left as it was" if path.exists() else ""
+        raise CameraFileError(
+            f"{path} not written: follow would refuse to read this camera: {reason}{kept}"
+        ) from None

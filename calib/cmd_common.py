@@ -57,7 +57,8 @@ def refuse_videos_among_images(paths: list[Path]) -> None:
 def read_grey_frames(
     sources: list[Path], every: int = 1, limit: int | None = None
 ) -> list[tuple[str, np.ndarray]]:
-    """(name, grey frame) from image files, or from one video file or camera index."""
+    """(name, grey frame) from image files, or from one video file or camera index. An
+    image is named by its path as given, which an error can then point the user to."""
     source = video_source(sources)
     if source is not None:
         frames = [(name, to_gray(f, name)) for name, f in iter_video_frames(source, every, limit)]
@@ -65,7 +66,7 @@ def read_grey_frames(
             raise ImageInputError(f"video {source}: no frames")
         return frames
     refuse_videos_among_images(sources)
-    out = [(path.name, to_gray(read_image(path), str(path))) for path in sources]
+    out = [(str(path), to_gray(read_image(path), str(path))) for path in sources]
     return out[:limit] if limit else out
 
 

@@ -133,13 +133,15 @@ def estimate_ground_pose(
     pattern_size: tuple[int, int],
     square_size_m: float,
     detection: Detection | None = None,
+    image_name: str = "the image",
 ) -> GroundPoseResult:
     """Height, pitch and roll of the camera over the floor the board lies on.
 
     Works whatever the board's orientation and corner order in the image: the floor
     normal is taken on the camera's side of the board. Raises BoardNotFoundError when no
     board of `pattern_size` inner corners is seen, GroundPoseError when the camera looks
-    down more steeply than MAX_PITCH_DEG (its roll cannot be measured).
+    down more steeply than MAX_PITCH_DEG (its roll cannot be measured). `image_name` says
+    in the error which image (or frames) had no board: the user may have given several.
     """
     cols, rows = check_pattern_size(pattern_size)
     if not (math.isfinite(square_size_m) and square_size_m > 0):
@@ -150,7 +152,7 @@ def estimate_ground_pose(
         detection = detect_chessboard(image_or_gray, (cols, rows))
     if detection is None:
         raise BoardNotFoundError(
-            f"no {cols}x{rows} chessboard (inner corners) found in the image; check the "
+            f"no {cols}x{rows} chessboard (inner corners) found in {image_name}; check the "
             "pattern size, that the whole board with its white margin is in view, and focus"
         )
     corners = detection.corners_px
@@ -198,16 +200,20 @@ def estimate_ground_pose(
     )
 
 
-def average_frames(frames: list[np.ndarray]) -> np.ndarray:
-    """The mean of several grey frames of a still scene (less noise for the corners)."""
+def average_frames(frames: list[np.ndarray], names: list[str] | None = None) -> np.ndarray:
+    """The mean of several grey frames of a still scene (less noise for the corners).
+    `names` (one per frame, e.g. the image files) name the frames of another size in the
+    error: by their index alone the user cannot tell which file to look at."""
     if not frames:
         raise ValueError("no frames to average")
+    if names is None:
+        names = [f"frame {index}" for index in range(len(frames))]
     shape = frames[0].shape
     total = np.zeros(shape, dtype=np.float64)
-    for index, frame in enumerate(frames):
+    for name, frame in zip(names, frames, strict=True):
         if frame.shape != shape:
             raise ValueError(
-                f"frame {index} is {frame.shape[1]}x{frame.shape[0]}, the first is "
+                f"{name} is {frame.shape[1]}x{frame.shape[0]}, {names[0]} is "
                 f"{shape[1]}x{shape[0]}: frames to average must have one size"
             )
         total += frame

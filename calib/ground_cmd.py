@@ -14,6 +14,7 @@ from calib.cmd_common import (
     image_path,
     read_grey_frames,
     refuse_overwriting_inputs,
+    video_source,
 )
 from calib.ground import average_frames, estimate_ground_pose
 from calib.overlay import calibration_overlay
@@ -29,6 +30,8 @@ RMS_WARNING_PX = 0.5
 # A camera height outside this band is no robot's (0.5-1.5 m is usual): a board size in
 # millimetres or centimetres given as metres scales the height with it.
 PLAUSIBLE_HEIGHT_M = (0.1, 5.0)
+# Images named in an error about their average; the rest are counted.
+MAX_IMAGES_NAMED = 5
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,6 +64,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def _searched_image(inputs: list[Path], frames: list[tuple[str, object]]) -> str:
+    """What the board was looked for in, for the error when none is found: the image file,
+    or which images or frames were averaged (any of them may lack the board)."""
+    source = video_source(inputs)
+    if source is not None:
+        what = f"camera {source}" if source.isdigit() else source
+        return f"the average of the first {len(frames)} frame(s) of {what}"
+    names = [name for name, _ in frames]
+    if len(names) == 1:
+        return names[0]
+    listed = ", ".join(names[:MAX_IMAGES_NAMED])
+    more = len(names) - MAX_IMAGES_NAMED
+    return f"the average of {listed}" + (f" and {more} more image(s)" if more > 0 else "")
+
+
 def main(args: argparse.Namespace) -> dict:
     output = args.output or args.camera
     overlay_path = args.overlay or output.with_name(output.stem + "_ground.png")
@@ -72,14 +90,15 @@ def main(args: argparse.Namespace) -> dict:
     if args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
     frames = read_grey_frames(args.inputs, limit=args.frames)
-    image = average_frames([f for _, f in frames])
+    image = average_frames([f for _, f in frames], [name for name, _ in frames])
     h, w = image.shape
     try:
         seen = camera.for_image_size(w, h)
     except ValueError as exc:
         raise ImageInputError(f"image against the camera file {args.camera}: {exc}") from None
     try:
-        result = estimate_ground_pose(image, seen.K, seen.dist, args.pattern, args.square_size_m)
+        result = estimate_ground_pose(image, seen.K, seen.dist, args.pattern, args.square_size_m,
+                                      image_name=_searched_image(args.inputs, frames))  # fmt: skip
         if args.board_in_base is not None:
             bx, by, byaw_deg = args.board_in_base
             prior = camera.pose.yaw_rad

@@ -38,6 +38,14 @@ _CHECK_DEPTH_M = 10.0
 # An image side beyond any camera's: the conversion samples the whole image, so a
 # typing error (1e6) would ask for a grid of a trillion points.
 MAX_IMAGE_SIDE_PX = 16384
+# The most pixels the conversion is fitted or checked at: each costs about 200 bytes and
+# 2 us, so this bounds it to about 1 GB and 10 s. The default 8 px step (checked at 4 px)
+# stays under it for images up to 8000 px a side; a step of a hundredth of a pixel asked
+# numpy for terabytes.
+MAX_GRID_POINTS = 5_000_000
+# The conversion is checked on a grid this many times finer than it is fitted on: between
+# the pixels it was fitted at too.
+CHECK_GRID_DIVISOR = 2.0
 # A camera centre lower than this over the ground z = 0 is a world in other units than mm
 # (in metres a camera sits 1000 times too low: PETS's 7 m mast at 7 mm) or with z down.
 MIN_CAMERA_HEIGHT_M = 0.05
@@ -55,6 +63,11 @@ def _rotation_zyx(rx: float, ry: float, rz: float) -> np.ndarray:
     Ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
     Rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
     return Rz @ Ry @ Rx
+
+
+def _grid_axis_count(side_px: int, step_px: float) -> int:
+    """Grid positions along one side: every `step_px` from 0, and the last pixel."""
+    return math.ceil((side_px - 1) / step_px) + 1 if side_px > 1 else 1
 
 
 @dataclass(frozen=True)
@@ -246,12 +259,24 @@ class TsaiCamera:
             x_m=float(c[0]), y_m=float(c[1]),
         )  # fmt: skip
 
+    def grid_point_count(self, step_px: float) -> int:
+        """How many pixels `image_grid(step_px)` holds, counted before any is made."""
+        w, h = self.image_size
+        return _grid_axis_count(w, step_px) * _grid_axis_count(h, step_px)
+
     def image_grid(self, step_px: float = _FIT_GRID_STEP_PX) -> np.ndarray:
         """Pixels (N, 2) covering the whole image, corners included. A step that is not
-        positive is refused: it would leave one pixel to fit and to check the model at."""
+        positive is refused: it would leave one pixel to fit and to check the model at; so
+        is one that makes more than MAX_GRID_POINTS (more memory than a machine has)."""
         if not (math.isfinite(step_px) and step_px > 0):
             raise ValueError(f"grid step must be a positive number of pixels, got {step_px}")
         w, h = self.image_size
+        count = self.grid_point_count(step_px)
+        if count > MAX_GRID_POINTS:
+            raise ValueError(
+                f"a grid step of {step_px:g} px makes {count:.3g} pixels of the {w}x{h} image "
+                f"to fit or check at, more than {MAX_GRID_POINTS:.3g}: give a larger step"
+            )
         us = np.unique(np.append(np.arange(0.0, w - 1, step_px), w - 1.0))
         vs = np.unique(np.append(np.arange(0.0, h - 1, step_px), h - 1.0))
         uu, vv = np.meshgrid(us, vs)
@@ -289,7 +314,7 @@ class TsaiCamera:
             self.camera_matrix(), self.fit_opencv_distortion(step_px), self.image_size,
             self.pose(),
         )  # fmt: skip
-        return model, self.max_discrepancy_px(model, step_px / 2.0)
+        return model, self.max_discrepancy_px(model, step_px / CHECK_GRID_DIVISOR)
 
     def max_discrepancy_px(self, model: CameraModel, step_px: float = _FIT_GRID_STEP_PX) -> float:
         grid = self.image_grid(step_px)

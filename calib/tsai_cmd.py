@@ -6,16 +6,31 @@ import argparse
 import math
 from pathlib import Path
 
-from calib.camera_file import write_camera_file
+from calib.camera_file import without_typed_file_advice, write_camera_file
 from calib.cmd_common import refuse_overwriting_inputs
 from calib.gt_boxes import motion_figures, read_boxes
-from calib.tsai import TsaiCamera
-from follow.cli_args import positive_float
+from calib.tsai import CHECK_GRID_DIVISOR, MAX_GRID_POINTS, TsaiCamera, TsaiFileError
+from follow.camera import CameraModel
+from follow.cli_args import finite_float, positive_float
 
 # A converted camera further than this from the Tsai model anywhere in the image is not
 # written: OpenCV's k1, k2, k3 cannot follow that lens (PETS 2009 view 1: 0.0015 px).
 MAX_DISCREPANCY_PX = 1.0
 DEFAULT_ANNOTATION_FPS = 7.0  # PETS 2009 S2.L1's
+# The finest --grid-step-px: Tsai's distortion is smooth, so pixels closer than one add
+# nothing to the fit, while the grid grows as the inverse square of the step.
+MIN_GRID_STEP_PX = 1.0
+
+
+def grid_step_px(text: str) -> float:
+    """An argparse type: a grid step of at least MIN_GRID_STEP_PX pixels."""
+    value = finite_float(text)
+    if not value >= MIN_GRID_STEP_PX:
+        raise argparse.ArgumentTypeError(
+            f"expected a number of pixels >= {MIN_GRID_STEP_PX:g} (a finer grid adds nothing "
+            f"to the fit), got {text!r}"
+        )
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,8 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="camera file to write (.yaml/.yml or .json; default camera.yaml)",
     )  # fmt: skip
     parser.add_argument(
-        "--grid-step-px", type=positive_float, default=8.0,
-        help="pixel spacing of the grid the distortion is fitted on (default 8)",
+        "--grid-step-px", type=grid_step_px, default=8.0,
+        help=f"pixel spacing of the grid the distortion is fitted on, at least "
+        f"{MIN_GRID_STEP_PX:g} (default 8)",
     )  # fmt: skip
     parser.add_argument(
         "--boxes", type=Path,
@@ -36,6 +52,47 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fps", type=positive_float, default=None,
         help="with --boxes: frame rate of the annotation (default 7)",
+    )  # fmt: skip
+
+
+def _refuse_too_fine_a_grid(tsai: TsaiCamera, path: Path, step_px: float) -> None:
+    """Refuse, naming the option, a step whose checking grid (the finer one) would hold
+    more than MAX_GRID_POINTS pixels of this image: numpy would run out of memory."""
+    count = tsai.grid_point_count(step_px / CHECK_GRID_DIVISOR)
+    if count > MAX_GRID_POINTS:
+        w, h = tsai.image_size
+        raise ValueError(
+            f"--grid-step-px {step_px:g} is too fine for the {w}x{h} image of {path}: the "
+            f"conversion would be checked at {count:.3g} pixels, more than "
+            f"{MAX_GRID_POINTS:.3g}; give a larger step"
+        )
+
+
+def _convert(tsai: TsaiCamera, path: Path, step_px: float) -> tuple[CameraModel, float]:
+    """The camera file's model of `tsai` and its discrepancy (px); TsaiFileError naming
+    the Tsai file where its values make a camera that `follow` cannot use (a focal length
+    or principal point typed wrong): the user wrote no camera_matrix to check."""
+    try:
+        model, discrepancy_px = tsai.to_camera_model(step_px=step_px)
+        CameraModel.from_dict(model.to_dict(), source=str(path))  # as follow will read it
+    except ValueError as exc:
+        reason = without_typed_file_advice(str(exc).removeprefix(f"{path}: "))
+        raise TsaiFileError(
+            f"Tsai file {path}: its values make a camera follow cannot use: {reason}; "
+            f"check {_fields_behind(reason)}"
+        ) from None
+    return model, discrepancy_px
+
+
+def _fields_behind(reason: str) -> str:
+    """Which of the Tsai file's values make the part of the camera `reason` refuses."""
+    if reason.startswith("camera pose"):
+        return "<Extrinsic> (world in mm, z up)"
+    if reason.startswith("camera distortion"):
+        return "<Intrinsic> kappa1"
+    return (
+        "<Geometry> dpx, dpy, width, height and <Intrinsic> focal, sx, cx, cy (fx = "
+        "focal sx / dpx, fy = focal / dpy, principal point (cx, cy))"
     )
 
 
@@ -49,7 +106,8 @@ def main(args: argparse.Namespace) -> dict:
     tsai = TsaiCamera.from_xml(args.tsai_xml)
     # Read before the camera file is written: a bad box file must not cost the old one.
     boxes = read_boxes(args.boxes) if args.boxes is not None else None
-    model, discrepancy_px = tsai.to_camera_model(step_px=args.grid_step_px)
+    _refuse_too_fine_a_grid(tsai, args.tsai_xml, args.grid_step_px)
+    model, discrepancy_px = _convert(tsai, args.tsai_xml, args.grid_step_px)
     if not discrepancy_px <= MAX_DISCREPANCY_PX:  # NaN too
         raise ValueError(
             f"Tsai file {args.tsai_xml}: the converted camera is {discrepancy_px:.3g} px off "

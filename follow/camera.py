@@ -656,11 +656,16 @@ class CameraModel:
                 raise CameraFileError(
                     f"{source}: field '{key}' must be a whole number of pixels, got {value!r}"
                 )
+            if value <= 0:  # before the matrix is checked against a 0-wide image
+                raise CameraFileError(
+                    f"{source}: field '{key}' must be a positive number of pixels, got {value!r}"
+                )
             return int(value)
 
         only_known(data, FILE_KEYS, "")
         width = pixels("image_width")
         height = pixels("image_height")
+
         def numbers(key: str, value) -> np.ndarray:
             """Nested lists of numbers, never of quoted ones ("500" is no focal length)."""
             try:
@@ -721,8 +726,7 @@ def read_camera_data(path: str | Path):
         raise CameraFileError(f"camera file {path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError as exc:
         raise CameraFileError(
-            f"camera file {path}: not a text camera file (YAML/JSON; not UTF-8 at byte "
-            f"{exc.start})"
+            f"camera file {path}: not a text camera file (YAML/JSON; not UTF-8 at byte {exc.start})"
         ) from None
     if path.suffix.lower() in (".yaml", ".yml"):
         try:

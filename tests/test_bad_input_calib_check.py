@@ -121,3 +121,22 @@ def test_options_for_videos_only_are_refused_with_an_image(tmp_path, capsys):
             "--every", "3", "-o", str(tmp_path / "cam.yaml")]  # fmt: skip
     assert cli.main(argv) == 2
     assert "--every picks frames of a video or camera" in capsys.readouterr().err
+
+
+def test_an_image_size_that_is_not_positive_is_named_not_taken_for_a_principal_point(
+    tmp_path, capsys
+):
+    """`image_width: 0` was reported as a principal point outside a 0x48 image."""
+    good = _camera(tmp_path).read_text()
+    video = _video(tmp_path / "clip.avi", frames=1)
+    for key, value in (("image_width", 0), ("image_width", -64), ("image_height", 0)):
+        bad = tmp_path / "bad.yaml"
+        original = 64 if key == "image_width" else 48
+        bad.write_text(good.replace(f"{key}: {original}", f"{key}: {value}"))
+        argv = ["check", str(video), "--camera", str(bad), "-o", str(tmp_path / "c.png")]
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.endswith(
+            f"camera file {bad}: field '{key}' must be a positive number of pixels, got {value}"
+        ), err
+        assert "principal point" not in err

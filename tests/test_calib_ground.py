@@ -371,7 +371,6 @@ def test_ground_command_to_a_new_folder_writes_the_file_and_its_overlay(board_sc
     assert cv2.imread(str(folder / "robot" / "cam_ground.png")).shape == (480, 640, 3)
 
 
-
 def test_a_board_size_in_the_wrong_unit_is_warned_of(board_scene, capsys):
     """A board size in the wrong unit scales every length: the 0.1 m board given as
     0.01 puts the camera 8 cm up, within the pose's bounds, and the warning names the
@@ -413,8 +412,20 @@ def test_other_calibration_commands_refuse_to_overwrite_their_inputs(board_scene
     before = board.read_bytes(), camera.read_bytes()
     for argv, named in (
         (["check", str(board), "--camera", str(camera), "-o", str(board)], "source"),
-        (["intrinsics", str(board), str(folder / "board1.png"), "--pattern", "7x5",
-          "--square-size-m", "0.1", "-o", str(board)], "input"),  # fmt: skip
+        (
+            [
+                "intrinsics",
+                str(board),
+                str(folder / "board1.png"),
+                "--pattern",
+                "7x5",
+                "--square-size-m",
+                "0.1",
+                "-o",
+                str(board),
+            ],
+            "input",
+        ),  # fmt: skip
     ):
         assert cli.main(argv) == 2
         assert f"-o {board} is also the {named} {board}" in capsys.readouterr().err
@@ -437,3 +448,65 @@ def test_a_square_size_given_in_centimetres_is_named_as_the_likely_cause(board_s
     assert "is not a possible mounting" in err
     assert "is --square-size-m (10) the side of one square in metres?" in err
     assert (folder / "cam.yaml").read_bytes() == before
+
+
+def test_no_board_names_the_image_or_the_images_averaged(board_scene, capsys):
+    """It said 'found in the image' whatever the user gave: with several images, which
+    one lacked the board was left to guess."""
+    _, folder = board_scene
+    blank = folder / "blank.png"
+    cv2.imwrite(str(blank), np.full((480, 640), 100, np.uint8))
+    assert ground_command(blank, folder) == 2
+    assert f"no 7x5 chessboard (inner corners) found in {blank};" in capsys.readouterr().err
+    argv = ["ground", str(folder / "board0.png"), str(blank), "--camera",
+            str(folder / "cam.yaml"), "--pattern", "9x6", "--square-size-m", "0.1"]  # fmt: skip
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"found in the average of {folder / 'board0.png'}, {blank};" in err
+
+
+def test_images_of_another_size_to_average_are_named(board_scene, capsys):
+    """'frame 1 is 320x240, the first is 640x480' named no file."""
+    _, folder = board_scene
+    small = folder / "small.png"
+    cv2.imwrite(str(small), np.full((240, 320), 100, np.uint8))
+    before = (folder / "cam.yaml").read_text()
+    argv = ["ground", str(folder / "board0.png"), str(small), "--camera",
+            str(folder / "cam.yaml"), "--pattern", "7x5", "--square-size-m", "0.1"]  # fmt: skip
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(
+        f"error: {small} is 320x240, {folder / 'board0.png'} is 640x480: frames to average "
+        "must have one size"
+    ), err
+    assert (folder / "cam.yaml").read_text() == before
+    a = np.zeros((4, 6), np.uint8)
+    with pytest.raises(ValueError, match="^b.png is 5x4, a.png is 6x4"):
+        average_frames([a, a, np.zeros((4, 5), np.uint8)], ["a.png", "a2.png", "b.png"])
+
+
+def test_a_height_past_any_camera_file_is_refused_as_the_docs_say(board_scene, capsys):
+    """The docs said any implausible height was written with a warning; one past the
+    camera file's bounds (a board in centimetres given as metres) is refused instead."""
+    from pathlib import Path
+
+    from calib.ground_cmd import PLAUSIBLE_HEIGHT_M
+    from follow.camera import POSE_BOUNDS
+
+    _, folder = board_scene
+    before = (folder / "cam.yaml").read_text()
+    argv = ["ground", str(folder / "board0.png"), "--camera", str(folder / "cam.yaml"),
+            "--pattern", "7x5", "--square-size-m"]  # fmt: skip
+    assert cli.main([*argv, "10"]) == 2  # 0.8 m becomes 80 m
+    err = capsys.readouterr().err
+    assert "is not a possible mounting" in err and "is --square-size-m (10) the side" in err
+    assert (folder / "cam.yaml").read_text() == before
+    assert not (folder / "cam_ground.png").exists()
+    assert cli.main([*argv, "1"]) == 0  # 8 m: written, with a warning
+    assert 7.5 < CameraModel.load(folder / "cam.yaml").pose.height_m < 8.5
+    docs = " ".join((Path(__file__).parents[1] / "docs" / "calibration.md").read_text().split())
+    low, high = PLAUSIBLE_HEIGHT_M
+    lowest, highest = POSE_BOUNDS["height_m"]
+    assert f"A camera height outside {low:g}-{high:g} m is written with a warning" in docs
+    assert f"A height outside {lowest:g}-{highest:g} m" in docs
+    assert "is refused with an error that asks the same, and nothing is written" in docs

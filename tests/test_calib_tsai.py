@@ -90,10 +90,14 @@ def test_discrepancy_grows_when_the_model_is_wrong(synthetic_tsai):
         (VALID_XML.format(kappa1="abc", rx=0.0), "'kappa1' is not a number"),
         (VALID_XML.format(kappa1=0.0, rx=0.0).replace('focal="4.0"', 'focal="-4"'), "focal"),
         # a fractional size was rounded, a huge one asked the conversion for a vast grid
-        (VALID_XML.format(kappa1=0.0, rx=0.0).replace('width="640"', 'width="640.4"'),
-         "'width' must be a whole number of pixels"),
-        (VALID_XML.format(kappa1=0.0, rx=0.0).replace('height="480"', 'height="1e6"'),
-         "'height' must be a whole number of pixels, 1 to 16384"),
+        (
+            VALID_XML.format(kappa1=0.0, rx=0.0).replace('width="640"', 'width="640.4"'),
+            "'width' must be a whole number of pixels",
+        ),
+        (
+            VALID_XML.format(kappa1=0.0, rx=0.0).replace('height="480"', 'height="1e6"'),
+            "'height' must be a whole number of pixels, 1 to 16384",
+        ),
     ],
 )
 def test_malformed_xml_names_the_problem(tmp_path, text, expected):
@@ -244,3 +248,74 @@ def test_an_import_over_a_calibrated_file_keeps_none_of_its_notes(tmp_path, caps
     notes = read_calibration_notes(out)
     assert notes["intrinsics"] == notes["pose"] == "follow-calib import-tsai cam.xml"
     assert "intrinsics_rms_px" not in notes and "pose_board_rms_px" not in notes
+
+
+def test_a_grid_step_finer_than_a_pixel_is_refused_by_the_option(tmp_path, capsys):
+    """--grid-step-px 0.01 asked numpy for terabytes: a MemoryError traceback."""
+    import argparse
+
+    from calib.tsai_cmd import MIN_GRID_STEP_PX, grid_step_px
+
+    xml = write(tmp_path, VALID_XML.format(kappa1=0.01, rx=-1.95))
+    out = tmp_path / "c.yaml"
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["import-tsai", str(xml), "-o", str(out), "--grid-step-px", "0.5"])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --grid-step-px: expected a number of pixels >= 1" in err
+    assert "Traceback" not in err and not out.exists()
+    with pytest.raises(argparse.ArgumentTypeError, match="got '0.01'"):
+        grid_step_px("0.01")
+    assert grid_step_px("1") == MIN_GRID_STEP_PX == 1.0
+
+
+def test_a_grid_too_large_for_the_image_is_refused_before_it_is_made(tmp_path, capsys, monkeypatch):
+    """The bound on the step leaves a fine grid over a large image (16384 px a side is a
+    valid Tsai file) too large for memory: refused naming the option, before any array."""
+    import calib.tsai
+    import calib.tsai_cmd
+
+    xml = write(tmp_path, VALID_XML.format(kappa1=0.01, rx=-1.95))
+    tsai = TsaiCamera.from_xml(xml)
+    # 640x480 every 4 px (the check of the default 8 px step): 161 x 121 pixels.
+    assert tsai.grid_point_count(4.0) == 161 * 121 == len(tsai.image_grid(4.0))
+    monkeypatch.setattr(calib.tsai, "MAX_GRID_POINTS", 10_000)
+    monkeypatch.setattr(calib.tsai_cmd, "MAX_GRID_POINTS", 10_000)
+    with pytest.raises(ValueError, match=r"makes 1\.95e\+04 pixels of the 640x480 image"):
+        tsai.image_grid(4.0)
+    out = tmp_path / "c.yaml"
+    assert cli.main(["import-tsai", str(xml), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert f"--grid-step-px 8 is too fine for the 640x480 image of {xml}" in err
+    assert not out.exists()
+    assert cli.main(["import-tsai", str(xml), "-o", str(out), "--grid-step-px", "12"]) == 0
+
+
+@pytest.mark.parametrize(
+    "attributes, reason, fields",
+    [
+        ('focal="0.004"', "179.7 deg field of view", "<Intrinsic> focal"),
+        ('sx="3.0"', "differ by more than 2x", "<Intrinsic> focal"),
+    ],
+)
+def test_values_that_make_no_camera_name_the_tsai_file_not_a_camera_matrix(
+    tmp_path, capsys, attributes, reason, fields
+):
+    """The camera's own refusal came through bare: no file named, and advice to check a
+    camera_matrix the user never wrote."""
+    name = attributes.split("=")[0]
+    text = VALID_XML.format(kappa1=0.01, rx=-1.95)
+    text = text.replace(f'{name}="4.0"' if name == "focal" else f'{name}="1.02"', attributes)
+    xml = write(tmp_path, text)
+    out = tmp_path / "c.yaml"
+    assert cli.main(["import-tsai", str(xml), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert f"error: Tsai file {xml}: its values make a camera follow cannot use" in err
+    assert reason in err and fields in err and "camera_matrix" not in err
+    assert not out.exists()
+    with pytest.raises(TsaiFileError):
+        from calib.tsai_cmd import _convert
+
+        _convert(TsaiCamera.from_xml(xml), xml, 8.0)
