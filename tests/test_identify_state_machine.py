@@ -441,6 +441,49 @@ def test_a_selected_id_never_seen_is_reported_once_and_nobody_else_is_chosen(ide
     assert not identifier.selected_id_missing
 
 
+def missing_warnings(caplog) -> list[str]:
+    return [r.getMessage() for r in caplog.records if "not among the tracks" in r.getMessage()]
+
+
+@pytest.mark.parametrize("gone", ["before it was confirmed", "in initial training"])
+def test_a_selected_track_gone_before_it_became_the_target_is_reported(identifier, caplog, gone):
+    """A selected track that appeared and was retired before it became the target (ids
+    are never reused) left the identifier waiting for it in silence: nothing followed,
+    `selected_id_missing` False. Its absence is timed from its first absent frame."""
+    rng = np.random.default_rng(12)
+    other = Person(1, 3.5, 460, BLUE)
+    selected = Person(2, 2.0, 180, RED, confirmed=gone != "before it was confirmed")
+    identifier.select_target(2)
+    in_view = run(identifier, [other, selected], 2 if selected.confirmed else 20, rng)
+    expected = TargetStatus.INITIAL if gone == "before it was confirmed" else (
+        TargetStatus.INITIAL_TRAINING)  # fmt: skip
+    assert in_view[-1].status == expected
+    run(identifier, [other], 30, rng)  # absent 0 .. 2.9 s
+    with caplog.at_level(logging.WARNING, logger="follow"):
+        ests = run(identifier, [other], 19, rng)  # .. 4.8 s (6.8 s since the selection)
+        assert not identifier.selected_id_missing and not missing_warnings(caplog)
+        ests += run(identifier, [other], 20, rng)  # 4.9 s on
+    assert identifier.selected_id_missing
+    (warning,) = missing_warnings(caplog)
+    assert "selected track 2" in warning and "after it was last seen" in warning
+    assert "[1]" in warning
+    assert all(e.status == TargetStatus.INITIAL and e.target_id is None for e in ests)
+
+
+def test_a_selected_track_lost_once_it_is_the_target_is_never_reported_missing(identifier, caplog):
+    """Once the selected id is the target, losing it is re-identification's to handle:
+    the watch rests."""
+    rng = np.random.default_rng(12)
+    other = Person(1, 3.5, 460, BLUE)
+    identifier.select_target(2)
+    run(identifier, [other, Person(2, 2.0, 180, RED)], CFG.initial_training_frames + 2, rng)
+    assert identifier.status == TargetStatus.TRACKING
+    with caplog.at_level(logging.WARNING, logger="follow"):
+        ests = run(identifier, [other], 80, rng)
+    assert ests[-1].status == TargetStatus.REIDENTIFICATION
+    assert not identifier.selected_id_missing and not missing_warnings(caplog)
+
+
 def test_frames_too_far_apart_to_learn_from_are_said_once(identifier, caplog):
     """Each gap over identity_risk_unseen_s is a stall that drops what initial training
     learnt: on a host that slow nothing is ever learnt, and the user must be told why."""

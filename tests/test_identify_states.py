@@ -542,8 +542,10 @@ def test_with_two_cues_each_must_agree_not_only_their_mean():
     def run(classifier_alone):
         state = Reidentification()
         return [
-            state.update(ctx, frame(stranger, 10.1 + 0.1 * k, fused, similar,
-                                    classifier={8: classifier_alone}))  # fmt: skip
+            state.update(
+                ctx,
+                frame(stranger, 10.1 + 0.1 * k, fused, similar, classifier={8: classifier_alone}),
+            )  # fmt: skip
             for k in range(3 * CFG.reid_frames)
         ]
 
@@ -595,7 +597,7 @@ def test_re_id_decisive_among_the_people_in_view_passes_without_the_classifier()
 
 
 def test_re_id_decides_only_for_people_seen_at_the_loss_and_against_everyone_seen():
-    """"In view" means observed: a track coasting unseen in the frame the target was lost
+    """ "In view" means observed: a track coasting unseen in the frame the target was lost
     in may be carried onto anyone later, so it is no one present; and a person seen now
     without a crop (too small, cut by the image's edge) cannot be led by a re-id that did
     not embed them, so the frame is undecided."""
@@ -644,9 +646,7 @@ def test_a_failed_probation_hands_back_who_was_in_view_at_the_loss():
         (CFG.identity_risk_unseen_s + 0.3, True, False),
     ],
 )
-def test_a_stall_since_the_loss_ends_every_tracks_being_present_at_it(
-    unseen_s, stall, decided
-):
+def test_a_stall_since_the_loss_ends_every_tracks_being_present_at_it(unseen_s, stall, decided):
     """Across a stall of perception longer than `identity_risk_unseen_s` any track may
     be carried onto anyone: re-id alone no longer decides for it, and each cue must
     agree. A track that coasts through an occlusion keeps its place (the tracker retires
@@ -855,8 +855,10 @@ def test_a_frame_not_learnt_at_risk_sets_neither_the_stature_nor_who_was_seen_be
         ctx = tracked_context(stamp_s=10.0, observed={1: 20, 2: 20, 3: 20})
         tracking = Tracking(1)
         t = 10.1
-        crossing = [person(1, 2.0, last_seen_s=t),
-                    person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m, last_seen_s=t)]
+        crossing = [
+            person(1, 2.0, last_seen_s=t),
+            person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m, last_seen_s=t),
+        ]
         tracking.update(ctx, frame(crossing, t, {1: 0.9, 2: -0.5}))  # its identity at risk
         assert len(ctx.model.learnt) == 1  # the target leads: learnt
         for _ in range(5):  # track 1 now a taller stranger; the target on 3, 2 m away
@@ -873,6 +875,59 @@ def test_a_frame_not_learnt_at_risk_sets_neither_the_stature_nor_who_was_seen_be
     leading = run(stranger_score=0.9)
     assert len(leading.model.learnt) == 6 and leading.target_height[0] == pytest.approx(1.60)
     assert leading.seen_beside_target(3)
+
+
+def swapped_after_crossing(stranger_score, **context_kwargs):
+    """A crossing puts the target's identity at risk; then, for five frames, track 1
+    carries a stranger 15 cm taller scoring `stranger_score`, and the target is on track
+    3, 2 m away, scoring 0.7."""
+    ctx = tracked_context(stamp_s=10.0, observed={1: 20, 2: 20, 3: 20}, **context_kwargs)
+    tracking, t = Tracking(1), 10.1
+    crossing = [person(1, 2.0, last_seen_s=t),
+                person(2, 2.0 + 0.5 * CFG.identity_risk_distance_m, last_seen_s=t)]  # fmt: skip
+    tracking.update(ctx, frame(crossing, t, {1: 0.9, 2: -0.5}))
+    for _ in range(5):
+        t += 0.1
+        after = [person(1, 2.0, neck_height_m=1.60, last_seen_s=t), person(3, 4.0, last_seen_s=t)]
+        assert tracking.update(ctx, frame(after, t, {1: stranger_score, 3: 0.7})) is tracking
+    return ctx
+
+
+@pytest.mark.parametrize(
+    ("reid", "config"),
+    [(False, CFG), (True, dataclasses.replace(CFG, learn_needs_lead_at_risk="never"))],
+)
+def test_a_frame_learnt_at_risk_without_a_lead_vouches_for_neither_stature_nor_who_is_beside(
+    reid, config
+):
+    """Without a re-id cue (or where learning needs no lead) a frame at risk is learnt
+    whoever scores higher, but its stature and who was seen beside it still need the
+    target's lead, for every identifier: the stranger's height must not become the bar
+    the real target is refused by, nor the real target count as seen beside it."""
+    doubted = swapped_after_crossing(0.05, reid=reid, config=config)
+    assert len(doubted.model.learnt) == 6  # learnt all the same
+    assert doubted.target_height[0] == pytest.approx(1.45)
+    assert not doubted.seen_beside_target(3)
+    assert doubted.same_height(person(3, 4.0, neck_height_m=1.45))
+    leading = swapped_after_crossing(0.9, reid=reid, config=config)
+    assert leading.target_height[0] == pytest.approx(1.60) and leading.seen_beside_target(3)
+
+
+def test_on_probation_without_re_id_only_a_frame_the_candidate_leads_marks_others_beside_it():
+    """A handover is an identity risk: on probation a frame in which someone else scores
+    higher than the candidate is learnt without a re-id cue, but marks nobody as seen
+    beside the target (that person may be the target)."""
+
+    def marked(other_score):
+        ctx = tracked_context(stamp_s=10.0, observed={7: 20, 9: 20}, reid=False)
+        state = Probation(7, since_s=10.5)
+        beside = [person(7, 2.5), person(9, 2.5, y_m=5.0)]  # well apart
+        assert state.update(ctx, frame(beside, 10.6, {7: 0.5, 9: other_score})) is state
+        assert len(ctx.model.learnt) == 1
+        return ctx.seen_beside_target(9)
+
+    assert not marked(other_score=0.8)
+    assert marked(other_score=0.1)
 
 
 def test_a_person_who_came_near_the_target_may_still_be_it():

@@ -187,7 +187,8 @@ class IdentityContext:
         touching its box in the image, or its track unseen, or no frame handed over, for
         `identity_risk_unseen_s`: `note_frame`; a target first named this frame was
         chosen from it, past any gap). What a frame that vouches for the identity adds
-        is `note_vouched`, `note_stature` and `note_seen_apart`."""
+        is `note_stature` and `note_seen_apart` (`vouches`); one that is learnt,
+        `note_vouched`."""
         track = frame.by_id[target_id]
         named_before = math.isfinite(self.last_target_s)
         self.last_target_position_m = track.position_m.copy()
@@ -283,21 +284,19 @@ class IdentityContext:
         return (stamp_s - self.identity_risk_s > self.config.identity_trust_s
                 and self.vouched_s > self.identity_risk_s)  # fmt: skip
 
-    def may_learn(self, target_id: int, frame: FrameTracks, confidence: float) -> bool:
-        """Whether a frame that keeps the target is learnt: while its identity is at risk
-        (`identity_trusted` false) only where no other track seen in the frame scores
-        higher, nor goes unscored (`FrameTracks.unscored_beside`), under
-        `learn_needs_lead_at_risk` ("with_reid", the default, beside a re-id cue only;
-        "always"; "never"). After a crossing or a gap the tracker may carry a
-        stranger on the target's track, the target on another (or on a new one);
-        learning that frame teaches the model the stranger, and the next frames trust
-        it. The boosted classifier alone scores others too unsteadily to be outscored
-        by them as evidence (docs/identification.md). The others are scored as the
-        target is, re-id included: a look that embedded the target alone left them
-        scored by the classifier, which is not the target's scale (`confidence`, the
-        target's score when the frame was first looked at, is that of the same model)."""
-        if not reid_rule_applies(self.config.learn_needs_lead_at_risk, self.model.has_reid):
-            return True
+    def vouches(self, target_id: int, frame: FrameTracks, confidence: float) -> bool:
+        """Whether a frame that keeps the target confirms who its track carries: any
+        frame while its identity is trusted (`identity_trusted`); while at risk only one
+        where no other track seen in it scores higher than the target's, nor goes
+        unscored (`FrameTracks.unscored_beside`). After a crossing or a gap the tracker
+        may carry a stranger on the target's track, the target on another (or on a new
+        one): such a frame must give neither the target's stature (the stranger's height
+        would become the bar the real target is refused by) nor marks of people seen
+        beside it (the real target among them), whatever the identifier. Whether it is
+        learnt is `may_learn`. The others are scored as the target is, re-id included: a
+        look that embedded the target alone left them scored by the classifier, which is
+        not the target's scale (`confidence`, the target's score when the frame was first
+        looked at, is that of the same model)."""
         if self.identity_trusted(frame.stamp_s):
             return True
         self.look(frame)  # embeds those left out, and scores everyone again alike
@@ -305,6 +304,18 @@ class IdentityContext:
             return False
         confidence = frame.confidences.get(target_id, confidence)
         return all(c < confidence for i, c in frame.confidences.items() if i != target_id)
+
+    def may_learn(self, vouched: bool) -> bool:
+        """Whether a frame that keeps the target is learnt, given whether it `vouches`
+        for the target: a frame at risk that does not is learnt only where
+        `learn_needs_lead_at_risk` does not apply ("with_reid", the default, applies
+        beside a re-id cue only; "always"; "never"). Learning a swapped-in stranger
+        teaches the model the stranger, and the next frames trust it; but the boosted
+        classifier alone scores others too unsteadily to be outscored by them as
+        evidence (docs/identification.md), so without re-id it learns on."""
+        if vouched:
+            return True
+        return not reid_rule_applies(self.config.learn_needs_lead_at_risk, self.model.has_reid)
 
     def crop_shows_another(self, target_id: int, frame: FrameTracks) -> bool:
         """Whether another person's box covers more than `max_learning_overlap` of the

@@ -37,9 +37,10 @@ from follow.types import InvalidInput, Odometry, TargetEstimate, TargetStatus, T
 
 log = logging.getLogger(__name__)
 
-# A selected track id not among the tracks this long after the selection (frame stamps)
-# is reported: a mistyped id, or a track already gone, otherwise waits in silence
-# (`follow run --target-id` passes its `[control] missing_target_warn_s`).
+# A selected track id not among the tracks this long (frame stamps) while it is waited
+# for is reported: a mistyped id, or a track already gone (ids are never reused),
+# otherwise waits in silence (`follow run --target-id` passes its
+# `[control] missing_target_warn_s`).
 SELECTED_ID_MISSING_S = 5.0
 
 
@@ -77,8 +78,10 @@ class TargetIdentifier:
 
     @property
     def selected_id_missing(self) -> bool:
-        """The selected track id has not appeared in `SELECTED_ID_MISSING_S` of frames
-        since it was selected (nothing is followed meanwhile); False once it appears."""
+        """The selected track id has not been among the tracks for `missing_warn_s` of
+        frames while the identifier waits for it (never seen since its selection, or
+        gone before it became the target: nothing is followed meanwhile); False once it
+        appears, and while it is the target."""
         return self._selection.missing
 
     @property
@@ -99,8 +102,9 @@ class TargetIdentifier:
 
     def select_target(self, track_id: int, missing_warn_s: float = SELECTED_ID_MISSING_S) -> None:
         """Follow this track id: learning starts afresh on the next frame it is present.
-        Not among the tracks `missing_warn_s` of frames later, it is warned of once
-        (`selected_id_missing`); nobody else is chosen meanwhile."""
+        Not among the tracks for `missing_warn_s` of frames while it is waited for (since
+        its selection, or since it was last seen before it became the target), it is
+        warned of once (`selected_id_missing`); nobody else is chosen meanwhile."""
         if isinstance(track_id, bool) or not isinstance(track_id, int | np.integer):
             raise InvalidInput(f"select_target: track id {track_id!r} is not a whole number")
         if track_id < 0:
@@ -144,12 +148,12 @@ class TargetIdentifier:
             log.warning("identifier: ignoring a frame stamped %.3f s, not after the last "
                         "(%.3f s)", stamp_s, self._last.stamp_s)  # fmt: skip
             return self._last
-        self._selection.check(by_id, stamp_s)
         self.context.count_observations(by_id)
         self.context.note_frame(stamp_s, robot)
         frame = FrameTracks(image_bgr, list(tracks), stamp_s, robot, by_id)
         self.context.forget_departed(frame)
         self.state = self.state.update(self.context, frame)
+        self._selection.check(by_id, stamp_s, waiting=self.state.status == TargetStatus.INITIAL)
         target_id = self.state.target_id
         seen = target_id in by_id and by_id[target_id].observation is not None
         self._last = TargetEstimate(self.state.status, target_id, frame.confidences, stamp_s, seen)
@@ -157,31 +161,43 @@ class TargetIdentifier:
 
 
 class SelectionWatch:
-    """Whether a selected track id has appeared since its selection: warns once when it
-    has not, `warn_after_s` into the frames after it. Only reports: the identifier keeps
-    waiting for that id and never chooses anyone else by itself."""
+    """Whether a selected track id is missing while the identifier waits for it: warns
+    once when it has not been among the tracks for `warn_after_s` of frames in a row
+    while nothing is followed (in the initial state). Its absence is timed from its
+    first absent frame, so a track that appeared and was retired before it became the
+    target (too short to be confirmed; lost in initial training) is reported as one never
+    seen is: ids are never reused, and the identifier would wait for it in silence. Once
+    the id is the target the watch rests (losing it is the states' to handle). Only
+    reports: the identifier keeps waiting for that id and never chooses anyone else."""
 
     def __init__(self, track_id: int | None, warn_after_s: float = SELECTED_ID_MISSING_S):
         self.track_id = track_id
         self.warn_after_s = warn_after_s
-        self.found = track_id is None
         self.missing = False
-        self._first_stamp_s: float | None = None
+        self._seen = False  # the id was among the tracks since its selection
+        self._absent_since_s: float | None = None
 
-    def check(self, by_id: dict[int, TrackState], stamp_s: float) -> None:
-        if self.found:
+    def check(self, by_id: dict[int, TrackState], stamp_s: float, waiting: bool) -> None:
+        """One frame's tracks; `waiting`: the identifier follows nobody after it."""
+        present = self.track_id in by_id
+        self._seen = self._seen or present
+        if self.track_id is None or present or not waiting:
+            self.missing, self._absent_since_s = False, None
             return
-        if self.track_id in by_id:
-            self.found, self.missing = True, False
-            return
-        if self._first_stamp_s is None:
-            self._first_stamp_s = stamp_s
-        if not self.missing and stamp_s - self._first_stamp_s >= self.warn_after_s:
+        if self._absent_since_s is None:
+            self._absent_since_s = stamp_s
+        if not self.missing and stamp_s - self._absent_since_s >= self.warn_after_s:
             self.missing = True
-            in_view = [int(i) for i in sorted(by_id)]
-            log.warning("selected track %d: not among the tracks %.1f s after its selection "
-                        "(tracks now: %s); nothing is followed until it appears",
-                        self.track_id, self.warn_after_s, in_view)  # fmt: skip
+            self._warn(by_id)
+
+    def _warn(self, by_id: dict[int, TrackState]) -> None:
+        """Say once that the id is missing, and since when: a mistyped id was never
+        seen; one seen and gone was retired by the tracker, and will not come back."""
+        since = "it was last seen" if self._seen else "its selection"
+        in_view = [int(i) for i in sorted(by_id)]
+        log.warning("selected track %d: not among the tracks %.1f s after %s (tracks now: "
+                    "%s); nothing is followed until it appears", self.track_id,
+                    self.warn_after_s, since, in_view)  # fmt: skip
 
 
 def check_identify_config(config: IdentifyConfig) -> None:

@@ -193,16 +193,7 @@ class Tracking(State):
                 context.note_stature(self.target_id, frame)
             return True
         if confidence >= threshold:
-            # Only a frame that is learnt vouches for who the track is: after a crossing,
-            # one in which someone else scores higher may carry a stranger the tracker
-            # swapped in, whose height must not become the bar, nor may the target
-            # (on another track) be taken for someone seen beside it.
-            if context.may_learn(self.target_id, frame, confidence):
-                if self.notes_stature:
-                    context.note_stature(self.target_id, frame)
-                context.note_seen_apart(self.target_id, frame)
-                if context.learn(self.target_id, frame):
-                    context.note_vouched(frame)
+            self._confirmed(context, frame, confidence)
             return True
         if self._excused_as_turn(context, frame.stamp_s):
             log.debug(
@@ -221,6 +212,21 @@ class Tracking(State):
             self.target_id, confidence, threshold,
         )  # fmt: skip
         return False
+
+    def _confirmed(self, context: IdentityContext, frame: FrameTracks, confidence: float) -> None:
+        """A frame whose confidence keeps the target. Only one that vouches for who the
+        track is (`IdentityContext.vouches`) gives its stature and marks those seen
+        beside it: after a crossing, one in which someone else scores higher may carry a
+        stranger the tracker swapped in, whose height must not become the bar, nor may
+        the target (on another track) be taken for someone seen beside it. Learning it
+        is `may_learn`'s to decide (without re-id such a frame is still learnt)."""
+        vouched = context.vouches(self.target_id, frame, confidence)
+        if vouched:
+            if self.notes_stature:
+                context.note_stature(self.target_id, frame)
+            context.note_seen_apart(self.target_id, frame)
+        if context.may_learn(vouched) and context.learn(self.target_id, frame):
+            context.note_vouched(frame)
 
     def _excused_as_turn(self, context: IdentityContext, stamp_s: float) -> bool:
         """Whether a low confidence is taken for the target turning round: nobody could
