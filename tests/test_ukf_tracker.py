@@ -210,6 +210,14 @@ def test_out_of_image_and_impossible_observations_are_rejected(camera, caplog):
     assert len(states) == 1
 
 
+def assert_taken_by_the_neck_alone(taken: Observation, given: Observation) -> None:
+    """A track reports the observation as the tracker used it: the caller's, without
+    the ankle it refused (a crop is cut from the reported ankle)."""
+    assert given.ankle_px is not None and taken.ankle_px is None
+    np.testing.assert_array_equal(taken.neck_px, given.neck_px)
+    assert taken.skeleton is given.skeleton and taken.touches_border == given.touches_border
+
+
 def test_an_ankle_outside_the_image_is_dropped_but_the_neck_used(camera, caplog):
     tracker = PeopleTracker(camera)
     robot = Odometry.origin()
@@ -220,7 +228,7 @@ def test_an_ankle_outside_the_image_is_dropped_but_the_neck_used(camera, caplog)
         bad_ankle = Observation(good.neck_px, np.array([320.0, 900.0]))
         states = tracker.update([bad_ankle], 0.4)
     assert "ankle" in caplog.text
-    assert states[0].observation is bad_ankle  # the caller's object, used neck-only
+    assert_taken_by_the_neck_alone(states[0].observation, bad_ankle)
     assert states[0].last_seen_s == 0.4
 
 
@@ -238,7 +246,8 @@ def test_an_ankle_above_the_horizon_is_dropped_but_the_neck_used(camera, caplog)
     with caplog.at_level(logging.WARNING, logger="follow.ukf"):
         states = tracker.update([bad_ankle], 10 / FPS, robot)
     assert [s.track_id for s in states] == [1]
-    assert states[0].observation is bad_ankle and states[0].last_seen_s == 10 / FPS
+    assert_taken_by_the_neck_alone(states[0].observation, bad_ankle)
+    assert states[0].last_seen_s == 10 / FPS
     assert "horizon" in caplog.text
 
 
@@ -351,7 +360,9 @@ def _walk_pair_then_hide(camera, config, stranger_s: float = 0.0):
     t = 0.0
     for _ in range(int(2 * FPS)):
         t += 1 / FPS
-        tracks = tracker.update([observe(camera, robot, a, 1.45), observe(camera, robot, b, 1.5)], t)
+        tracks = tracker.update(
+            [observe(camera, robot, a, 1.45), observe(camera, robot, b, 1.5)], t
+        )
     a_id = min(tracks, key=lambda s: np.linalg.norm(s.position_m - a)).track_id
     for _ in range(int(FPS)):
         t += 1 / FPS
@@ -363,7 +374,9 @@ def _walk_pair_then_hide(camera, config, stranger_s: float = 0.0):
     for _ in range(int(stranger_s * FPS)):
         t += 1 / FPS
         # C's neck height puts its neck on A's pixel: 0.6 + 3.0 * 0.85 / 8 = 0.92 m.
-        tracks = tracker.update([observe(camera, robot, b, 1.5), observe(camera, robot, c, 0.92)], t)
+        tracks = tracker.update(
+            [observe(camera, robot, b, 1.5), observe(camera, robot, c, 0.92)], t
+        )
     return a_id, after_hiding, {s.track_id: s for s in tracks}
 
 
@@ -375,6 +388,7 @@ def test_a_half_hidden_person_given_anothers_feet_keeps_its_track_by_the_neck(ca
     try:
         a_id, tracks, _ = _walk_pair_then_hide(camera, TrackerConfig())
         assert len(tracks) == 2 and a_id in tracks
+        assert tracks[a_id].observation.ankle_px is None  # not the feet it was handed
         assert abs(tracks[a_id].neck_height_m - 1.45) < 0.05
         assert np.linalg.norm(tracks[a_id].position_m - (8.0, 0.3)) < 0.3
         off = TrackerConfig(neck_fallback_association=False)

@@ -74,11 +74,11 @@ def simulate(
         observations, ids = observations_with_ids(detector.detect(frame))
         truth = {p.person_id: p for p in frame.people}
         robot_xy = np.array([frame.robot.x_m, frame.robot.y_m])
-        owner = {id(o): pid for o, pid in zip(observations, ids, strict=True)}
+        owner = {id(o.skeleton): pid for o, pid in zip(observations, ids, strict=True)}
         for state in tracker.update(observations, frame.stamp_s, frame.odometry):
             if not state.confirmed or state.observation is None:
                 continue
-            person = truth[owner[id(state.observation)]]
+            person = truth[owner[id(state.observation.skeleton)]]
             out.ukf_distance_m.append(float(np.linalg.norm(person.position_m - robot_xy)))
             out.ukf_error_m.append(float(np.linalg.norm(state.position_m - person.position_m)))
         for estimate, pid in zip(

@@ -14,7 +14,7 @@ import itertools
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -60,11 +60,19 @@ def check_observation(
         return None
     if obs.ankle_px is not None and not camera.in_image(obs.ankle_px, -max_outside_px)[0]:
         log.warning("ignoring an ankle %s outside the image", obs.ankle_px)
-        return Observation(obs.neck_px, None, obs.touches_border, obs.skeleton)
+        return without_ankle(obs)
     if obs.ankle_px is not None and not camera.is_below_horizon(obs.ankle_px)[0]:
         log.warning("ignoring an ankle %s on or above the horizon (on no floor)", obs.ankle_px)
-        return Observation(obs.neck_px, None, obs.touches_border, obs.skeleton)
+        return without_ankle(obs)
     return obs
+
+
+def without_ankle(obs: Observation) -> Observation:
+    """The observation with its ankle refused and all else kept (border flag, skeleton).
+    A track reports this form, not the caller's, so that no reader (the identifier's
+    crop) takes feet the tracker ruled out: without an ankle, they use the track's
+    expected ankle pixel instead."""
+    return replace(obs, ankle_px=None)
 
 
 def _position_std_m(track: _Track) -> float:
@@ -136,7 +144,10 @@ class PeopleTracker:
 
         `observations` are in pixels of this tracker's camera; `robot` is the robot's pose
         in `odom` at `stamp_s` (None: at the origin). Each returned track carries the
-        observation it took this frame (the caller's object, or None) and the neck/ankle
+        observation it took this frame as the tracker used it (or None): the caller's
+        object where it was used whole, else a copy without the ankle it refused (outside
+        the image, on or above the horizon, or another person's feet taken by the neck
+        alone), so that readers fall back to the expected ankle; and the neck/ankle
         pixels its updated state projects to, with their covariance from the state's
         uncertainty alone (no measurement noise), e.g. to cut an image region.
         """
@@ -172,14 +183,12 @@ class PeopleTracker:
             cfg.ankle_height_per_neck_height,
         )
 
-        # The usable form of each observation, and the caller's object it came from.
-        obs: list[Observation] = []
-        given: list[Observation] = []
-        for original in observations:
-            usable = check_observation(original, self.camera, cfg.max_outside_image_px)
-            if usable is not None:
-                obs.append(usable)
-                given.append(original)
+        # The usable form of each observation: the caller's own object where it is
+        # usable whole, which is what a track then reports having taken.
+        checked = (
+            check_observation(o, self.camera, cfg.max_outside_image_px) for o in observations
+        )
+        obs = [o for o in checked if o is not None]
 
         # Tracks past their unseen time go before they can take anything: after a long
         # gap (a frozen camera) their spread would let them take anyone, anywhere. A
@@ -217,7 +226,7 @@ class PeopleTracker:
         for i, j in used:
             track, o = self._tracks[j], obs[i]
             if (i, j) not in pairs:
-                o = Observation(o.neck_px, None, o.touches_border, o.skeleton)
+                o = without_ankle(o)  # the neck fallback: the feet were someone else's
             R = self._measurement_cov(depths[j], _single_ankle(o))
             z, R = (
                 (np.concatenate([o.neck_px, o.ankle_px]), R)
@@ -229,7 +238,7 @@ class PeopleTracker:
                 track.updates += 1
                 track.last_seen_s = stamp_s
                 track.confirmed = track.confirmed or track.updates >= cfg.min_updates_to_confirm
-                associated[track.track_id] = given[i]
+                associated[track.track_id] = o
 
         # An observation inside some track's gate (including tracks started just now) is
         # that track's duplicate or a neighbour's, not a new person.
@@ -243,7 +252,7 @@ class PeopleTracker:
                 continue
             track = self._start_track(o, stamp_s, robot)
             if track is not None:
-                associated[track.track_id] = given[i]
+                associated[track.track_id] = o
                 R4 = self._measurement_cov(self._depth_m(track.filter.mean, robot))
                 e = track.filter.expected_measurement(model, R4, True)
                 if e is not None:
