@@ -163,7 +163,8 @@ class BagSource:
                         self.spec, stepped_back, connections[0].topic)  # fmt: skip
         if not poses:
             raise SourceError(f"bag {self.spec}: odometry topic {connections[0].topic} is empty")
-        buffer = OdometryBuffer(max_gap_s, capacity=len(poses))
+        # every jump kept: the whole topic is read before the first image is tracked
+        buffer = OdometryBuffer(max_gap_s, capacity=len(poses), jump_capacity=len(poses))
         for pose in poses:
             buffer.add(pose)
         return buffer

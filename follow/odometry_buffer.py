@@ -11,15 +11,20 @@ from __future__ import annotations
 import bisect
 import math
 import threading
+from collections import deque
 
 from follow.frames import wrap_angle
 from follow.types import Odometry
 
 
 class OdometryBuffer:
-    """The latest `capacity` odometry samples in stamp order; safe across threads."""
+    """The latest `capacity` odometry samples in stamp order; safe across threads.
 
-    def __init__(self, max_gap_s: float, capacity: int = 2000):
+    `jumps` logs the last `jump_capacity` jumps between a sample and the newest one
+    before it, for the tracker to move its tracks by exactly those
+    (`PeopleTracker.update`)."""
+
+    def __init__(self, max_gap_s: float, capacity: int = 2000, jump_capacity: int = 32):
         if not max_gap_s > 0:
             raise ValueError(f"max_gap_s must be positive, got {max_gap_s}")
         self.max_gap_s = max_gap_s
@@ -27,9 +32,16 @@ class OdometryBuffer:
         self._stamps: list[float] = []
         self._poses: list[Odometry] = []
         self._cond = threading.Condition()
+        self.jumps = OdometryJumps(jump_capacity)
 
     def add(self, pose: Odometry) -> None:
+        """Keep `pose`. Only a sample newer than every other is compared (with the newest)
+        for a jump: one arriving late, between two, is not, since its neighbours were
+        already compared with each other and a late sample has no reset of its own to
+        tell (against the newest it would look like one: a false jump)."""
         with self._cond:
+            if self._poses and pose.stamp_s > self._stamps[-1]:
+                self.jumps.note(self._poses[-1], pose)
             i = bisect.bisect_right(self._stamps, pose.stamp_s)
             self._stamps.insert(i, pose.stamp_s)
             self._poses.insert(i, pose)
@@ -94,6 +106,52 @@ def pose_jumped(before: Odometry, after: Odometry, dt_s: float) -> bool:
     dt_s = max(0.0, dt_s)
     return (moved_m > MAX_ROBOT_SPEED_MPS * dt_s + POSE_JUMP_MARGIN_M
             or turned_rad > MAX_ROBOT_YAW_RATE_RADPS * dt_s + POSE_JUMP_MARGIN_RAD)  # fmt: skip
+
+
+def past_jump(before: Odometry, after: Odometry, stamp_s: float) -> bool:
+    """Whether the pose at `stamp_s` is in the odom frame after a jump from `before` to
+    `after`: from `after`'s stamp on, and between the two samples where `after` is the
+    strictly nearer (`OdometryBuffer.at` takes the nearer sample across a jump, the
+    earlier on a tie), so that the tracker moves its tracks with the frame whose pose
+    is the first in the new frame."""
+    if stamp_s >= after.stamp_s or stamp_s <= before.stamp_s:
+        return stamp_s >= after.stamp_s
+    return after.stamp_s - stamp_s < stamp_s - before.stamp_s
+
+
+class OdometryJumps:
+    """The last `capacity` odometry jumps, each the (before, after) pair of consecutive
+    samples between which it came; safe across threads. A jump is told between samples
+    tens of milliseconds apart, where a reset of a few tenths of a radian is plain; over a
+    frame's interval (0.07-0.2 s) a base may turn that far, and the same reset would pass
+    for motion: the tracker takes its jumps from here (`between`)."""
+
+    def __init__(self, capacity: int = 32):
+        self._pairs: deque[tuple[Odometry, Odometry]] = deque(maxlen=capacity)
+        self._lock = threading.Lock()
+
+    def note(self, previous: Odometry, pose: Odometry) -> bool:
+        """Log (previous, pose) if the pose jumped between the two samples; whether it did."""
+        if not pose_jumped(previous, pose, pose.stamp_s - previous.stamp_s):
+            return False
+        with self._lock:
+            self._pairs.append((previous, pose))
+        return True
+
+    def between(self, t0_s: float, t1_s: float) -> list[tuple[Odometry, Odometry]]:
+        """The jumps, oldest first, that a pose at `t1_s` is past and one at `t0_s` is not
+        (`past_jump`: for poses that are samples, those whose `after` stamp is in
+        (t0, t1])."""
+        with self._lock:
+            pairs = list(self._pairs)
+        return [(b, a) for b, a in pairs if past_jump(b, a, t1_s) and not past_jump(b, a, t0_s)]
+
+    def seen_near(self, t0_s: float, t1_s: float) -> bool:
+        """Whether a jump was logged between samples that reach into (t0, t1): one
+        `between` gives, or one whose `after` sample came too late for a pose at t0."""
+        with self._lock:
+            pairs = list(self._pairs)
+        return any(b.stamp_s < t1_s and a.stamp_s > t0_s for b, a in pairs)
 
 
 def interpolate(before: Odometry, after: Odometry, stamp_s: float) -> Odometry:

@@ -41,7 +41,7 @@ from follow.frames import odom_to_base, vector_odom_to_base
 from follow.freshness import is_ahead, is_fresh
 from follow.handoff import Handoff, OrderedWorker
 from follow.latency import LatencyRecorder
-from follow.odometry_buffer import pose_jumped
+from follow.odometry_buffer import OdometryJumps, pose_jumped
 from follow.shutdown import cleanup_begins, halt_on_signal, stop_within
 from follow.types import (
     Frame,
@@ -91,7 +91,9 @@ class Perception:
     `detect` maps a frame to skeletons (the pose network, or the simulation's synthetic
     detector); `to_observations` turns skeletons into tracker observations. The two
     halves (`detect_people`, `conclude`) are separate so that a runner can infer one
-    frame's pose while the previous frame is tracked.
+    frame's pose while the previous frame is tracked. `odometry_jumps` is set by the
+    runner to the log of jumps between the odometry samples its poses come from
+    (`OdometryJumps`): the tracker moves its tracks by exactly those.
     """
 
     def __init__(
@@ -107,6 +109,7 @@ class Perception:
         self.tracker = tracker
         self.identifier = identifier
         self.pose_backend = pose_backend  # where the pose network runs; None: no network
+        self.odometry_jumps: OdometryJumps | None = None  # None: the tracker's own test
 
     def detect_people(self, frame: Frame) -> Detections:
         """The pose stage alone (thread-safe with respect to `conclude`)."""
@@ -120,7 +123,8 @@ class Perception:
         """Tracker and identification on one frame's detections (frames in order)."""
         t1 = time.perf_counter()
         observations = self.to_observations(detections.skeletons)
-        tracks = self.tracker.update(observations, frame.stamp_s, robot)
+        jumps = {} if self.odometry_jumps is None else {"odometry_jumps": self.odometry_jumps}
+        tracks = self.tracker.update(observations, frame.stamp_s, robot, **jumps)
         t2 = time.perf_counter()
         target = self.identifier.update(frame.image, tracks, frame.stamp_s, robot)
         t3 = time.perf_counter()
@@ -444,11 +448,16 @@ def run_offline(
     frames: Iterable[Frame],
     controller=None,
     odometry: OdometryPolicy | Callable[[float], Odometry | None] | None = None,
+    odometry_jumps: OdometryJumps | None = None,
 ) -> Iterator[tuple[Frame, FrameResult | None, VelocityCommand | None]]:
     """Every frame in order; the controller (if any) is stepped once per frame at the
     frame's time. The robot pose comes from `odometry`: a base's policy, or a recorded
-    pose at the frame's stamp (a bag); default still at the origin. A frame without
-    fresh odometry is not processed (result None) and gets a stop."""
+    pose at the frame's stamp (a bag, with `odometry_jumps` its buffer's log of jumps);
+    default still at the origin. A frame without fresh odometry is not processed
+    (result None) and gets a stop."""
+    if isinstance(odometry, OdometryPolicy):
+        odometry_jumps = odometry.jumps
+    perception.odometry_jumps = odometry_jumps
     for index, frame in enumerate(frames):
         if odometry is None:
             robot = Odometry.origin(frame.stamp_s)
@@ -603,6 +612,7 @@ class ThreadedRunner:
             target=self._capture, args=(source, pace_hz), name="capture", daemon=True
         )
         unregister_halt = outputs = detected = None
+        self.perception.odometry_jumps = self.odometry.jumps  # those between frames' samples
         try:  # threads started in here: a signal landing between two starts is cleaned up
             capture.start()
             self.control.start()

@@ -575,7 +575,8 @@ def run_frames(args, config, source, frames, perception, camera, base, outputs, 
     controller = FollowingController(config.control, view=view)
     # NullBase: the camera is still, a fixed pose; a bag: its recorded pose at each image
     odometry = bag_odometry or OdometryPolicy(base)
-    for frame, result, command in run_offline(perception, frames, controller, odometry):
+    jumps = source.odometry.jumps if bag_odometry else None  # the bag's, for the tracker
+    for frame, result, command in run_offline(perception, frames, controller, odometry, jumps):
         base.send(command)
         summary.add_command(command)
         if result is None:

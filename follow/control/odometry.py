@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import threading
 
-from follow.odometry_buffer import pose_change, pose_jumped
+from follow.odometry_buffer import OdometryJumps, pose_change
 from follow.types import Odometry
 
 log = logging.getLogger(__name__)
@@ -25,7 +25,9 @@ class OdometryPolicy:
     It also watches consecutive samples for a jump no base drives (an estimator's reset):
     `last_jump_s` is the odometry stamp of the newest, so that a frame whose pose came
     before it is not driven toward (`pipeline.target_motion`); between samples a few
-    tens of milliseconds apart a reset is plain, where over a frame's age it may not be."""
+    tens of milliseconds apart a reset is plain, where over a frame's age it may not be.
+    `jumps` logs each (before, after) pair, for the tracker to move its tracks by exactly
+    those (`PeopleTracker.update`)."""
 
     def __init__(self, base):
         self.base = base
@@ -34,6 +36,7 @@ class OdometryPolicy:
         self.losses = 0  # how many times fresh odometry went away
         self._previous: Odometry | None = None
         self.last_jump_s: float | None = None  # odometry stamp of the newest jump seen
+        self.jumps = OdometryJumps()
 
     def sample(self) -> Odometry | None:
         """The base's newest pose, or None (and a warning the first time) when it has
@@ -55,7 +58,7 @@ class OdometryPolicy:
         previous, self._previous = self._previous, pose
         if previous is None or pose.stamp_s <= previous.stamp_s:
             return  # the same sample again (or an older one): nothing moved between them
-        if pose_jumped(previous, pose, pose.stamp_s - previous.stamp_s):
+        if self.jumps.note(previous, pose):
             self.last_jump_s = pose.stamp_s
             log.warning("the base's odometry jumped (%.2f m, %.2f rad in %.3f s: a reset?): "
                         "no target motion from frames before it", *pose_change(previous, pose),

@@ -436,6 +436,8 @@ class FollowNode(Node):
             self.control.controller.view = ViewCone.from_camera(camera)
         self.perception = build_perception(self.config, camera, detect=self._detect,
                                            pose_backend=self._pose_backend)  # fmt: skip
+        if self.odometry is not None:  # jumps told between samples, for the tracker
+            self.perception.odometry_jumps = self.odometry.jumps
         self._camera_key = key
         return self.perception
 

@@ -21,7 +21,7 @@ import numpy as np
 from follow.camera import CameraModel
 from follow.config import TrackerConfig
 from follow.frames import base_to_odom, odom_jump_transform, odom_to_base, rotation_2d
-from follow.odometry_buffer import pose_jumped
+from follow.odometry_buffer import OdometryJumps, pose_jumped
 from follow.types import L_ANKLE, R_ANKLE, Observation, Odometry, TrackState
 from follow.ukf.association import InnovationGate, gate_mahalanobis_sq, global_nearest_neighbour
 from follow.ukf.models import MeasurementModel, process_noise
@@ -138,18 +138,22 @@ class PeopleTracker:
         observations: Sequence[Observation],
         stamp_s: float,
         robot: Odometry | None = None,
+        odometry_jumps: OdometryJumps | None = None,
     ) -> list[TrackState]:
         """Fold one frame's observations in; returns every live track (tentative and
         confirmed) for this frame.
 
         `observations` are in pixels of this tracker's camera; `robot` is the robot's pose
-        in `odom` at `stamp_s` (None: at the origin). Each returned track carries the
-        observation it took this frame as the tracker used it (or None): the caller's
-        object where it was used whole, else a copy without the ankle it refused (outside
-        the image, on or above the horizon, or another person's feet taken by the neck
-        alone), so that readers fall back to the expected ankle; and the neck/ankle
-        pixels its updated state projects to, with their covariance from the state's
-        uncertainty alone (no measurement noise), e.g. to cut an image region.
+        in `odom` at `stamp_s` (None: at the origin); `odometry_jumps` is the log of jumps
+        between consecutive odometry samples that `robot` came from (`OdometryJumps`), by
+        which the tracks are moved into a new odom frame (`_follow_odometry`). Each
+        returned track carries the observation it took this frame as the tracker used it
+        (or None): the caller's object where it was used whole, else a copy without the
+        ankle it refused (outside the image, on or above the horizon, or another person's
+        feet taken by the neck alone), so that readers fall back to the expected ankle;
+        and the neck/ankle pixels its updated state projects to, with their covariance
+        from the state's uncertainty alone (no measurement noise), e.g. to cut an image
+        region.
         """
         if not math.isfinite(stamp_s):
             log.warning("ignoring a frame with a non-finite timestamp %r", stamp_s)
@@ -169,8 +173,7 @@ class PeopleTracker:
         dt = 0.0 if previous_stamp_s is None else stamp_s - previous_stamp_s
         self._last_stamp_s = stamp_s
         robot = robot if robot is not None else Odometry.origin(stamp_s)
-        if self._robot_jumped(robot, dt):
-            self._follow_odometry_jump(self._last_robot, robot)
+        self._follow_odometry(robot, dt, odometry_jumps)
         self._last_robot = robot
         cfg = self.config
         model = MeasurementModel(
@@ -264,6 +267,30 @@ class PeopleTracker:
         return self.tracks
 
     # ------------------------------------------------------------------ steps
+    def _follow_odometry(self, robot: Odometry, dt: float, jumps: OdometryJumps | None) -> None:
+        """Move the tracks by every odometry jump between the last frame's pose and
+        `robot`, oldest first. The log's jumps were told between samples tens of ms apart
+        (4 rad/s and 3 m/s over that, plus 0.1 rad / 0.2 m): over the frame interval the
+        same reset can pass for motion (0.37 rad at 15 fps), and the tracks be left in a
+        frame that no longer exists. The frame-interval test (`_robot_jumped`) is for a
+        jump the log did not see (no log, or none logged between samples that reach into
+        the frame interval); where the log has one the test is not asked as well, so no
+        jump is applied twice (also where a frame's pose was taken before the sample after
+        a jump came, and the log places that jump a frame early)."""
+        last = self._last_robot
+        if last is None:
+            return
+        logged = [] if jumps is None else jumps.between(last.stamp_s, robot.stamp_s)
+        for before, after in logged:
+            log.warning("odometry jumped from (%.2f, %.2f, %.2f rad) to (%.2f, %.2f, "
+                        "%.2f rad) at %.3f s (a reset?): tracks kept where they stood "
+                        "relative to the robot", before.x_m, before.y_m, before.yaw_rad,
+                        after.x_m, after.y_m, after.yaw_rad, after.stamp_s)  # fmt: skip
+            self._follow_odometry_jump(before, after)
+        seen = jumps is not None and jumps.seen_near(last.stamp_s, robot.stamp_s)
+        if not seen and self._robot_jumped(robot, dt):
+            self._follow_odometry_jump(last, robot)
+
     def _robot_jumped(self, robot: Odometry, dt: float) -> bool:
         """Whether the robot's pose moved farther than it can drive in `dt`: odometry
         reset to the origin, or an estimator's yaw reset. Every track's position is then
