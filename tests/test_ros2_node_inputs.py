@@ -439,13 +439,10 @@ def test_a_command_computed_while_another_target_is_selected_is_not_sent(monkeyp
     assert held.linear.x == 0.0 and held.angular.z == 0.0, f"cmd_vel: {held.linear.x} m/s"
 
 
-def test_stop_following_sends_zero_while_a_frame_holds_the_perception_lock(monkeypatch):
-    """`~/stop_following` must not wait for the frame being tracked and identified (tens
-    of ms, hundreds on a slow CPU): the base gets its zero, and only zeros after it, while
-    the perception lock is still held."""
-    from std_srvs.srv import Trigger
-    from waiting import wait_for
-
+def _node_and_a_frame_in_perception(monkeypatch):
+    """A node whose control loop ticks only when a test says (its twists recorded), and a
+    thread (not started) that holds the perception lock as a frame being tracked and
+    identified does, from `held` until `release`."""
     from follow import pipeline
 
     monkeypatch.setattr(pipeline.ControlLoop, "_run", lambda loop: loop._stop.wait())  # tick here
@@ -455,12 +452,23 @@ def test_stop_following_sends_zero_while_a_frame_holds_the_perception_lock(monke
     node.pub_cmd_vel.publish = twists.append
     held, release = threading.Event(), threading.Event()
 
-    def perceiving():  # a frame being tracked and identified
+    def perceiving():
         with node._lock:
             held.set()
             release.wait(10.0)
 
-    holder = threading.Thread(target=perceiving, daemon=True)
+    return node, twists, threading.Thread(target=perceiving, daemon=True), held, release
+
+
+def test_stop_following_sends_zero_while_a_frame_holds_the_perception_lock(monkeypatch):
+    """`~/stop_following` must not wait for the frame being tracked and identified (tens
+    of ms, hundreds on a slow CPU): the base gets its zero, and only zeros after it, while
+    the perception lock is still held."""
+    from std_srvs.srv import Trigger
+    from waiting import wait_for
+
+
+    node, twists, holder, held, release = _node_and_a_frame_in_perception(monkeypatch)
     response: list = []
     stopper = threading.Thread(target=lambda: response.append(node._on_stop_following(
         Trigger.Request(), Trigger.Response())), daemon=True)  # fmt: skip
@@ -650,21 +658,8 @@ def test_select_target_stops_the_base_while_a_frame_holds_the_perception_lock(mo
     the person just chosen against. It stops at the next control tick instead."""
     from std_msgs.msg import Int32
 
-    from follow import pipeline
 
-    monkeypatch.setattr(pipeline.ControlLoop, "_run", lambda loop: loop._stop.wait())  # tick here
-    config = Config().replace("identify", identifier="channels")
-    node = FollowNode(config.replace("ros", publish_cmd_vel=True), CAMERA, detect=lambda f: [])
-    twists: list = []
-    node.pub_cmd_vel.publish = twists.append
-    held, release = threading.Event(), threading.Event()
-
-    def perceiving():  # a frame being tracked and identified
-        with node._lock:
-            held.set()
-            release.wait(10.0)
-
-    holder = threading.Thread(target=perceiving, daemon=True)
+    node, twists, holder, held, release = _node_and_a_frame_in_perception(monkeypatch)
     selector = threading.Thread(target=node._on_select_target, args=(Int32(data=3),),
                                 daemon=True)  # fmt: skip
     try:
