@@ -138,6 +138,12 @@ class OdometryJumps:
             self._pairs.append((previous, pose))
         return True
 
+    @property
+    def newest_s(self) -> float | None:
+        """The stamp of the sample after the newest jump (None: none logged)."""
+        with self._lock:
+            return self._pairs[-1][1].stamp_s if self._pairs else None
+
     def between(self, t0_s: float, t1_s: float) -> list[tuple[Odometry, Odometry]]:
         """The jumps, oldest first, that a pose at `t1_s` is past and one at `t0_s` is not
         (`past_jump`: for poses that are samples, those whose `after` stamp is in

@@ -35,7 +35,6 @@ class OdometryPolicy:
         self._missing = False
         self.losses = 0  # how many times fresh odometry went away
         self._previous: Odometry | None = None
-        self.last_jump_s: float | None = None  # odometry stamp of the newest jump seen
         self.jumps = OdometryJumps()
 
     def sample(self) -> Odometry | None:
@@ -59,10 +58,14 @@ class OdometryPolicy:
         if previous is None or pose.stamp_s <= previous.stamp_s:
             return  # the same sample again (or an older one): nothing moved between them
         if self.jumps.note(previous, pose):
-            self.last_jump_s = pose.stamp_s
             log.warning("the base's odometry jumped (%.2f m, %.2f rad in %.3f s: a reset?): "
                         "no target motion from frames before it", *pose_change(previous, pose),
                         pose.stamp_s - previous.stamp_s)  # fmt: skip
+
+    @property
+    def last_jump_s(self) -> float | None:
+        """The odometry stamp of the newest jump seen (None: none)."""
+        return self.jumps.newest_s
 
     @property
     def missing(self) -> bool:
