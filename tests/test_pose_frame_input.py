@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from follow.onnx_ir import portable_model
 from follow.pose.preprocess import prepare_frame, prepare_input
 from follow.pose.runtime import OpenVinoBackend, OrtBackend, openvino_installed
 
@@ -31,7 +32,7 @@ def _tiny_pose_like_model(path) -> None:
         [helper.make_tensor_value_info(n + "_out", TensorProto.FLOAT, None) for n in weights],
         [numpy_helper.from_array(w, n) for n, w in weights.items()],
     )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    model = portable_model(graph)
     onnx.save(model, str(path))
 
 
@@ -92,7 +93,7 @@ def test_a_model_without_one_4d_input_is_refused(tmp_path):
         [helper.make_tensor_value_info("y", TensorProto.FLOAT, None)],
     )
     path = tmp_path / "flat.onnx"
-    onnx.save(helper.make_model(graph), str(path))
+    onnx.save(portable_model(graph), str(path))
     with pytest.raises(ValueError, match="flat.onnx: expected one 4-d NCHW input"):
         with_frame_input(path)
 

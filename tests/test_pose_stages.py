@@ -5,6 +5,7 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from follow.config import PoseConfig
+from follow.onnx_ir import portable_model
 from follow.pose.detector import model_file_for
 from follow.pose.stages import StageCutError, initial_stage_file, initial_stage_outputs
 
@@ -60,7 +61,7 @@ def _two_stage_graph(quantized_paf: bool) -> onnx.ModelProto:
         ],
         initializers,
     )
-    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
+    return portable_model(graph)
 
 
 @pytest.mark.parametrize("quantized", [False, True])

@@ -64,6 +64,8 @@ def _onnx_session(weights: CcfWeights, threads: int):
     try:
         import onnxruntime as ort
         from onnx import TensorProto, helper, numpy_helper
+
+        from follow.onnx_ir import portable_model
     except ImportError:
         return None
     k1, k2 = weights.conv1.kernel_size, weights.conv2.kernel_size
@@ -100,8 +102,7 @@ def _onnx_session(weights: CcfWeights, threads: int):
         [helper.make_tensor_value_info("maps", TensorProto.FLOAT, None)],
         inits,
     )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
-    model.ir_version = 8
+    model = portable_model(graph)
     options = ort.SessionOptions()
     options.intra_op_num_threads = max(1, int(threads))
     options.inter_op_num_threads = 1
