@@ -78,6 +78,7 @@ def test_a_cut_without_a_record_is_made_again(cache, tmp_path):
 def test_a_corrupted_int8_model_is_refused_with_how_to_rebuild(
     cache, tmp_path, precision, monkeypatch
 ):
+    """Pinned to the CPU provider: on a GPU `precision = "auto"` takes the FP32 model."""
     from follow.pose import cpu_features
 
     monkeypatch.setattr(cpu_features, "cpu_flags", lambda: frozenset({"avx512_vnni"}))
@@ -87,10 +88,10 @@ def test_a_corrupted_int8_model_is_refused_with_how_to_rebuild(
     int8.parent.mkdir(parents=True)
     int8.write_bytes(source.read_bytes())
     model_manifest.write_manifest(int8, source, {"calibration": "test"})
-    assert _source_model_file(PoseConfig(precision=precision)) == int8
+    assert _source_model_file(PoseConfig(provider="cpu", precision=precision)) == int8
     _corrupt(int8)
     with pytest.raises(models.ModelError, match="refusing to run it.*follow models prepare"):
-        _source_model_file(PoseConfig(precision=precision))
+        _source_model_file(PoseConfig(provider="cpu", precision=precision))
 
 
 def test_a_named_model_file_with_a_record_is_checked_against_it(cache, tmp_path):
