@@ -42,6 +42,7 @@ from follow.freshness import is_ahead, is_fresh
 from follow.handoff import Handoff, OrderedWorker
 from follow.latency import LatencyRecorder
 from follow.odometry_buffer import OdometryJumps, pose_jumped
+from follow.pose.runtime import backend_runs_on_gpu
 from follow.shutdown import cleanup_begins, halt_on_signal, stop_within
 from follow.types import (
     Frame,
@@ -695,10 +696,6 @@ def build_runner(
     return ThreadedRunner(perception, control, base, clock=clock, overlap_stages=overlap)
 
 
-# Pose runtimes that run the network off the CPU (`PoseBackend.name` contains one).
-ACCELERATED_POSE_BACKENDS = ("CUDAExecutionProvider", "TensorrtExecutionProvider")
-
-
 def overlaps_stages(setting: bool | str, pose_backend: str | None) -> bool:
     """`[control] overlap_stages` for a pose runtime: "auto" overlaps the stages where
     the network runs on a GPU, which infers the next frame while the CPU tracks and
@@ -706,7 +703,5 @@ def overlaps_stages(setting: bool | str, pose_backend: str | None) -> bool:
     overlapping there gained 1-5 % of frame rate for 18-30 % more 95th-percentile
     capture-to-command latency (measured on 2 cores, docs/system.md)."""
     if setting == "auto":
-        return pose_backend is not None and any(
-            name in pose_backend for name in ACCELERATED_POSE_BACKENDS
-        )
+        return pose_backend is not None and backend_runs_on_gpu(pose_backend)
     return bool(setting)

@@ -168,3 +168,41 @@ def test_a_frame_of_another_size_runs_at_the_full_height(model_path, data_path):
         assert len([s for s in detector.detect(frame) if s.has(NECK)]) == 1
         heights.append(detector.last_input_height_px)
     assert heights == [368, 256, 368, 256]
+
+
+class _NamedAsGpu:
+    """The CPU back-end under the CUDA provider's name, recording the input shapes."""
+
+    name = "onnxruntime:CUDAExecutionProvider"
+
+    def __init__(self, backend):
+        self.backend, self.frame_input, self.shapes = backend, backend.frame_input, []
+
+    def run(self, tensor):
+        self.shapes.append(tensor.shape)
+        return self.backend.run(tensor)
+
+
+def test_on_a_gpu_the_input_keeps_one_height(model_path, data_path, monkeypatch):
+    """The person the CPU runs at 256 px runs at the full 368 px where the network is on
+    a GPU, warm-up included: a new input shape there costs a convolution-algorithm search
+    of a second or more (measured on an H200), which the smaller input does not repay."""
+    from follow.pose import detector as detector_module
+
+    real = detector_module.network_and_backend
+    monkeypatch.setattr(detector_module, "network_and_backend",
+                        lambda *a, **k: (lambda p, b: (p, _NamedAsGpu(b)))(*real(*a, **k)))  # fmt: skip
+    crop = cv2.imread(str(data_path("ccf_crops/p01.jpg")))
+    crop = cv2.resize(crop, (round(380 * crop.shape[1] / crop.shape[0]), 380))
+    frame = np.full((480, 640, 3), 128, np.uint8)
+    frame[50:430, 250 : 250 + crop.shape[1]] = crop
+    config = PoseConfig(provider="cpu", precision="fp32", input_height_px=368,
+                        full_input_every_frames=3)  # fmt: skip
+    detector = detector_module.PoseDetector(
+        config, model_path("pose/human-pose-estimation-0001.onnx")
+    )
+    assert detector.input_sizing is None
+    for _ in range(4):
+        assert len([s for s in detector.detect(frame) if s.has(NECK)]) == 1
+        assert detector.last_input_height_px == 368
+    assert {shape[2] for shape in detector.backend.shapes} == {368}  # warm-up too

@@ -23,7 +23,7 @@ from follow.pose.preprocess import (
     prepare_frame,
     prepare_input,
 )
-from follow.pose.runtime import PoseBackend, create_backend, runs_on_gpu
+from follow.pose.runtime import PoseBackend, backend_runs_on_gpu, create_backend, runs_on_gpu
 from follow.pose.size_cache import RecentlyUsed
 from follow.pose.stages import STAGE_CHOICES, initial_stage_file
 from follow.types import Skeleton
@@ -232,6 +232,9 @@ class PoseDetector:
         self._input_buffers: RecentlyUsed = RecentlyUsed()  # per frame size and height
         self._frame_filter = FrameFilter.from_config(self.config)
         self.reset_input_sizing()
+        if config.input_height_from_people and self.input_sizing is None:
+            log.info("pose: one input height (%d px) on the GPU: input_height_from_people "
+                     "is for CPUs", config.input_height_px)  # fmt: skip
         if self.input_sizing is not None:
             log.info("pose: input height from the people in view: %s px, the full %d px "
                      "every %d frames", "/".join(map(str, self.input_sizing.heights_px)),
@@ -241,13 +244,24 @@ class PoseDetector:
 
     def reset_input_sizing(self) -> None:
         """Forget the people of earlier frames (before another video): the next frame
-        runs at the full input height."""
+        runs at the full input height. On a GPU the input keeps one height: there a new
+        input shape costs a convolution-algorithm search (cuDNN) or an engine build
+        (TensorRT), and the smaller input saves little (`people_sized_input_here`)."""
         config = self.config
         self.input_sizing = (
             PeopleSizedInput(config.input_height_px, reliable_person_input_px(config),
                              config.full_input_every_frames)
-            if config.input_height_from_people else None
+            if self.people_sized_input_here() else None
         )  # fmt: skip
+
+    def people_sized_input_here(self) -> bool:
+        """`input_height_from_people`, unless the network runs on a GPU: measured on an
+        H200 (robot scene, 5 people), switching between the input heights held single
+        frames 1.0-1.9 s even after each height had been warmed up (cuDNN searched the
+        convolution algorithms again), which dropped the runner from the camera's 30 fps
+        to 16 fps and stopped the base on the stall watchdog; at one height inference was
+        3.3-3.5 ms a frame and the runner kept the camera's rate."""
+        return self.config.input_height_from_people and not backend_runs_on_gpu(self.backend.name)
 
     @property
     def backend_name(self) -> str:

@@ -26,6 +26,15 @@ HEATMAP_CHANNELS = 19
 PAF_CHANNELS = 38
 
 
+# Pose runtimes that run the network off the CPU (`PoseBackend.name` contains one).
+ACCELERATED_POSE_BACKENDS = ("CUDAExecutionProvider", "TensorrtExecutionProvider")
+
+
+def backend_runs_on_gpu(backend_name: str) -> bool:
+    """Whether the back-end named `backend_name` (`PoseBackend.name`) runs on a GPU."""
+    return any(name in backend_name for name in ACCELERATED_POSE_BACKENDS)
+
+
 class PoseBackend(Protocol):
     """Runs the network on one image: a (1, 3, H, W) float32 tensor, or, for a back-end
     made with `frame_input`, the (1, H, W, 3) uint8 frame itself."""
