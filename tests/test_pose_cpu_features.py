@@ -67,7 +67,7 @@ def int8_in_cache(tmp_path, monkeypatch):
 def test_auto_precision_runs_int8_only_where_the_cpu_has_dot_products(monkeypatch, int8_in_cache):
     fp32 = Path("/models/human-pose-estimation-0001.onnx")
     monkeypatch.setattr(detector.models, "resolve", lambda name: fp32)
-    auto = PoseConfig()
+    auto = PoseConfig(provider="cpu")  # on a GPU "auto" would take FP32 whatever the CPU
     for flags, expected in ((frozenset({"avx2"}), "fp32"),
                             (frozenset({"avx2", "avx512_vnni"}), "int8"),
                             (None, "int8")):  # fmt: skip
@@ -96,12 +96,13 @@ def test_the_reliable_person_size_follows_the_precision_that_runs(monkeypatch, i
     on a CPU without dot products "auto" runs FP32 and so a smaller input for the same
     camera; a number in the config is kept whatever runs."""
     camera_fy_px, image_height_px = 554.0, 480  # 640x480, 60 degrees wide
+    on_cpu = PoseConfig(provider="cpu")  # on a GPU "auto" runs FP32 whatever the CPU
     heights = {}
     for flags in (frozenset({"avx512_vnni"}), frozenset({"avx2"})):
         monkeypatch.setattr(cpu_features, "cpu_flags", lambda flags=flags: flags)
-        precision = detector.resolved_precision(PoseConfig())
-        assert reliable_person_input_px(PoseConfig()) == RELIABLE_PERSON_INPUT_PX[precision]
+        precision = detector.resolved_precision(on_cpu)
+        assert reliable_person_input_px(on_cpu) == RELIABLE_PERSON_INPUT_PX[precision]
         assert reliable_person_input_px(PoseConfig(min_person_input_px=90.0)) == 90.0
-        heights[precision] = input_height_for_camera(camera_fy_px, image_height_px, PoseConfig())
+        heights[precision] = input_height_for_camera(camera_fy_px, image_height_px, on_cpu)
     assert RELIABLE_PERSON_INPUT_PX == {"int8": 85.0, "fp32": 74.0}
     assert heights == {"int8": 376, "fp32": 328}
