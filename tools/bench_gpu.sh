@@ -2,7 +2,7 @@
 # GPU figures for docs/pose.md: the whole stack on onnxruntime's CUDA provider beside its
 # CPU provider on the same machine in one run, the TensorRT request's outcome, the INT8
 # model on CUDA, and the GPU path's host side on two CPU cores (a laptop's or a
-# Jetson's share).
+# Jetson's share), and the robot scene with five people on those two cores.
 #
 # Needs onnxruntime-gpu with its CUDA libraries, the models (FOLLOW_MODEL_DIR) and the
 # PETS 2009 data (FOLLOW_DATA_DIR); the INT8 cell runs the model INT8_MODEL names, else
@@ -60,3 +60,9 @@ else
 fi
 follow bench --provider cuda --config "$out/int8.toml" --json 2>"$out/int8.stderr" \
     | tail -1 | tee "$out/int8.json"
+
+echo "== robot scene (640x480, 5 people 3-8 m), cuda, two CPU cores: the robot goal's case"
+taskset -c 0,1 "$python" -m follow.cli bench --provider cuda --scene robot --people 5 --far-m 8 \
+    --json 2>"$out/robot5_two_cores.stderr" | tail -1 | tee "$out/robot5_two_cores.json"
+taskset -c 0,1 "$python" -m follow.cli bench --provider cpu --scene robot --people 5 --far-m 8 \
+    --json 2>"$out/robot5_two_cores_cpu.stderr" | tail -1 | tee "$out/robot5_two_cores_cpu.json"
