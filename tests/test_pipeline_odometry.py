@@ -266,3 +266,61 @@ def test_odometry_that_jumped_since_the_frame_drives_nothing():
     now[0] += 1 / 30
     slot.put(tracking(now[0]))  # the next frame, its tracks in the new odom frame
     assert loop.tick().forward_mps > 0
+
+
+class _ScriptedBase(_Base):
+    """A base whose odometry samples are given in turn."""
+
+    def __init__(self, samples):
+        super().__init__()
+        self.samples = list(samples)
+
+    def odometry(self):
+        return self.samples.pop(0)
+
+
+def test_a_reset_stamped_with_the_last_samples_time_is_still_a_jump():
+    """A base may stamp a new pose with the last one's time (MAVLink: the older of the
+    position and attitude messages, so an attitude arriving first changes the pose, not
+    the stamp). The reset is logged all the same, and the moved pose comes stamped after
+    the last, so that a frame taken before it can be told from one taken after."""
+    before = Odometry(0.0, 0.0, 0.0, 10.0)
+    reset = Odometry(0.0, 0.0, 0.6, 10.0)  # a 0.6 rad yaw reset, the same stamp
+    older = Odometry(0.5, 0.0, 0.6, 9.9)  # sampled by another thread, handed in late
+    policy = OdometryPolicy(_ScriptedBase([before, reset, reset, older]))
+    assert policy.sample() is before
+    moved = policy.sample()
+    assert (moved.yaw_rad, policy.last_jump_s) == (0.6, moved.stamp_s)
+    assert moved.stamp_s > before.stamp_s
+    assert policy.sample() is moved  # the same pose again: the same sample
+    assert policy.sample() is older  # an older sample is handed back as it came
+
+
+def test_a_reset_at_the_last_samples_stamp_drives_nothing():
+    """The control loop's view of the same: a frame taken before such a reset is not
+    driven toward (it drove on at 1.45 m/s, turning toward a phantom 0.6 rad off)."""
+    now = [0.0]
+    pose = [Odometry.origin()]
+    tie = []  # the stamp the next sample repeats, once
+
+    class TiedStampBase(_Base):
+        def odometry(self):
+            return dataclasses.replace(pose[0], stamp_s=tie.pop() if tie else now[0])
+
+    def tracking(stamp_s: float) -> FrameResult:
+        return _tracking(stamp_s, dataclasses.replace(pose[0], stamp_s=stamp_s))
+
+    base = TiedStampBase()
+    loop, slot, moving = _following(base, now, tracking)
+    assert moving.forward_mps > 0.5
+    now[0] += 1 / 15
+    slot.put(tracking(now[0]))
+    loop.tick()
+    for _ in range(2):  # 0.2 s: a frame's age, over which a base may turn 0.6 rad
+        now[0] += 0.1
+        loop.tick()
+    tie.append(loop.odometry.sample().stamp_s)
+    pose[0] = Odometry(0.0, 0.0, 0.6, 0.0)  # the reset, in the sample with the same stamp
+    for _ in range(3):
+        assert loop.tick().is_stop
+        now[0] += 1 / 30

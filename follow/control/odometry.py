@@ -10,6 +10,7 @@ base (`NullBase`: the camera is assumed still) uses a fixed pose.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 
@@ -17,6 +18,9 @@ from follow.odometry_buffer import OdometryJumps, pose_change
 from follow.types import Odometry
 
 log = logging.getLogger(__name__)
+
+# The stamp a pose that moved at the last sample's stamp is given after it (`_ordered`).
+TIED_STAMP_STEP_S = 1e-6
 
 
 class OdometryPolicy:
@@ -50,13 +54,38 @@ class OdometryPolicy:
                 self._missing = False
                 log.warning("odometry from the base is back: resuming")
             if pose is not None:
+                pose = self._ordered(pose)
                 self._note_jump(pose)
         return pose
 
+    def _ordered(self, pose: Odometry) -> Odometry:
+        """`pose`, stamped after the last sample where it moved at that sample's stamp.
+
+        A base may stamp a new pose with the time of the last: `MavlinkBase` stamps a pose
+        with the older of its position and attitude messages, so an attitude that comes
+        before its cycle's position changes the pose, not the stamp. An estimator's reset
+        arriving so would pass unseen, and a frame taken before it could not be told from
+        one taken after (`pipeline.target_motion` compares stamps): such a pose is given
+        a stamp a microsecond after the last. The same pose at the same (or the original)
+        stamp is the last sample again."""
+        previous = self._previous
+        if previous is None or pose.stamp_s > previous.stamp_s:
+            return pose
+        same_place = (pose.x_m, pose.y_m, pose.yaw_rad) == (
+            previous.x_m, previous.y_m, previous.yaw_rad)  # fmt: skip
+        if same_place:
+            return previous
+        if pose.stamp_s == previous.stamp_s:
+            return dataclasses.replace(pose, stamp_s=previous.stamp_s + TIED_STAMP_STEP_S)
+        return pose  # an older sample (threads sampling out of turn): not a reference
+
     def _note_jump(self, pose: Odometry) -> None:
-        previous, self._previous = self._previous, pose
-        if previous is None or pose.stamp_s <= previous.stamp_s:
-            return  # the same sample again (or an older one): nothing moved between them
+        previous = self._previous
+        if previous is not None and pose.stamp_s <= previous.stamp_s:
+            return  # the same sample again, or an older one: nothing moved after the last
+        self._previous = pose
+        if previous is None:
+            return
         if self.jumps.note(previous, pose):
             log.warning("the base's odometry jumped (%.2f m, %.2f rad in %.3f s: a reset?): "
                         "no target motion from frames before it", *pose_change(previous, pose),
