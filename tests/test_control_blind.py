@@ -106,7 +106,11 @@ def test_view_cone_of_a_camera_and_no_forward_outside_it():
     [("max_blind_drive_s", 5.0), ("max_blind_drive_s", 0.0), ("watchdog_timeout_s", 1e9),
      # a frozen result is driven on unslowed until the watchdog: no longer than blind
      ("watchdog_timeout_s", 1.5), ("watchdog_timeout_s", -1.0),
-     ("control_rate_hz", 1.0), ("missing_target_warn_s", float("nan"))],
+     ("control_rate_hz", 1.0), ("missing_target_warn_s", float("nan")),
+     # the configuration's other ranges hold for a ControlConfig made in code too: an
+     # hour's search turned the robot an hour after a loss
+     ("target_timeout_s", 60.0), ("search_duration_s", 3600.0),
+     ("max_forward_speed_mps", 50.0)],
 )  # fmt: skip
 def test_safety_timeouts_are_bounded(key, value):
     with pytest.raises(ConfigError, match=key):

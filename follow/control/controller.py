@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from follow.config import ConfigError, ControlConfig
-from follow.config_bounds import BOUNDS
+from follow.config_bounds import BOUNDS, section_errors
 from follow.control.target import TargetMotion, ViewCone
 from follow.freshness import is_fresh
 from follow.types import InvalidInput, VelocityCommand
@@ -71,6 +71,10 @@ def check_control_config(config: ControlConfig) -> None:
             f"[control] search_yaw_rate_radps ({config.search_yaw_rate_radps}) exceeds "
             f"max_yaw_rate_radps ({config.max_yaw_rate_radps})"
         )
+    # the rest of the ranges a loaded configuration is held to, for a ControlConfig made
+    # in code: a search or a target time-out of minutes turns the robot long after a loss
+    if errors := section_errors("control", config):
+        raise ConfigError("; ".join(errors))
 
 
 # Speeding up counts at most this many control periods since the last command: a
