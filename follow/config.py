@@ -160,6 +160,11 @@ class TrackerConfig:
     # updates that track by the neck alone, instead of starting a second track: a person
     # half hidden behind a nearer one is often given the nearer one's feet.
     neck_fallback_association: bool = True
+    # A detection in no track's gate whose ankle fits a confirmed track seen in the last
+    # tentative_max_unseen_s and left without an observation, its neck above the same
+    # feet, updates that track by the ankle alone, instead of starting a new track for a
+    # person whose neck moved faster than the height state follows (crouching, sitting).
+    ankle_fallback_association: bool = True
     min_updates_to_confirm: int = 3
     # Deletion when the position std exceeds max_position_std_m plus this fraction of the
     # range (far people are always uncertain along the viewing ray).

@@ -595,3 +595,70 @@ def test_a_person_too_far_to_track_does_not_keep_a_nearer_one_from_a_track():
     (only,) = tracks
     assert only.confirmed and np.linalg.norm(only.position_m - (4.0, 0.3)) < 0.3
     assert only.track_id == 1  # no id was spent on the person too far off
+
+
+def _crouch(camera, config, distance_m=3.0, seed=0):
+    """A person standing `distance_m` ahead crouches (the neck 0.5 m lower in 0.5 s),
+    stays down 2 s and stands up as fast: per frame, (neck height, state of the track
+    given their observation, or None)."""
+    rng = np.random.default_rng(seed)
+    tracker = PeopleTracker(camera, config)
+    stand_m = 1.45
+    ankle_z = config.ankle_height_m + config.ankle_height_per_neck_height * stand_m
+    frames = []
+    for k in range(int(8.0 * FPS)):
+        t = k / FPS
+        down = min(1.0, max(0.0, (t - 2.0) / 0.5)) - min(1.0, max(0.0, (t - 4.5) / 0.5))
+        neck_m = stand_m - 0.5 * down
+        uv = camera.project(np.array([[distance_m, 0.2, neck_m], [distance_m, 0.2, ankle_z]]))
+        uv = uv + rng.normal(0.0, 2.0, (2, 2))
+        states = tracker.update([Observation(uv[0], uv[1])], t)
+        seen = [s for s in states if s.observation is not None]
+        frames.append((neck_m, seen[0] if seen else None))
+    return frames
+
+
+@pytest.mark.parametrize("distance_m", [3.0, 5.0])
+def test_a_person_who_crouches_keeps_one_track(camera, distance_m):
+    """Crouching drops the neck faster than the height state follows: the neck+ankle
+    observation leaves the track's gate, and without the ankle fallback it started new
+    tracks (1 -> 5 ids at 3 m). By the ankle alone the track keeps the person, its
+    height left standing while they are down, and settles back on their spot (the
+    descent, fused while still in the gate, first pushes it away: a lower neck reads as
+    a farther person)."""
+    frames = _crouch(camera, TrackerConfig(), distance_m)
+    ids = {s.track_id for _, s in frames if s is not None and s.confirmed}
+    assert ids == {1}
+    assert all(s is not None for _, s in frames[3:])  # every frame after confirmation
+    crouched = [s for neck_m, s in frames if neck_m < 1.0]
+    assert crouched and all(s.mean[4] > 1.25 for s in crouched)  # not pulled 0.5 m down
+    last_second_down = [s for k, (_, s) in enumerate(frames) if 3.5 <= k / FPS < 4.5]
+    # measured: within 0.23 m at 3 m and 0.37 m at 5 m (the ankle's range is coarse far
+    # off), at most 0.42 and 0.59 m/s of speed left from the descent (a known limit)
+    assert all(abs(s.position_m[0] - distance_m) < 0.1 * distance_m for s in last_second_down)
+    assert all(np.linalg.norm(s.velocity_mps) < 0.75 for s in last_second_down)
+
+
+def test_without_the_ankle_fallback_a_crouch_starts_new_tracks(camera):
+    frames = _crouch(camera, TrackerConfig(ankle_fallback_association=False))
+    assert len({s.track_id for _, s in frames if s is not None and s.confirmed}) > 1
+
+
+@pytest.mark.parametrize("unseen_frames, same_track", [(1, True), (15, False)])
+def test_the_ankle_fallback_takes_only_a_person_seen_a_moment_ago(
+    camera, unseen_frames, same_track
+):
+    """A neck 0.55 m lower on the feet of a track: the person of a track seen one frame
+    ago crouching (the same track), or, on the spot of a track unseen for a second
+    (beyond `tentative_max_unseen_s`), a child where someone stood (a track of their
+    own)."""
+    tracker = PeopleTracker(camera, TrackerConfig())
+    robot = Odometry.origin()
+    for k in range(15):
+        tracker.update([observe(camera, robot, (3.0, 0.2), 1.40)], k / FPS)
+    for k in range(15, 15 + unseen_frames):
+        tracker.update([], k / FPS)
+    states = tracker.update([observe(camera, robot, (3.0, 0.2), 0.85)],
+                            (15 + unseen_frames) / FPS)  # fmt: skip
+    taken = {s.track_id for s in states if s.observation is not None}
+    assert taken == ({1} if same_track else taken - {1}) and taken

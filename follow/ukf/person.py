@@ -218,10 +218,15 @@ class PersonFilter:
         zp, S = filterpy_unscented_transform(Z, self.ukf.Wm, self.ukf.Wc, R)
         return zp, 0.5 * (S + S.T)
 
-    def update(self, z: np.ndarray, R: np.ndarray, model: MeasurementModel) -> bool:
-        """Fuse a 4-d neck+ankle or a 2-d neck-only measurement; False (and no change) if
-        the update would not give a finite state."""
-        projected = self._measurement_sigmas(model, len(z) == 4)
+    def update(
+        self, z: np.ndarray, R: np.ndarray, model: MeasurementModel, ankle_only: bool = False
+    ) -> bool:
+        """Fuse a 4-d neck+ankle or a 2-d neck-only measurement (with `ankle_only`, a 2-d
+        ankle-only one); False (and no change) if the update would not give a finite
+        state."""
+        projected = self._measurement_sigmas(model, len(z) == 4 or ankle_only)
+        if ankle_only:
+            projected = projected[:, 2:4]
         if not np.isfinite(projected).all():
             return False
         try:

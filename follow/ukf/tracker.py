@@ -223,21 +223,28 @@ class PeopleTracker:
         pairs, in_some_gate = self._associate(obs, expected, depths, floor_ok)
         used = pairs + self._associate_necks(obs, expected, depths, pairs, in_some_gate,
                                              floor_ok, placed)  # fmt: skip
+        by_ankle = self._associate_ankles(obs, expected, depths, used, in_some_gate, floor_ok,
+                                          stamp_s)  # fmt: skip
 
         associated: dict[int, Observation] = {}
         claimed = set()
-        for i, j in used:
+        for i, j in used + by_ankle:
             track, o = self._tracks[j], obs[i]
-            if (i, j) not in pairs:
-                o = without_ankle(o)  # the neck fallback: the feet were someone else's
-            R = self._measurement_cov(depths[j], _single_ankle(o))
-            z, R = (
-                (np.concatenate([o.neck_px, o.ankle_px]), R)
-                if o.has_ankle
-                else (o.neck_px, R[:2, :2])
-            )
+            if (i, j) in by_ankle:  # the ankle fallback: the neck is off the height state
+                R = self._measurement_cov(depths[j], _single_ankle(o))[2:4, 2:4]
+                z, ankle_only = o.ankle_px, True
+            else:
+                if (i, j) not in pairs:
+                    o = without_ankle(o)  # the neck fallback: the feet were someone else's
+                R = self._measurement_cov(depths[j], _single_ankle(o))
+                z, R = (
+                    (np.concatenate([o.neck_px, o.ankle_px]), R)
+                    if o.has_ankle
+                    else (o.neck_px, R[:2, :2])
+                )
+                ankle_only = False
             claimed.add(i)
-            if track.filter.update(z, R, model):
+            if track.filter.update(z, R, model, ankle_only):
                 track.updates += 1
                 track.last_seen_s = stamp_s
                 track.confirmed = track.confirmed or track.updates >= cfg.min_updates_to_confirm
@@ -425,6 +432,45 @@ class PeopleTracker:
             if self._feet_expected_by(obs[i], owners, expected, depths_m):
                 out.append((i, j))
         return out
+
+    def _associate_ankles(self, obs, expected, depths_m, used, in_some_gate, floor_ok, stamp_s):
+        """(observation, track) pairs by the ankle alone, for a person whose neck moved
+        faster than the height state follows (`ankle_fallback_association`). A person
+        who crouches lowers the neck 0.5 m in half a second, and raises it as fast: the
+        neck+ankle observation then falls out of their track's gate and started a new
+        track (1 -> 5 ids over one crouch, simulated), which the identifier had to
+        re-identify. Such an observation (in no track's gate) is paired with a confirmed
+        track seen within `tentative_max_unseen_s` and left without an observation this
+        frame, whose ankle gate holds its ankle, within that track's floor gate, and whose
+        neck gate across the image holds its neck (above the same feet); the neck's
+        height is not asked, since it is what changed."""
+        if not self.config.ankle_fallback_association:
+            return []
+        cfg = self.config
+        taken = {j for _, j in used}
+        claimed = {i for i, _ in used}
+        rows = [i for i, o in enumerate(obs)
+                if o.has_ankle and i not in claimed and not in_some_gate[i]]  # fmt: skip
+        cols = [j for j, e in enumerate(expected)
+                if j not in taken and e is not None and self._tracks[j].confirmed
+                and stamp_s - self._tracks[j].last_seen_s <= cfg.tentative_max_unseen_s]  # fmt: skip
+        if not rows or not cols:
+            return []
+        ankle_limit = gate_mahalanobis_sq(2, cfg.gate_chi2_quantile)
+        across_limit = gate_mahalanobis_sq(1, cfg.gate_chi2_quantile)
+        cost = np.full((len(rows), len(cols)), np.inf)
+        for b, j in enumerate(cols):
+            zp, S0 = expected[j]
+            for a, i in enumerate(rows):
+                o = obs[i]
+                if not floor_ok[i, j]:
+                    continue
+                R = self._measurement_cov(depths_m[j], _single_ankle(o))
+                across = (o.neck_px[0] - zp[0]) ** 2 / (S0[0, 0] + R[0, 0])
+                d2, nll = InnovationGate(zp[2:4], S0[2:4, 2:4] + R[2:4, 2:4]).cost(o.ankle_px)
+                if d2 <= ankle_limit and across <= across_limit:
+                    cost[a, b] = nll
+        return [(rows[a], cols[b]) for a, b in global_nearest_neighbour(cost)]
 
     def _feet_expected_by(self, o: Observation, tracks: list[int], expected, depths_m) -> bool:
         """Whether the observation's ankle lies in the ankle gate of one of `tracks`."""
