@@ -259,6 +259,12 @@ def _only_numbers(value) -> bool:
 MAX_PRINCIPAL_POINT_OFFSET = 0.2
 
 
+def _check_finite_matrix(K: np.ndarray) -> None:
+    """Refuse a camera matrix that is not 3x3 or holds NaN or an infinity."""
+    if K.shape != (3, 3) or not np.isfinite(K).all():
+        raise ValueError(f"camera K must be a finite 3x3 matrix, got {K.tolist()}")
+
+
 def _check_principal_point(K: np.ndarray, width: int, height: int, centred: bool) -> None:
     """Refuse a principal point outside the image, or, for a whole sensor's image
     (`centred`: a camera file), far from its centre: the matrix was calibrated for frames
@@ -343,8 +349,7 @@ class CameraModel:
 
     def __post_init__(self):
         K = np.asarray(self.K, dtype=np.float64)
-        if K.shape != (3, 3) or not np.isfinite(K).all():
-            raise ValueError(f"camera K must be a finite 3x3 matrix, got {K.tolist()}")
+        _check_finite_matrix(K)
         if K[2].tolist() != [0.0, 0.0, 1.0]:  # projecting assumes it, never reads it
             raise ValueError(f"camera_matrix last row must be [0, 0, 1], got {K[2].tolist()}")
         if K[1, 0] != 0.0:  # projecting assumes an upper-triangular K, as OpenCV's
@@ -693,6 +698,7 @@ class CameraModel:
                   "x_m": 0.0, "y_m": 0.0}  # fmt: skip
         values = {k: number(pose_data, k, "pose.", default) for k, default in fields.items()}
         try:
+            _check_finite_matrix(K)  # a NaN c_x is not finite, not off the image
             _check_principal_point(K, width, height, centred=True)
             return cls(K, dist, (width, height), CameraPose(**values))
         except ValueError as exc:
