@@ -22,6 +22,7 @@ from follow.cli_args import (
     camera_index_too_large,
     frame_count_fits_file,
     no_camera_at,
+    refuse_non_utf8_name,
 )
 from follow.handoff import Mailbox
 from follow.repeated_image import MAX_DRIVER_BUFFERS, RepeatedImages
@@ -65,6 +66,14 @@ class SourceError(RuntimeError):
     """A frame source that cannot be opened or read."""
 
 
+def _refuse_non_utf8_source(spec: str) -> None:
+    """SourceError for a file or pipeline whose name is not UTF-8: OpenCV would crash on it."""
+    try:
+        refuse_non_utf8_name(spec, "source")
+    except ValueError as exc:
+        raise SourceError(str(exc)) from None
+
+
 class FrameSource:
     """Iterates frames from a video file, camera index or device, GStreamer pipeline or folder.
 
@@ -101,6 +110,8 @@ class FrameSource:
             return
         camera_index = spec.isascii() and spec.isdigit()  # not "²", which int() refuses
         pipeline = "!" in spec and not os.path.exists(spec)  # an existing path is a file
+        if not camera_index:
+            _refuse_non_utf8_source(spec)
         if camera_index:
             if too_large := camera_index_too_large(spec):
                 raise SourceError(f"source {spec}: {too_large}; a file named so: ./{spec}")

@@ -74,6 +74,26 @@ def refuse_unwritable(output: Path, name: str, why: str = "") -> None:
                       "written in" + (f"; {why}" if why else ""))  # fmt: skip
 
 
+def refuse_non_utf8_name(path: str | os.PathLike, name: str) -> None:
+    """Refuse a path whose name holds bytes that are not UTF-8 (a Latin-1 name from an
+    old archive, held by Python as surrogates) before OpenCV is given it: its binding
+    crashes the process on such a name (a segmentation fault, no error to report).
+    `name` is the option, for the message."""
+    text = os.fspath(path)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError(f"{name} {_shown_name(text)} is not a UTF-8 name; rename it") from None
+
+
+def _shown_name(text: str) -> str:
+    """A name as printable text: the bytes that are not UTF-8 written as `\\xe9`."""
+    try:
+        return os.fsencode(text).decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a surrogate no file name decodes to
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 # The namespace attribute holding, during one parse, the options already given a value.
 _GIVEN = "_options_given"
 

@@ -26,10 +26,17 @@ from follow.camera import CameraModel, check_pose_measured
 from follow.capture import (
     DEFAULT_FOLDER_FPS,
     MAX_TRUSTED_FILE_FPS,
+    MIN_TRUSTED_FILE_FPS,
     open_source,
     played_at_own_stamps,
 )
-from follow.cli_args import non_negative_int, positive_float, refuse_overwriting
+from follow.cli_args import (
+    float_within,
+    non_negative_int,
+    refuse_non_utf8_name,
+    refuse_overwriting,
+    refuse_unwritable,
+)
 from follow.config import Config
 from follow.person_in_view import log_person_in_view
 from follow.pipeline import FrameResult, Perception, build_runner, run_offline
@@ -52,9 +59,12 @@ def add_arguments(p) -> None:
     p.add_argument("--camera-info-topic", help="bag: CameraInfo, intrinsics over the camera file")
     p.add_argument("--skeletons-topic", help="bag: recorded skeletons (follow demo --bag) "
                    "used instead of the pose network")  # fmt: skip
-    p.add_argument("--folder-fps", type=positive_float, default=None, metavar="HZ",
+    # the range a video file's own rate is trusted in (1e-300 Hz overflowed the stamps)
+    p.add_argument("--folder-fps", default=None, metavar="HZ",
+                   type=float_within(MIN_TRUSTED_FILE_FPS, MAX_TRUSTED_FILE_FPS),
                    help="an image folder's frame rate, which its frames are stamped at "
-                   f"(default {DEFAULT_FOLDER_FPS:g})")  # fmt: skip
+                   f"(default {DEFAULT_FOLDER_FPS:g}; {MIN_TRUSTED_FILE_FPS:g} to "
+                   f"{MAX_TRUSTED_FILE_FPS:g})")  # fmt: skip
     p.add_argument("--camera", required=True, help="camera file (YAML/JSON, from follow-calib)")
     p.add_argument("--config", help="TOML configuration over the robot defaults (docs/config.md)")
     p.add_argument("--mavlink", help="MAVLink connection string, e.g. udpin:0.0.0.0:14550")
@@ -193,13 +203,7 @@ class Outputs:
         canvas = np.hstack([picture, side])
         if self.video_path:
             if self._writer is None:
-                suffix = Path(self.video_path).suffix.lower()
-                fourcc = cv2.VideoWriter_fourcc(*VIDEO_FOURCCS.get(suffix, "MJPG"))
-                self._writer = cv2.VideoWriter(
-                    self.video_path, fourcc, self.fps, (canvas.shape[1], canvas.shape[0])
-                )
-                if not self._writer.isOpened():
-                    raise OSError(f"cannot write video {self.video_path}")
+                self._writer = self._open_video(canvas.shape[1], canvas.shape[0])
             copies = self._video_copies(result.stamp_s)
             for _ in range(copies):
                 self._writer.write(canvas)
@@ -208,6 +212,18 @@ class Outputs:
             path = self.frames_dir / f"{result.frame_index:06d}.jpg"
             if not cv2.imwrite(str(path), canvas):  # OpenCV reports a failed write so only
                 raise OSError(f"cannot write frame {path}")
+
+    def _open_video(self, width_px: int, height_px: int):
+        """The video writer, once it is open: one that failed to open is not kept, so
+        `close` does not report a file that was never written as unreadable."""
+        suffix = Path(self.video_path).suffix.lower()
+        fourcc = cv2.VideoWriter_fourcc(*VIDEO_FOURCCS.get(suffix, "MJPG"))
+        writer = cv2.VideoWriter(self.video_path, fourcc, self.fps, (width_px, height_px))
+        if not writer.isOpened():
+            raise OSError(f"cannot write video {self.video_path} ({width_px}x{height_px} at "
+                          f"{self.fps:g} fps): OpenCV's writer does not open (a folder that cannot "
+                          "be written in, or a size or rate its codec refuses)")  # fmt: skip
+        return writer
 
     def _check_video_grows(self, raw_bytes: int) -> None:
         """Raise OSError when the video file has not grown over
@@ -261,9 +277,22 @@ class Outputs:
             if self._writer is not None:
                 self._writer.release()
                 self._check_video_readable(raise_error=not failing)
-        finally:
-            if self.log is not None:
-                self.log.close()
+        except BaseException:
+            self._close_log(raise_error=False)
+            raise
+        self._close_log(raise_error=not failing)
+
+    def _close_log(self, raise_error: bool) -> None:
+        """Close the log. A failure (a full disk) is only logged while another error is
+        on its way out: that one says what went wrong first."""
+        if self.log is None:
+            return
+        try:
+            self.log.close()
+        except OSError as exc:
+            if raise_error:
+                raise
+            log.error("%s", exc)
 
     def _warn_left_open(self) -> None:
         left_open = [self.video_path] if self._writer is not None else []
@@ -275,21 +304,62 @@ class Outputs:
                         " and ".join(left_open))  # fmt: skip
 
     def _check_video_readable(self, raise_error: bool) -> None:
-        """OSError when the closed video cannot be read back: OpenCV's writer reports no
-        failed write, and a short run ends before `_check_video_grows` looks (an mp4 cut
-        short by a full disk lacks the index it is opened by). Only logged while another
-        error is on its way out: that one says what went wrong first."""
-        capture = cv2.VideoCapture(self.video_path)
-        try:
-            readable = capture.isOpened() and capture.read()[0]
-        finally:
-            capture.release()
-        if readable:
+        """OSError when the closed video holds fewer frames than were written: OpenCV's
+        writer reports no failed write, and a short run ends before `_check_video_grows`
+        looks (an mp4 cut short by a full disk lacks the index it is opened by, an avi
+        the frames after the disk filled). Only logged while another error is on its way
+        out: that one says what went wrong first."""
+        read_back = frames_read_back(self.video_path, self._video_frames)
+        if read_back >= self._video_frames:
             return
-        message = f"video {self.video_path} was written but cannot be read back: is the disk full?"
+        message = (
+            f"video {self.video_path} holds {read_back} of the {self._video_frames} frames "
+            "written: is the disk full?"
+            if read_back
+            else f"video {self.video_path} was written but cannot be read back: is the disk full?"
+        )
         if raise_error:
             raise OSError(message)
         log.error("%s", message)
+
+
+def frames_read_back(path: str, written: int) -> int:
+    """How many frames of the video at `path` can be read, counted up to `written`: all
+    of them when its header counts them and the last one reads (cheap however long the
+    video), else counted by grabbing them one by one (a file the disk cut short has no
+    count in its header, or one its tail no longer holds); 0 when the first cannot be."""
+    capture = cv2.VideoCapture(path)
+    try:
+        if not (capture.isOpened() and capture.read()[0]):
+            return 0
+        if _last_frame_reads(capture, written):
+            return written
+    finally:
+        capture.release()
+    return _frames_grabbed(path, written)
+
+
+def _last_frame_reads(capture, written: int) -> bool:
+    """Whether a capture whose first frame was read counts `written` frames and reads
+    the last of them."""
+    if written <= 1:
+        return True
+    if not capture.get(cv2.CAP_PROP_FRAME_COUNT) >= written:
+        return False
+    capture.set(cv2.CAP_PROP_POS_FRAMES, written - 1)
+    return capture.grab()
+
+
+def _frames_grabbed(path: str, most: int) -> int:
+    """The frames of the video at `path` that can be grabbed in order, up to `most`."""
+    capture = cv2.VideoCapture(path)
+    try:
+        count = 0
+        while count < most and capture.grab():
+            count += 1
+        return count
+    finally:
+        capture.release()
 
 
 class RunSummary:
@@ -333,36 +403,50 @@ def checked_frames(first: Frame, rest, source_name: str, yield_first: bool = Tru
         yield frame
 
 
+# The outputs OpenCV writes: it crashes the process on a name that is not UTF-8.
+OPENCV_OUTPUTS = ("--output-video", "--frames-dir")
+
+
 def check_output_paths(args) -> None:
     """Refuse, before anything is opened or written, outputs that would overwrite an
     input (the video, camera, configuration or replayed log) or each other, and files
-    in folders that do not exist: found at the end of a run, such a mistake has already
-    cost an input or a truncated log."""
+    in folders that do not exist or cannot be written in: found at the end of a run (or
+    at its first frame, the base already armed), such a mistake has already cost an
+    input or a truncated log."""
     inputs = {"source": args.source, "--camera": args.camera, "--config": args.config,
               "--replay": args.replay}  # fmt: skip
     outputs = {"--output-video": args.output_video, "--log": args.log,
                "--frames-dir": args.frames_dir}  # fmt: skip
     refuse_overwriting(inputs, outputs)
     for name, value in outputs.items():
-        if not value:
-            continue
-        path = Path(value).resolve()
-        if name == "--frames-dir":
-            if path.exists() and not path.is_dir():
-                raise ValueError(f"--frames-dir {value} is a file, not a folder")
-            # frames are named by index: an earlier run's would stay among this one's
-            if path.is_dir() and any(p.stem.isdigit() for p in path.glob("*.jpg")):
-                raise ValueError(f"--frames-dir {value} already holds annotated frames of "
-                                 "another run, which this run's would be mixed with; "
-                                 "give an empty or new folder")  # fmt: skip
-        elif path.is_dir():
-            raise ValueError(f"{name} {value} is a folder; give a file name")
-        elif not path.parent.is_dir():
-            raise ValueError(f"{name} {value}: the folder {path.parent} does not exist")
-        elif name == "--output-video" and path.suffix.lower() not in VIDEO_FOURCCS:
-            # found at the first frame, after the base was connected, armed and switched
-            raise ValueError(f"--output-video {value}: name it .mp4 or .avi (the video "
-                             "format follows the name)")  # fmt: skip
+        if value:
+            check_output_path(name, value)
+
+
+def check_output_path(name: str, value: str) -> None:
+    """One output of `check_output_paths`, `name` its option."""
+    if name in OPENCV_OUTPUTS:
+        refuse_non_utf8_name(value, name)
+    path = Path(value).resolve()
+    if name == "--frames-dir":
+        if path.exists() and not path.is_dir():
+            raise ValueError(f"--frames-dir {value} is a file, not a folder")
+        # frames are named by index: an earlier run's would stay among this one's
+        if path.is_dir() and any(p.stem.isdigit() for p in path.glob("*.jpg")):
+            raise ValueError(f"--frames-dir {value} already holds annotated frames of "
+                             "another run, which this run's would be mixed with; "
+                             "give an empty or new folder")  # fmt: skip
+        refuse_unwritable(path / "000000.jpg", name, "the annotated frames go there")
+        return
+    if path.is_dir():
+        raise ValueError(f"{name} {value} is a folder; give a file name")
+    if not path.parent.is_dir():
+        raise ValueError(f"{name} {value}: the folder {path.parent} does not exist")
+    if name == "--output-video" and path.suffix.lower() not in VIDEO_FOURCCS:
+        # found at the first frame, after the base was connected, armed and switched
+        raise ValueError(f"--output-video {value}: name it .mp4 or .avi (the video "
+                         "format follows the name)")  # fmt: skip
+    refuse_unwritable(path, name)
 
 
 def main(args) -> dict:

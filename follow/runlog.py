@@ -171,9 +171,15 @@ class RunLogWriter:
         )
 
     def close(self) -> None:
-        if not self._fh.closed:
-            self._fh.flush()
+        """Flush and close; a failure (a full disk) names the log, whose file is closed
+        all the same (Python closes it even when the last flush fails)."""
+        if self._fh.closed:
+            return
+        try:
             self._fh.close()
+        except OSError as exc:
+            raise OSError(f"cannot write the end of the log {self.path}: "
+                          f"{exc.strerror or exc}") from exc  # fmt: skip
 
     def __enter__(self) -> RunLogWriter:
         return self

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from follow.cli_args import seed_number
+from follow.cli_args import refuse_non_utf8_name, seed_number
 from follow.config import Config, MavlinkConfig
 from follow.sim.appearance import Appearance, PersonView, render_scene
 from follow.sim.people import Walker
@@ -36,6 +36,7 @@ TARGET_ID = 1
 TARGET_LOOK = Appearance((40, 40, 200), (90, 60, 30), (90, 130, 190), (30, 50, 90))
 # Dressed like the target from the waist up: colour alone cannot tell them apart.
 LOOKALIKE = Appearance((50, 45, 190), (200, 200, 200), (120, 160, 215), (20, 20, 20))
+DEMO_VIDEO = "demo.mp4"  # in the --output folder, unless --no-video
 DEMO_CAMERA = SimCameraConfig(
     height_m=0.9, pitch_rad=0.0, horizontal_fov_deg=70.0,
     image_width_px=640, image_height_px=480, detection_scale=1.0, fps=15.0,
@@ -261,6 +262,8 @@ def run_demo(
     from follow.sim.rover import SimRover
 
     n_frames = demo_frames(seconds)
+    if output and write_video:  # the video is written by OpenCV, which crashes on such a name
+        refuse_non_utf8_name(output, "--output")
     config = config or Config()
     ident_name = choose_identifier(identifier)
     config = config.replace("identify", identifier=ident_name, seed=seed)
@@ -280,10 +283,12 @@ def run_demo(
         except OSError as exc:  # FileExistsError: a file of that name
             raise OSError(f"--output {output}: cannot make the demo's folder there: "
                           f"{exc.strerror or exc}") from exc  # fmt: skip
+        if not write_video:
+            remove_earlier_video(output / DEMO_VIDEO)
         outputs = Outputs(
             {"source": "simulation", "seed": seed, "identifier": ident_name},
             DEMO_CAMERA.fps,
-            video_path=output / "demo.mp4" if write_video else None,
+            video_path=output / DEMO_VIDEO if write_video else None,
             log_path=output / "demo.jsonl",
         )
     bag = None
@@ -339,14 +344,24 @@ def run_demo(
     }
     if output:
         plot_top_down(trajectory, output / "demo_top_down.png")
-        summary["outputs"] = [
-            str(output / n)
-            for n in ("demo.mp4", "demo_top_down.png", "demo.jsonl")  # fmt: skip
-            if (output / n).exists()
-        ]
+        video = [DEMO_VIDEO] if write_video and (output / DEMO_VIDEO).exists() else []
+        summary["outputs"] = [str(output / n) for n in [*video, "demo_top_down.png", "demo.jsonl"]]
     if bag_path:
         summary.setdefault("outputs", []).append(str(bag_path))
     return summary
+
+
+def remove_earlier_video(path: Path) -> None:
+    """Remove an earlier run's video from the folder of a run that writes none: left
+    there, it would pass for this run's, beside this run's log and plot."""
+    if not (path.is_file() or path.is_symlink()):
+        return
+    try:
+        path.unlink()
+    except OSError as exc:
+        raise OSError(f"--output: cannot remove an earlier run's video {path} (this run "
+                      f"writes none): {exc.strerror or exc}") from exc  # fmt: skip
+    log.info("removed %s, an earlier run's video: this run (--no-video) writes none", path)
 
 
 def plot_top_down(trajectory: dict, path: Path) -> None:
