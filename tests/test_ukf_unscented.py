@@ -110,14 +110,23 @@ class StockPersonFilter:
             self.ukf.predict(dt=dt)
         self.refresh()
 
+    def _mean_speed(self, n: int) -> np.ndarray:
+        """The gait lift's speed for `n` points: the mean's (gait_lift_at_mean_speed)."""
+        return np.full(n, np.hypot(self.ukf.x[2], self.ukf.x[3]))
+
     def expected(self, model):
-        Z = model.neck_ankle(self.ukf.sigmas_f)
+        Z = model.neck_ankle(self.ukf.sigmas_f, self._mean_speed(len(self.ukf.sigmas_f)))
         zp = self.ukf.Wm @ Z
         d = Z - zp
         return zp, d.T @ (self.ukf.Wc[:, None] * d)
 
     def update(self, z, R, model):
-        self.ukf.update(z, R=R, hx=model.hx_neck_ankle if len(z) == 4 else model.hx_neck)
+        speed = self._mean_speed(1)  # the prior mean's, for every point filterpy projects
+
+        def hx_neck_ankle(state):
+            return model.neck_ankle(state[None], speed)[0]
+
+        self.ukf.update(z, R=R, hx=hx_neck_ankle if len(z) == 4 else model.hx_neck)
         self.refresh()
 
 
@@ -183,7 +192,7 @@ def test_projecting_many_tracks_at_once_is_projecting_each(camera):
     project_sigma_points(filters, model)
     assert all(f.has_projection(model) for f in filters)
     for f in filters:
-        alone = model.neck_ankle(f.ukf.sigmas_f)
+        alone = model.neck_ankle(f.ukf.sigmas_f, f.gait_speeds_mps())  # its own mean speed
         np.testing.assert_array_equal(f.expected_measurement(model, np.zeros((4, 4)), True)[0],
                                       f.ukf.Wm @ alone)  # fmt: skip
         np.testing.assert_array_equal(f._measurement_sigmas(model, True), alone)

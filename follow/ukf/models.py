@@ -75,20 +75,25 @@ class MeasurementModel:
         self.walking_ankle_lift_m = float(walking_ankle_lift_m)
         self.full_gait_speed_mps = max(float(full_gait_speed_mps), 1e-6)
 
-    def ankle_heights_m(self, states: np.ndarray) -> np.ndarray:
+    def ankle_heights_m(self, states: np.ndarray, gait_speeds_mps: np.ndarray | None = None
+                        ) -> np.ndarray:  # fmt: skip
         """Expected ankle keypoint height (N,) of states (N, 5): the standing height (a
         constant plus a fraction of the neck height) plus the gait's mean lift, in
-        proportion to the speed up to a full walking gait."""
-        speed = np.hypot(states[:, VX], states[:, VY])
+        proportion to the speed up to a full walking gait: each state's own speed, or
+        `gait_speeds_mps` (N,) where given (`PersonFilter`: the mean's, so that the
+        spread of a standing person's velocity does not lift their feet)."""
+        speed = (np.hypot(states[:, VX], states[:, VY]) if gait_speeds_mps is None
+                 else np.asarray(gait_speeds_mps, dtype=np.float64))  # fmt: skip
         gait = np.minimum(speed / self.full_gait_speed_mps, 1.0)
         standing = self.ankle_height_m + self.ankle_height_per_neck_height * states[:, H]
         return standing + self.walking_ankle_lift_m * gait
 
-    def _points_base(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _points_base(self, states: np.ndarray, gait_speeds_mps: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         s = np.atleast_2d(states)
         ground = odom_to_base(s[:, :2], self.robot)
         neck = np.column_stack([ground, s[:, H]])
-        ankle = np.column_stack([ground, self.ankle_heights_m(s)])
+        ankle = np.column_stack([ground, self.ankle_heights_m(s, gait_speeds_mps)])
         return neck, ankle
 
     def _project(self, points_base: np.ndarray) -> np.ndarray:
@@ -109,9 +114,11 @@ class MeasurementModel:
         neck, _ = self._points_base(state)
         return bool(self.camera.base_to_camera(neck)[0, 2] > 0.0)
 
-    def neck_ankle(self, states: np.ndarray) -> np.ndarray:
-        """(N, 4) pixels [neck_u, neck_v, ankle_u, ankle_v] for states (N, 5)."""
-        neck, ankle = self._points_base(states)
+    def neck_ankle(self, states: np.ndarray, gait_speeds_mps: np.ndarray | None = None
+                   ) -> np.ndarray:  # fmt: skip
+        """(N, 4) pixels [neck_u, neck_v, ankle_u, ankle_v] for states (N, 5); the gait
+        lift at each state's speed, or at `gait_speeds_mps` (N,) where given."""
+        neck, ankle = self._points_base(states, gait_speeds_mps)
         uv = self._project(np.vstack([neck, ankle]))
         n = len(neck)
         return np.hstack([uv[:n], uv[n:]])
