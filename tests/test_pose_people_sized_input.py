@@ -122,16 +122,22 @@ def test_a_schedule_of_zero_is_refused():
         schedule(every=0)
 
 
+def _person_seen_large(data_path) -> np.ndarray:
+    """A 640x480 grey frame holding a real person 380 px tall."""
+    crop = cv2.imread(str(data_path("ccf_crops/p01.jpg")))
+    crop = cv2.resize(crop, (round(380 * crop.shape[1] / crop.shape[0]), 380))
+    frame = np.full((480, 640, 3), 128, np.uint8)
+    frame[50:430, 250 : 250 + crop.shape[1]] = crop
+    return frame
+
+
 def test_the_detector_runs_a_person_seen_large_at_a_smaller_input(model_path, data_path):
     """A real person 380 px tall in a 640x480 frame: found at the full 368 px input
     first, then at 256 px, with the neck in the same place (within 2 % of the person's
     height), and at full size again on the schedule."""
     from follow.pose.detector import PoseDetector
 
-    crop = cv2.imread(str(data_path("ccf_crops/p01.jpg")))
-    crop = cv2.resize(crop, (round(380 * crop.shape[1] / crop.shape[0]), 380))
-    frame = np.full((480, 640, 3), 128, np.uint8)
-    frame[50:430, 250 : 250 + crop.shape[1]] = crop
+    frame = _person_seen_large(data_path)
     config = PoseConfig(provider="cpu", precision="fp32", input_height_px=368,
                         full_input_every_frames=3)  # fmt: skip
     detector = PoseDetector(config, model_path("pose/human-pose-estimation-0001.onnx"))
@@ -156,10 +162,7 @@ def test_a_frame_of_another_size_runs_at_the_full_height(model_path, data_path):
     input height of a 480 px frame, whose own people may be far smaller."""
     from follow.pose.detector import PoseDetector
 
-    crop = cv2.imread(str(data_path("ccf_crops/p01.jpg")))
-    crop = cv2.resize(crop, (round(380 * crop.shape[1] / crop.shape[0]), 380))
-    small = np.full((480, 640, 3), 128, np.uint8)
-    small[50:430, 250 : 250 + crop.shape[1]] = crop
+    small = _person_seen_large(data_path)
     large = cv2.resize(small, (1280, 960))
     config = PoseConfig(provider="cpu", precision="fp32", input_height_px=368, warmup_runs=0)
     detector = PoseDetector(config, model_path("pose/human-pose-estimation-0001.onnx"))
@@ -192,10 +195,7 @@ def test_on_a_gpu_the_input_keeps_one_height(model_path, data_path, monkeypatch)
     real = detector_module.network_and_backend
     monkeypatch.setattr(detector_module, "network_and_backend",
                         lambda *a, **k: (lambda p, b: (p, _NamedAsGpu(b)))(*real(*a, **k)))  # fmt: skip
-    crop = cv2.imread(str(data_path("ccf_crops/p01.jpg")))
-    crop = cv2.resize(crop, (round(380 * crop.shape[1] / crop.shape[0]), 380))
-    frame = np.full((480, 640, 3), 128, np.uint8)
-    frame[50:430, 250 : 250 + crop.shape[1]] = crop
+    frame = _person_seen_large(data_path)
     config = PoseConfig(provider="cpu", precision="fp32", input_height_px=368,
                         full_input_every_frames=3)  # fmt: skip
     detector = detector_module.PoseDetector(
