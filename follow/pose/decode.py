@@ -1,22 +1,28 @@
 """OpenPose decoding: heatmaps + part affinity fields -> multi-person skeletons.
 
 Steps: (1) keypoint candidates are the local maxima (3x3 non-maximum suppression) of
-each heatmap above a threshold, refined to sub-cell precision by a parabola through the
-peak and its neighbours; (2) every pair of candidates of a limb is scored by the line
-integral of the limb's PAF along the segment between them; (3) limbs are matched
-greedily by score and joined into persons; (4) persons with too few parts are dropped.
+each heatmap above a threshold (the MAX_PEAKS_PER_KEYPOINT strongest of each), refined
+to sub-cell precision by a parabola through the peak and its neighbours; (2) every pair
+of candidates of a limb is scored by the line integral of the limb's PAF along the
+segment between them; (3) limbs are matched greedily by score and joined into persons;
+(4) persons with too few parts are dropped.
 
 All coordinates here are in heatmap cells (stride 8 of the network input).
 """
 
 from __future__ import annotations
 
+import logging
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from follow.config import PoseConfig
 from follow.types import NUM_KEYPOINTS
+
+log = logging.getLogger(__name__)
+_peaks_dropped_warned_s: float | None = None  # when the last such warning was given
 
 # Limbs as (keypoint a, keypoint b) and the PAF channels (x, y) that point from a to b.
 # Ordered so that every limb after the first joins a keypoint already reached (tree from
@@ -33,6 +39,12 @@ LIMB_PAF_CHANNELS: tuple[tuple[int, int], ...] = (
     (26, 27),
 )  # fmt: skip
 REDUNDANT_LIMBS = frozenset({17, 18})
+# Keypoint candidates kept per heatmap, the strongest: real frames give a few per person
+# (at most 6 seen with the real network; a crowd of 30 needs 30), while heatmaps full of
+# peaks (a faulty back-end) paired n_a x n_b candidates per limb: seconds and gigabytes
+# a frame.
+MAX_PEAKS_PER_KEYPOINT = 64
+PEAKS_DROPPED_WARNING_PERIOD_S = 10.0
 # Changes whenever the same maps decode into different skeletons (keys cached results).
 DECODER_VERSION = 3  # 2: duplicate skeletons of one body suppressed; 3: edge keypoints
 
@@ -101,6 +113,34 @@ def find_peaks(heatmaps: np.ndarray, threshold: float) -> list[np.ndarray]:
     peaks = np.stack([xs + fx, ys + fy, values], axis=1).astype(np.float64)
     bounds = np.searchsorted(ch, np.arange(k + 1))
     return [peaks[bounds[i] : bounds[i + 1]] for i in range(k)]
+
+
+def strongest_peaks(peaks: list[np.ndarray], max_per_channel: int) -> tuple[list[np.ndarray], int]:
+    """Each channel's `max_per_channel` highest peaks, in their original order (so that
+    a channel within the limit decodes as before), and how many were dropped."""
+    kept, dropped = [], 0
+    for channel in peaks:
+        if len(channel) <= max_per_channel:
+            kept.append(channel)
+            continue
+        strongest = np.argsort(-channel[:, 2], kind="stable")[:max_per_channel]
+        kept.append(channel[np.sort(strongest)])
+        dropped += len(channel) - max_per_channel
+    return kept, dropped
+
+
+def _warn_of_dropped_peaks(dropped: int) -> None:
+    """One warning per PEAKS_DROPPED_WARNING_PERIOD_S: a faulty back-end does it every
+    frame."""
+    global _peaks_dropped_warned_s
+    now_s = time.monotonic()
+    last_s = _peaks_dropped_warned_s
+    if last_s is not None and now_s - last_s < PEAKS_DROPPED_WARNING_PERIOD_S:
+        return
+    _peaks_dropped_warned_s = now_s
+    log.warning("pose decoding: %d keypoint candidates dropped beyond the %d strongest of "
+                "a heatmap (heatmaps full of peaks: a faulty back-end?)",
+                dropped, MAX_PEAKS_PER_KEYPOINT)  # fmt: skip
 
 
 def _parabola_offset(before: np.ndarray, centre: np.ndarray, after: np.ndarray) -> np.ndarray:
@@ -181,7 +221,11 @@ def match_limb(scores: np.ndarray) -> list[tuple[int, int, float]]:
 def decode(heatmaps: np.ndarray, pafs: np.ndarray, params: DecodeParams) -> list[DecodedPerson]:
     """Skeletons from one image's (>=18, h, w) heatmaps and (38, h, w) PAFs."""
     heatmaps, pafs = _finite(heatmaps), _finite(pafs)
-    peaks = find_peaks(heatmaps, params.peak_threshold)
+    peaks, dropped = strongest_peaks(
+        find_peaks(heatmaps, params.peak_threshold), MAX_PEAKS_PER_KEYPOINT
+    )
+    if dropped:
+        _warn_of_dropped_peaks(dropped)
     # Each person: slot per keypoint holding a candidate index (-1 = none), and a score.
     slots: list[np.ndarray] = []
     scores: list[float] = []
