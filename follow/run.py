@@ -750,6 +750,14 @@ def check_replay_stamp(log_path: str, source: str, record, stamp_s: float) -> No
     )
 
 
+def bag_odometry_jumps(source):
+    """The log of a bag's odometry jumps (None for another source), which a bag's run
+    gives its tracker: without it, a replay took a reset of the odom frame for motion,
+    and its targets disagreed with the run's although nothing had changed."""
+    odometry = getattr(source, "odometry", None)
+    return None if odometry is None else odometry.jumps
+
+
 def replay(args, config: Config) -> dict:
     """Tracking and identification again on a log's skeletons and the same frames."""
     header, records = read_run_log(args.replay)
@@ -797,6 +805,7 @@ def replay(args, config: Config) -> dict:
                     )
                 camera = source_camera(args.camera, source, w, h)
                 perception = build_perception(config, camera, detect=lambda f: current[0])
+                perception.odometry_jumps = bag_odometry_jumps(source)
                 if target_id is not None:
                     perception.identifier.select_target(target_id)
             check_replay_stamp(args.replay, args.source, record, frame.stamp_s)
