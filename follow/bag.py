@@ -13,12 +13,24 @@ the bag with a SourceError naming it (a damaged message only skips that message)
 from __future__ import annotations
 
 import logging
+import statistics
 from collections.abc import Iterator
 from pathlib import Path
 
-from follow.capture import SourceError
+from follow.capture import (
+    FALLBACK_FPS,
+    MAX_TRUSTED_FILE_FPS,
+    MIN_TRUSTED_FILE_FPS,
+    SourceError,
+)
 from follow.odometry_buffer import OdometryBuffer
-from follow.rosmsg import IMAGE_ENCODINGS, image_from_msg, odometry_from_msg, stamp_s
+from follow.rosmsg import (
+    IMAGE_ENCODINGS,
+    frame_id_of,
+    image_from_msg,
+    odometry_from_msg,
+    stamp_s,
+)
 from follow.types import Frame, InvalidInput, Odometry
 
 log = logging.getLogger(__name__)
@@ -140,13 +152,24 @@ class BagSource:
     def _read_odometry(self, connections: list, max_gap_s: float) -> OdometryBuffer:
         """The topic's poses, in recording order, keeping only those stamped after the
         last kept (as images): after a clock stepped back, the samples before and after
-        the step would share stamps and give images the pose from the wrong side."""
+        the step would share stamps and give images the pose from the wrong side. Only
+        the frame of the first sample that names one is kept (samples naming none are
+        taken to be in it), as the ROS 2 node keeps only `ros.odom_frame`'s: two
+        publishers' frames blended swung each image's pose between them."""
         poses, bad, stepped_back = [], [], 0
+        odom_frame, other_frames, in_other_frames = "", set(), 0
         for c, log_time_ns, raw in self._messages(connections):
             try:
-                pose = odometry_from_msg(self._decode(raw, c, log_time_ns))
+                msg = self._decode(raw, c, log_time_ns)
+                pose = odometry_from_msg(msg)
             except InvalidInput as exc:  # one bad sample: a gap, not an unreadable bag
                 bad.append(f"{log_time_ns * 1e-9:.3f} s: {exc}")
+                continue
+            frame = frame_id_of(msg)
+            odom_frame = odom_frame or frame
+            if frame and frame != odom_frame:
+                other_frames.add(frame)
+                in_other_frames += 1
                 continue
             if pose.stamp_s == 0.0:  # unstamped, as images can be: the time it was recorded
                 pose = Odometry(pose.x_m, pose.y_m, pose.yaw_rad, log_time_ns * 1e-9)
@@ -154,15 +177,20 @@ class BagSource:
                 stepped_back += 1
                 continue
             poses.append(pose)
+        topic = connections[0].topic
         if bad:
             log.warning("bag %s: %d odometry message(s) on %s skipped (first at %s)",
-                        self.spec, len(bad), connections[0].topic, bad[0])  # fmt: skip
+                        self.spec, len(bad), topic, bad[0])  # fmt: skip
+        if in_other_frames:
+            log.warning("bag %s: %d odometry message(s) on %s skipped: in frame %s, not %r, "
+                        "the frame of the first sample", self.spec, in_other_frames, topic,
+                        " or ".join(map(repr, sorted(other_frames))), odom_frame)  # fmt: skip
         if stepped_back:
             log.warning("bag %s: %d odometry message(s) on %s skipped: stamped at or before "
                         "an earlier sample (a clock stepped back?)",
-                        self.spec, stepped_back, connections[0].topic)  # fmt: skip
+                        self.spec, stepped_back, topic)  # fmt: skip
         if not poses:
-            raise SourceError(f"bag {self.spec}: odometry topic {connections[0].topic} is empty")
+            raise SourceError(f"bag {self.spec}: odometry topic {topic} is empty")
         # every jump kept: the whole topic is read before the first image is tracked
         buffer = OdometryBuffer(max_gap_s, capacity=len(poses), jump_capacity=len(poses))
         for pose in poses:
@@ -216,10 +244,36 @@ class BagSource:
         return []
 
     def _frame_rate(self) -> float:
-        stamps = [t for _, t, _ in self._messages(self._images)]
-        if len(stamps) < 2 or stamps[-1] <= stamps[0]:
-            return 15.0
-        return (len(stamps) - 1) / ((stamps[-1] - stamps[0]) * 1e-9)
+        """The images' rate, from the median interval between their header stamps (the
+        times frames are played by: the recorder's receive times step with its clock and
+        stretched a video to hours); FALLBACK_FPS for fewer than two images or a rate
+        outside MIN..MAX_TRUSTED_FILE_FPS, as a video file's."""
+        stamps = self._played_image_stamps()
+        if len(stamps) < 2:
+            return FALLBACK_FPS
+        intervals_s = [b - a for a, b in zip(stamps[:-1], stamps[1:], strict=True)]
+        fps = 1.0 / statistics.median(intervals_s)
+        if not MIN_TRUSTED_FILE_FPS <= fps <= MAX_TRUSTED_FILE_FPS:
+            log.warning("bag %s: the images' frame rate, %g fps (by their stamps), is outside "
+                        "%g-%g fps: not trusted; %g fps used", self.spec, fps,
+                        MIN_TRUSTED_FILE_FPS, MAX_TRUSTED_FILE_FPS, FALLBACK_FPS)  # fmt: skip
+            return FALLBACK_FPS
+        return fps
+
+    def _played_image_stamps(self) -> list[float]:
+        """The stamps of the images as they are played: the header's (the record time
+        where it is 0), each after the one before; damaged images left out."""
+        stamps: list[float] = []
+        for connection, log_time_ns, raw in self._messages(self._images):
+            try:
+                stamp = stamp_s(self._decode(raw, connection, log_time_ns).header)
+            except InvalidInput:  # warned of when the images are played
+                continue
+            if stamp == 0.0:  # an unstamped image: the time it was recorded
+                stamp = log_time_ns * 1e-9
+            if not stamps or stamp > stamps[-1]:
+                stamps.append(stamp)
+        return stamps
 
     def __iter__(self) -> Iterator[Frame]:
         last_stamp, yielded = None, 0

@@ -144,6 +144,12 @@ def odometry_from_msg(msg) -> Odometry:
     return Odometry(float(pose.position.x), float(pose.position.y), yaw, stamp_s(msg.header))
 
 
+def frame_id_of(msg) -> str:
+    """A message's header.frame_id as the frame's name: without the leading "/" of ROS 1
+    and of older tf names, as the ROS 2 node compares them; "" where it names none."""
+    return str(msg.header.frame_id).lstrip("/")
+
+
 def _field(msg, name: str):
     """A CameraInfo field: lower case in ROS 2 (`k`), upper case in ROS 1 (`K`)."""
     value = getattr(msg, name, None)
