@@ -35,6 +35,9 @@ from follow.types import Frame, InvalidInput, Odometry
 
 log = logging.getLogger(__name__)
 
+# Images whose header stamps give a bag's frame rate (`BagSource._frame_rate`).
+RATE_SAMPLE_IMAGES = 300
+
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
@@ -261,10 +264,14 @@ class BagSource:
         return fps
 
     def _played_image_stamps(self) -> list[float]:
-        """The stamps of the images as they are played: the header's (the record time
-        where it is 0), each after the one before; damaged images left out."""
+        """The stamps of the first RATE_SAMPLE_IMAGES images as they are played: the
+        header's (the record time where it is 0), each after the one before; damaged
+        images left out. Only the first ones: each is decoded whole to read its header,
+        and a long bag's every image would cost seconds before the first frame."""
         stamps: list[float] = []
         for connection, log_time_ns, raw in self._messages(self._images):
+            if len(stamps) >= RATE_SAMPLE_IMAGES:
+                break
             try:
                 stamp = stamp_s(self._decode(raw, connection, log_time_ns).header)
             except InvalidInput:  # warned of when the images are played
