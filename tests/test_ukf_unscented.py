@@ -98,6 +98,7 @@ class StockPersonFilter:
 
     def __init__(self, x, P, config):
         self.ukf = stock_ukf(x, make_psd(P), config)
+        self.lift_at_mean_speed = config.gait_lift_at_mean_speed
         self.refresh()
 
     def refresh(self):
@@ -110,8 +111,11 @@ class StockPersonFilter:
             self.ukf.predict(dt=dt)
         self.refresh()
 
-    def _mean_speed(self, n: int) -> np.ndarray:
-        """The gait lift's speed for `n` points: the mean's (gait_lift_at_mean_speed)."""
+    def _mean_speed(self, n: int) -> np.ndarray | None:
+        """The gait lift's speed for `n` points: the mean's with gait_lift_at_mean_speed,
+        else None (each point's own)."""
+        if not self.lift_at_mean_speed:
+            return None
         return np.full(n, np.hypot(self.ukf.x[2], self.ukf.x[3]))
 
     def expected(self, model):
@@ -130,12 +134,13 @@ class StockPersonFilter:
         self.refresh()
 
 
-def test_person_filter_follows_filterpy_over_a_track(camera):
+@pytest.mark.parametrize("lift_at_mean_speed", [False, True])
+def test_person_filter_follows_filterpy_over_a_track(camera, lift_at_mean_speed):
     """Many frames of predict, gate (expected measurement), update and report on one
     measurement model per frame: PersonFilter's state and expected measurements stay
     with the stock filter's."""
     rng = np.random.default_rng(3)
-    cfg = TrackerConfig()
+    cfg = TrackerConfig(gait_lift_at_mean_speed=lift_at_mean_speed)
     x, P = random_state(rng)
     ours, stock = PersonFilter(x, P, cfg), StockPersonFilter(x, P, cfg)
     truth = np.array([x[0], x[1], 0.3, 0.05, x[4]])  # walking away, the robot behind
