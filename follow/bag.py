@@ -273,11 +273,9 @@ class BagSource:
             if len(stamps) >= RATE_SAMPLE_IMAGES:
                 break
             try:
-                stamp = stamp_s(self._decode(raw, connection, log_time_ns).header)
+                stamp = _image_stamp_s(self._decode(raw, connection, log_time_ns), log_time_ns)
             except InvalidInput:  # warned of when the images are played
                 continue
-            if stamp == 0.0:  # an unstamped image: the time it was recorded
-                stamp = log_time_ns * 1e-9
             if not stamps or stamp > stamps[-1]:
                 stamps.append(stamp)
         return stamps
@@ -291,9 +289,7 @@ class BagSource:
                 self.damaged_images += 1
                 self._skip("damaged", "skipping an image: %s", exc)
                 continue
-            stamp = stamp_s(msg.header)
-            if stamp == 0.0:  # an unstamped image: the time it was recorded
-                stamp = log_time_ns * 1e-9
+            stamp = _image_stamp_s(msg, log_time_ns)
             if last_stamp is not None and stamp <= last_stamp:
                 # A repeated (or older) image: the tracker would fold the same detections
                 # in twice at dt = 0 and grow falsely sure of them (as the ROS node, drop).
@@ -353,3 +349,10 @@ def _with_reason(reason: str) -> str:
     if reason.startswith("unsupported encoding"):
         return f"in {reason}"
     return f"with {reason}" if reason in ("no odometry", "stamp not after the previous") else reason
+
+
+def _image_stamp_s(msg, log_time_ns: int) -> float:
+    """The time an image is played at: its header's stamp, or, for an unstamped image,
+    the time it was recorded."""
+    stamp = stamp_s(msg.header)
+    return stamp if stamp != 0.0 else log_time_ns * 1e-9
