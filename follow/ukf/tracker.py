@@ -467,7 +467,7 @@ class PeopleTracker:
                     continue
                 R = self._measurement_cov(depths_m[j], _single_ankle(o))
                 across = (o.neck_px[0] - zp[0]) ** 2 / (S0[0, 0] + R[0, 0])
-                d2, nll = InnovationGate(zp[2:4], S0[2:4, 2:4] + R[2:4, 2:4]).cost(o.ankle_px)
+                d2, nll = self._ankle_gate(o, expected[j], depths_m[j]).cost(o.ankle_px)
                 if d2 <= ankle_limit and across <= across_limit:
                     cost[a, b] = nll
         return [(rows[a], cols[b]) for a, b in global_nearest_neighbour(cost)]
@@ -479,11 +479,16 @@ class PeopleTracker:
             e = expected[k]
             if e is None or len(e[0]) < 4:
                 continue
-            zp, S0 = e
-            R = self._measurement_cov(depths_m[k], _single_ankle(o))
-            if InnovationGate(zp[2:4], S0[2:4, 2:4] + R[2:4, 2:4]).cost(o.ankle_px)[0] <= limit:
+            if self._ankle_gate(o, e, depths_m[k]).cost(o.ankle_px)[0] <= limit:
                 return True
         return False
+
+    def _ankle_gate(self, o: Observation, expected, depth_m: float) -> InnovationGate:
+        """The ankle gate of a track (its expected neck+ankle measurement and covariance,
+        without measurement noise) for the observation `o`: its ankle noise added."""
+        zp, S0 = expected
+        R = self._measurement_cov(depth_m, _single_ankle(o))
+        return InnovationGate(zp[2:4], S0[2:4, 2:4] + R[2:4, 2:4])
 
     def _start_track(self, o: Observation, stamp_s: float, robot: Odometry) -> _Track | None:
         cfg = self.config
