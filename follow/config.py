@@ -170,7 +170,10 @@ class TrackerConfig:
     # tentative_max_unseen_s and left without an observation, its neck above the same
     # feet, updates that track by the ankle alone, instead of starting a new track for a
     # person whose neck moved faster than the height state follows (crouching, sitting).
-    ankle_fallback_association: bool = True
+    # Off: the descent, fused while still in the gate, reads as the person moving away
+    # at up to 1.4 m/s, which a follower would drive after; losing the track stops the
+    # robot until the target is re-identified (docs/tracking.md).
+    ankle_fallback_association: bool = False
     min_updates_to_confirm: int = 3
     # Deletion when the position std exceeds max_position_std_m plus this fraction of the
     # range (far people are always uncertain along the viewing ray).

@@ -626,7 +626,7 @@ def test_a_person_who_crouches_keeps_one_track(camera, distance_m):
     height left standing while they are down, and settles back on their spot (the
     descent, fused while still in the gate, first pushes it away: a lower neck reads as
     a farther person)."""
-    frames = _crouch(camera, TrackerConfig(), distance_m)
+    frames = _crouch(camera, TrackerConfig(ankle_fallback_association=True), distance_m)
     ids = {s.track_id for _, s in frames if s is not None and s.confirmed}
     assert ids == {1}
     assert all(s is not None for _, s in frames[3:])  # every frame after confirmation
@@ -652,7 +652,7 @@ def test_the_ankle_fallback_takes_only_a_person_seen_a_moment_ago(
     ago crouching (the same track), or, on the spot of a track unseen for a second
     (beyond `tentative_max_unseen_s`), a child where someone stood (a track of their
     own)."""
-    tracker = PeopleTracker(camera, TrackerConfig())
+    tracker = PeopleTracker(camera, TrackerConfig(ankle_fallback_association=True))
     robot = Odometry.origin()
     for k in range(15):
         tracker.update([observe(camera, robot, (3.0, 0.2), 1.40)], k / FPS)
